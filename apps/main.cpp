@@ -1,0 +1,39 @@
+// zona: command-line entry point. Each command group registers itself from apps/cmd_*.cpp.
+#include <cstdio>
+
+#include "apps/commands.h"
+
+namespace zona::cli {
+
+int& exit_code() {
+  static int code = 0;
+  return code;
+}
+
+void fail(const std::string& message) {
+  std::fprintf(stderr, "zona: error: %s\n", message.c_str());
+  exit_code() = 1;
+}
+
+}  // namespace zona::cli
+
+int main(int argc, char** argv) {
+  CLI::App app{"zona: GPU-accelerated deformable simulation of cells under micro-injection"};
+  app.require_subcommand(0, 1);
+  app.set_version_flag("--version", std::string("zona ") + ZONA_VERSION);
+  zona::cli::add_info_command(app);
+  zona::cli::add_mesh_commands(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "zona: error: %s\n", e.what());
+    return 2;
+  }
+  return zona::cli::exit_code();
+}

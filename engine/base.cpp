@@ -1,0 +1,41 @@
+// Assert handler and error formatting.
+#include "engine/base.h"
+
+#include <atomic>
+#include <cstdarg>
+#include <vector>
+
+namespace zona {
+namespace {
+
+void default_assert_handler(const char* condition, const char* file, int line) {
+  std::fprintf(stderr, "zona: assertion failed: %s (%s:%d)\n", condition, file, line);
+  std::abort();
+}
+
+std::atomic<AssertHandler> g_assert_handler{&default_assert_handler};
+
+}  // namespace
+
+AssertHandler set_assert_handler(AssertHandler handler) {
+  return g_assert_handler.exchange(handler ? handler : &default_assert_handler);
+}
+
+void assert_failed(const char* condition, const char* file, int line) {
+  g_assert_handler.load()(condition, file, line);
+}
+
+Error make_error(const char* format, ...) {
+  va_list args;
+  va_start(args, format);
+  va_list copy;
+  va_copy(copy, args);
+  const int n = std::vsnprintf(nullptr, 0, format, copy);
+  va_end(copy);
+  std::string text(n > 0 ? static_cast<size_t>(n) : 0, '\0');
+  if (n > 0) std::vsnprintf(text.data(), text.size() + 1, format, args);
+  va_end(args);
+  return Error{std::move(text)};
+}
+
+}  // namespace zona
