@@ -1,0 +1,1386 @@
+// Scene loader: JSON with units in the values -> validated Scene in SI, with --set overrides.
+#include "engine/scene.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <initializer_list>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <string_view>
+
+#include "engine/units.h"
+
+namespace zona {
+namespace {
+
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// ---------------------------------------------------------------------------------------------
+// Validation context: the first error wins; every later read becomes a no-op so that the loader
+// reads like a list of keys instead of a ladder of early returns.
+
+struct Context {
+  std::string source;                   // prefix of every message (the file path)
+  fs::path base_dir;                    // relative paths in the scene resolve against it
+  std::vector<std::string> overridden;  // key paths set by --set, to say where a value came from
+  std::optional<Error> error;
+
+  bool failed() const { return error.has_value(); }
+
+  void fail(const std::string& path, const std::string& message) {
+    if (error) return;
+    std::string text = source + ": ";
+    if (!path.empty()) text += path + ": ";
+    text += message;
+    for (const std::string& o : overridden) {
+      if (path == o || path.rfind(o + ".", 0) == 0) {
+        text += " (value from --set)";
+        break;
+      }
+    }
+    error = Error{std::move(text)};
+  }
+};
+
+std::string join_path(const std::string& parent, std::string_view key) {
+  return parent.empty() ? std::string(key) : parent + "." + std::string(key);
+}
+
+// Edit distance for "did you mean" hints on unknown keys.
+size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<size_t> row(b.size() + 1);
+  for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    size_t diagonal = row[0];
+    row[0] = i;
+    for (size_t j = 1; j <= b.size(); ++j) {
+      const size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+/// Allowed interval of a value; the message says it with units.
+struct Range {
+  double lo = -kInf;
+  double hi = kInf;
+  bool lo_open = false;
+  bool hi_open = false;
+  const char* note = nullptr;  // why, when not obvious
+
+  static Range any() { return {}; }
+  static Range positive() { return {0.0, kInf, true, false}; }
+  static Range non_negative() { return {0.0, kInf, false, false}; }
+  static Range at_least(double lo) { return {lo, kInf, false, false}; }
+  static Range closed(double lo, double hi) { return {lo, hi, false, false}; }
+  static Range open_closed(double lo, double hi) { return {lo, hi, true, false}; }
+  static Range closed_open(double lo, double hi) { return {lo, hi, false, true}; }
+
+  bool contains(double v) const {
+    const bool above_lo = lo_open ? v > lo : v >= lo;
+    const bool below_hi = hi_open ? v < hi : v <= hi;
+    return above_lo && below_hi;
+  }
+
+  std::string describe(Dimension d) const {
+    std::string text;
+    if (lo == -kInf && hi == kInf) return "must be finite";
+    if (hi == kInf) {
+      text = std::string(lo_open ? "must be > " : "must be >= ") + format_quantity(lo, d);
+    } else if (lo == -kInf) {
+      text = std::string(hi_open ? "must be < " : "must be <= ") + format_quantity(hi, d);
+    } else {
+      text = std::string("must be in ") + (lo_open ? "(" : "[") + format_quantity(lo, dim::kNone) +
+             ", " + format_quantity(hi, dim::kNone) + (hi_open ? ")" : "]");
+      const std::string unit = si_unit(d);
+      if (!unit.empty()) text += " " + unit;
+    }
+    if (note) text += std::string(" (") + note + ")";
+    return text;
+  }
+};
+
+// The value as the user wrote it, for messages.
+std::string written(const json& v) {
+  if (v.is_string()) return "\"" + v.get<std::string>() + "\"";
+  return v.dump();
+}
+
+// Parses a quantity from a JSON string ("56 um") or number (dimensionless, or zero).
+bool read_quantity(Context& ctx, const json& v, const std::string& path, Dimension d,
+                   double* out) {
+  if (v.is_string()) {
+    Result<double> q = parse_quantity(v.get<std::string>(), d);
+    if (!q) {
+      ctx.fail(path, q.error().message);
+      return false;
+    }
+    *out = *q;
+    return true;
+  }
+  if (v.is_number()) {
+    const double x = v.get<double>();
+    if (d == dim::kNone || x == 0.0) {
+      *out = x;
+      return true;
+    }
+    ctx.fail(path, v.dump() + ": missing unit, expected " + dimension_name(d) + ", e.g. \"" +
+                       v.dump() + " " + si_unit(d) + "\"");
+    return false;
+  }
+  if (d == dim::kNone) {
+    ctx.fail(path, "expected a number, got " + std::string(v.type_name()));
+  } else {
+    ctx.fail(path, "expected " + dimension_name(d) + " written with its unit, like \"1 " +
+                       si_unit(d) + "\", got " + v.type_name());
+  }
+  return false;
+}
+
+// "x y z unit", "(x, y, z) unit" or "[x, y, z] unit": three numbers sharing one unit.
+bool read_vec3_string(Context& ctx, const std::string& text, const std::string& path, Dimension d,
+                      Vec3d* out) {
+  std::string s = text;
+  for (char& c : s) {
+    if (c == '(' || c == ')' || c == '[' || c == ']' || c == ',') c = ' ';
+  }
+  const char* p = s.data();
+  const char* end = s.data() + s.size();
+  double xyz[3] = {0.0, 0.0, 0.0};
+  for (double& component : xyz) {
+    while (p < end && *p == ' ') ++p;
+    if (p < end && *p == '+') ++p;
+    const auto [next, ec] = std::from_chars(p, end, component);
+    if (ec != std::errc() || !std::isfinite(component)) {
+      ctx.fail(path, "\"" + text + "\": expected three numbers and a unit, like \"0 0 -30 um\"");
+      return false;
+    }
+    p = next;
+  }
+  while (p < end && *p == ' ') ++p;
+  double factor = 1.0;
+  if (p == end) {
+    if (d != dim::kNone && (xyz[0] != 0.0 || xyz[1] != 0.0 || xyz[2] != 0.0)) {
+      ctx.fail(path, "\"" + text + "\": missing unit, expected " + dimension_name(d));
+      return false;
+    }
+  } else {
+    Result<double> unit = parse_unit(std::string(p, end), d);
+    if (!unit) {
+      ctx.fail(path, unit.error().message);
+      return false;
+    }
+    factor = *unit;
+  }
+  *out = {xyz[0] * factor, xyz[1] * factor, xyz[2] * factor};
+  return true;
+}
+
+// A choice among named values ("svk", "linear", ...).
+template <class E>
+struct Choice {
+  const char* name;
+  E value;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Reader of one JSON object. Unknown keys are reported when the reader is made, before any
+// value is read, so that a misspelt key reads "unknown key" rather than "required key missing".
+
+class Reader {
+ public:
+  Reader(Context& ctx, const json* node, std::string path,
+         std::initializer_list<std::string_view> allowed)
+      : ctx_(ctx), node_(node), path_(std::move(path)) {
+    if (!node_ || ctx_.failed()) return;
+    if (!node_->is_object()) {
+      ctx_.fail(path_, std::string("expected an object, got ") + node_->type_name());
+      node_ = nullptr;
+      return;
+    }
+    for (const auto& [key, value] : node_->items()) {
+      if (key == "note") {
+        // "note" is the comment key of every object (JSON has no comments).
+        if (!value.is_string()) ctx_.fail(join_path(path_, key), "a note must be a string");
+        continue;
+      }
+      if (std::find(allowed.begin(), allowed.end(), key) != allowed.end()) continue;
+      std::string message = "unknown key";
+      std::string_view best;
+      size_t best_distance = 3;
+      for (std::string_view candidate : allowed) {
+        const size_t distance = edit_distance(key, candidate);
+        if (distance < best_distance) {
+          best_distance = distance;
+          best = candidate;
+        }
+      }
+      if (!best.empty()) message += " (did you mean '" + std::string(best) + "'?)";
+      ctx_.fail(join_path(path_, key), message);
+      return;
+    }
+  }
+
+  bool present() const { return node_ != nullptr && !ctx_.failed(); }
+  Context& ctx() { return ctx_; }
+  const std::string& path() const { return path_; }
+  std::string key_path(std::string_view key) const { return join_path(path_, key); }
+
+  const json* find(std::string_view key) const {
+    if (!present()) return nullptr;
+    const auto it = node_->find(std::string(key));
+    return it == node_->end() ? nullptr : &*it;
+  }
+  bool has(std::string_view key) const { return find(key) != nullptr; }
+
+  /// Fails unless the key is present.
+  bool require(std::string_view key) {
+    if (!present()) return false;
+    if (has(key)) return true;
+    ctx_.fail(key_path(key), "required key missing");
+    return false;
+  }
+
+  Reader object(std::string_view key, std::initializer_list<std::string_view> allowed) {
+    return Reader(ctx_, find(key), key_path(key), allowed);
+  }
+
+  bool quantity(std::string_view key, Dimension d, double* out, Range range = Range::any()) {
+    const json* v = find(key);
+    if (!v) return false;
+    double x = 0.0;
+    if (!read_quantity(ctx_, *v, key_path(key), d, &x)) return false;
+    if (!check_range(key, *v, x, d, range)) return false;
+    *out = x;
+    return true;
+  }
+
+  /// "auto" (nullopt) or a quantity.
+  bool auto_or_quantity(std::string_view key, Dimension d, std::optional<double>* out,
+                        Range range) {
+    const json* v = find(key);
+    if (!v) return false;
+    if (v->is_string() && v->get<std::string>() == "auto") {
+      out->reset();
+      return true;
+    }
+    if (!v->is_string() && !v->is_number()) {
+      ctx_.fail(key_path(key), "expected \"auto\" or " + dimension_name(d) + " with its unit, got " +
+                                   v->type_name());
+      return false;
+    }
+    double x = 0.0;
+    if (!quantity(key, d, &x, range)) return false;
+    *out = x;
+    return true;
+  }
+
+  bool number(std::string_view key, double* out, Range range = Range::any()) {
+    return quantity(key, dim::kNone, out, range);
+  }
+
+  bool integer(std::string_view key, int64_t* out, int64_t lo, int64_t hi) {
+    const json* v = find(key);
+    if (!v) return false;
+    bool ok = false;
+    int64_t x = 0;
+    if (v->is_number_unsigned()) {
+      const uint64_t u = v->get<uint64_t>();
+      ok = u <= static_cast<uint64_t>(hi);
+      x = ok ? static_cast<int64_t>(u) : hi;
+    } else if (v->is_number_integer()) {
+      x = v->get<int64_t>();
+      ok = true;
+    } else if (v->is_number_float()) {
+      const double f = v->get<double>();
+      ok = std::floor(f) == f && std::fabs(f) < 9e15;
+      x = ok ? static_cast<int64_t>(f) : 0;
+      if (!ok) {
+        ctx_.fail(key_path(key), v->dump() + ": expected an integer");
+        return false;
+      }
+    } else {
+      ctx_.fail(key_path(key), std::string("expected an integer, got ") + v->type_name());
+      return false;
+    }
+    if (!ok || x < lo || x > hi) {
+      ctx_.fail(key_path(key), v->dump() + " is out of range: must be in [" + std::to_string(lo) +
+                                   ", " + std::to_string(hi) + "]");
+      return false;
+    }
+    *out = x;
+    return true;
+  }
+
+  bool boolean(std::string_view key, bool* out) {
+    const json* v = find(key);
+    if (!v) return false;
+    if (!v->is_boolean()) {
+      ctx_.fail(key_path(key), std::string("expected true or false, got ") + v->type_name());
+      return false;
+    }
+    *out = v->get<bool>();
+    return true;
+  }
+
+  bool string(std::string_view key, std::string* out) {
+    const json* v = find(key);
+    if (!v) return false;
+    if (!v->is_string()) {
+      ctx_.fail(key_path(key), std::string("expected a string, got ") + v->type_name());
+      return false;
+    }
+    *out = v->get<std::string>();
+    return true;
+  }
+
+  template <class E>
+  bool choice(std::string_view key, std::initializer_list<Choice<E>> choices, E* out) {
+    std::string s;
+    if (!string(key, &s)) return false;
+    std::string names;
+    for (const Choice<E>& c : choices) {
+      if (s == c.name) {
+        *out = c.value;
+        return true;
+      }
+      names += names.empty() ? "" : ", ";
+      names += c.name;
+    }
+    ctx_.fail(key_path(key), "\"" + s + "\" is not one of: " + names);
+    return false;
+  }
+
+  /// A point or vector with units: ["0 um", "0 um", "-30 um"] or "0 0 -30 um".
+  bool vec3(std::string_view key, Dimension d, Vec3d* out) {
+    const json* v = find(key);
+    if (!v) return false;
+    const std::string path = key_path(key);
+    if (v->is_string()) return read_vec3_string(ctx_, v->get<std::string>(), path, d, out);
+    if (!v->is_array() || v->size() != 3) {
+      ctx_.fail(path, "expected three values with units, like [\"0 um\", \"0 um\", \"-30 um\"] or "
+                      "\"0 0 -30 um\"");
+      return false;
+    }
+    Vec3d r{};
+    for (int i = 0; i < 3; ++i) {
+      if (!read_quantity(ctx_, (*v)[static_cast<size_t>(i)], join_path(path, std::to_string(i)), d,
+                         &r[i])) {
+        return false;
+      }
+    }
+    *out = r;
+    return true;
+  }
+
+  /// A unit direction: [x, y, z] (normalised here) or "+x", "-z", "y".
+  bool direction(std::string_view key, Vec3d* out) {
+    const json* v = find(key);
+    if (!v) return false;
+    const std::string path = key_path(key);
+    Vec3d d{};
+    if (v->is_string()) {
+      std::string s = v->get<std::string>();
+      double sign = 1.0;
+      if (!s.empty() && (s[0] == '+' || s[0] == '-')) {
+        sign = s[0] == '-' ? -1.0 : 1.0;
+        s = s.substr(1);
+      }
+      if (s == "x") {
+        d = {sign, 0.0, 0.0};
+      } else if (s == "y") {
+        d = {0.0, sign, 0.0};
+      } else if (s == "z") {
+        d = {0.0, 0.0, sign};
+      } else {
+        ctx_.fail(path, written(*v) + ": expected an axis (\"+x\", \"-z\", ...) or [x, y, z]");
+        return false;
+      }
+    } else {
+      if (!vec3(key, dim::kNone, &d)) return false;
+    }
+    const double length = norm(d);
+    if (!(length > 0.0)) {
+      ctx_.fail(path, "direction must not be zero");
+      return false;
+    }
+    *out = d / length;
+    return true;
+  }
+
+  /// A file path relative to the scene's folder; the file must exist.
+  bool file_path(std::string_view key, std::string* out) {
+    std::string s;
+    if (!string(key, &s)) return false;
+    if (s.empty()) {
+      ctx_.fail(key_path(key), "empty path");
+      return false;
+    }
+    fs::path p(s);
+    if (p.is_relative()) p = ctx_.base_dir / p;
+    std::error_code ec;
+    if (!fs::is_regular_file(p, ec)) {
+      ctx_.fail(key_path(key), "file not found: " + p.string());
+      return false;
+    }
+    *out = p.lexically_normal().string();
+    return true;
+  }
+
+  void fail(std::string_view key, const std::string& message) {
+    ctx_.fail(key.empty() ? path_ : key_path(key), message);
+  }
+
+ private:
+  bool check_range(std::string_view key, const json& v, double x, Dimension d, const Range& r) {
+    if (r.contains(x)) return true;
+    ctx_.fail(key_path(key), written(v) + " is out of range: " + r.describe(d));
+    return false;
+  }
+
+  Context& ctx_;
+  const json* node_;
+  std::string path_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Sections.
+
+constexpr std::initializer_list<Choice<ModelKind>> kModels = {
+    {"svk", ModelKind::kSvk}, {"linear", ModelKind::kLinear}, {"particles", ModelKind::kParticles}};
+
+void read_mesh(Reader& root, Scene& scene) {
+  if (!root.require("mesh")) return;
+  Reader mesh = root.object("mesh", {"file", "unit", "generate"});
+  if (!mesh.present()) return;
+  const bool file = mesh.has("file");
+  const bool generate = mesh.has("generate");
+  if (file == generate) {
+    mesh.fail("", "give exactly one of \"file\" or \"generate\"");
+    return;
+  }
+  MeshDef& m = scene.mesh;
+  if (file) {
+    m.source = MeshSource::kFile;
+    mesh.file_path("file", &m.file);
+    if (!mesh.require("unit")) return;
+    std::string unit;
+    if (mesh.string("unit", &unit)) {
+      Result<double> factor = parse_unit(unit, dim::kLength);
+      if (!factor) {
+        mesh.fail("unit", factor.error().message);
+        return;
+      }
+      m.file_unit = *factor;
+    }
+    return;
+  }
+  if (mesh.has("unit")) {
+    mesh.fail("unit", "only used with \"file\" (generator lengths carry their own units)");
+    return;
+  }
+  m.source = MeshSource::kGenerate;
+  Reader g = mesh.object("generate", {"diameter", "zona_thickness", "nucleus_diameter", "vertices",
+                                      "edge_length", "refine_edge_length", "refine_radius",
+                                      "refine_at"});
+  if (!g.present()) return;
+  MeshGenerateDef& gen = m.generate;
+  if (!g.require("diameter")) return;
+  g.quantity("diameter", dim::kLength, &gen.diameter, Range::positive());
+  g.quantity("zona_thickness", dim::kLength, &gen.zona_thickness,
+             Range::closed_open(0.0, gen.diameter / 2));
+  const double inner = gen.diameter - 2 * gen.zona_thickness;
+  g.quantity("nucleus_diameter", dim::kLength, &gen.nucleus_diameter,
+             Range{0.0, inner, false, true, "smaller than the cell inside the zona"});
+  if (g.has("vertices") && g.has("edge_length")) {
+    g.fail("vertices", "give either \"vertices\" or \"edge_length\", not both");
+    return;
+  }
+  gen.target_vertices = 0;
+  gen.edge_length = 0.0;
+  if (!g.integer("vertices", &gen.target_vertices, 8, 2'000'000'000)) {
+    if (!g.quantity("edge_length", dim::kLength, &gen.edge_length,
+                    Range::open_closed(0.0, gen.diameter))) {
+      // Neither given: a coarse default, documented in docs/scenes.md.
+      gen.edge_length = gen.diameter / 10;
+    }
+  }
+  const double coarse = gen.edge_length > 0.0 ? gen.edge_length : gen.diameter;
+  g.quantity("refine_edge_length", dim::kLength, &gen.refine_edge_length,
+             Range{0.0, coarse, true, false, "finer than edge_length"});
+  g.quantity("refine_radius", dim::kLength, &gen.refine_radius, Range::positive());
+  const bool refine = gen.refine_edge_length > 0.0;
+  if (refine != g.has("refine_at")) {
+    g.fail(refine ? "refine_edge_length" : "refine_at",
+           "refine_edge_length and refine_at go together");
+    return;
+  }
+  if (refine && !g.require("refine_radius")) return;
+  if (!refine && g.has("refine_radius")) {
+    g.fail("refine_radius", "has no effect without refine_edge_length and refine_at");
+    return;
+  }
+  if (const json* at = g.find("refine_at"); at && at->is_string() && at->get<std::string>() ==
+                                                                          "needle") {
+    gen.refine_at_needle = true;  // resolved once the needle is read
+  } else if (refine) {
+    g.vec3("refine_at", dim::kLength, &gen.refine_at);
+  }
+}
+
+void read_material(Reader& r, MaterialDef& m) {
+  const bool by_speed = r.has("young_by_speed");
+  if (by_speed == r.has("young")) {
+    r.fail("", "give exactly one of \"young\" or \"young_by_speed\"");
+    return;
+  }
+  if (!by_speed) {
+    r.require("young");
+    r.quantity("young", dim::kPressure, &m.young, Range::positive());
+  } else {
+    const json* table = r.find("young_by_speed");
+    const std::string path = r.key_path("young_by_speed");
+    if (!table->is_array() || table->size() < 2) {
+      r.fail("young_by_speed", "expected an array of at least two {\"speed\", \"young\"} points");
+      return;
+    }
+    for (size_t i = 0; i < table->size(); ++i) {
+      Reader point(r.ctx(), &(*table)[i], join_path(path, std::to_string(i)), {"speed", "young"});
+      if (!point.require("speed") || !point.require("young")) return;
+      SpeedModulusPoint p;
+      point.quantity("speed", dim::kSpeed, &p.speed, Range::non_negative());
+      point.quantity("young", dim::kPressure, &p.young, Range::positive());
+      if (!point.present()) return;
+      if (!m.young_by_speed.empty() && p.speed <= m.young_by_speed.back().speed) {
+        point.fail("speed", "speeds must increase along the table");
+        return;
+      }
+      m.young_by_speed.push_back(p);
+    }
+  }
+  if (!r.require("poisson")) return;
+  r.number("poisson", &m.poisson,
+           Range{0.0, 0.5, false, true, "0.5 is incompressible; explicit FEM needs nu < 0.5"});
+  const int mass_keys = int(r.has("density")) + int(r.has("mass")) + int(r.has("vertex_mass"));
+  if (mass_keys > 1) {
+    r.fail("", "give at most one of \"density\", \"mass\" or \"vertex_mass\"");
+    return;
+  }
+  if (r.quantity("density", dim::kDensity, &m.density, Range::positive())) {
+    m.mass_spec = MassSpec::kDensity;
+  } else if (r.quantity("mass", dim::kMass, &m.total_mass, Range::positive())) {
+    m.mass_spec = MassSpec::kTotalMass;
+  } else if (r.quantity("vertex_mass", dim::kMass, &m.vertex_mass, Range::positive())) {
+    m.mass_spec = MassSpec::kVertexMass;
+  }
+  r.quantity("damping", dim::kFrequency, &m.damping, Range::non_negative());
+}
+
+void read_materials(Reader& root, Scene& scene) {
+  if (!root.require("materials")) return;
+  const json* node = root.find("materials");
+  if (!node->is_object() || node->empty()) {
+    root.fail("materials", "expected an object mapping region names to materials, e.g. "
+                           "{\"default\": {\"young\": \"17.9 kPa\", \"poisson\": 0.49}}");
+    return;
+  }
+  for (const auto& [region, value] : node->items()) {
+    if (region == "note") continue;
+    const std::string path = root.key_path("materials") + "." + region;
+    if (region.empty()) {
+      root.fail("materials", "empty region name");
+      return;
+    }
+    Reader r(root.ctx(), &value, path,
+             {"young", "young_by_speed", "poisson", "density", "mass", "vertex_mass", "damping"});
+    if (!r.present()) return;
+    RegionMaterialDef entry;
+    entry.region = region;
+    read_material(r, entry.material);
+    scene.materials.push_back(std::move(entry));
+  }
+}
+
+void read_integrator(Reader& root, Scene& scene) {
+  Reader r = root.object("integrator", {"dt", "dt_safety", "mass_scaling", "target_dt", "duration"});
+  if (!r.present()) return;
+  IntegratorDef& in = scene.integrator;
+  r.auto_or_quantity("dt", dim::kTime, &in.dt, Range::positive());
+  r.number("dt_safety", &in.dt_safety, Range::open_closed(0.0, 1.0));
+  r.number("mass_scaling", &in.mass_scaling,
+           Range{1.0, kInf, false, false, "1 is physical; larger values slow the dynamics down"});
+  double target = 0.0;
+  if (r.quantity("target_dt", dim::kTime, &target, Range::positive())) {
+    if (in.dt) {
+      r.fail("target_dt", "only with dt \"auto\" (an explicit dt fixes the step)");
+      return;
+    }
+    in.target_dt = target;
+  }
+  r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
+}
+
+void read_boundary(Reader& root, Scene& scene) {
+  const json* node = root.find("boundary");
+  if (!node) return;
+  if (!node->is_array()) {
+    root.fail("boundary", std::string("expected an array of conditions, got ") + node->type_name());
+    return;
+  }
+  for (size_t i = 0; i < node->size(); ++i) {
+    const json& item = (*node)[i];
+    const std::string path = "boundary." + std::to_string(i);
+    BoundaryDef b;
+    {
+      // The type decides which keys are allowed, so it is read first.
+      Reader typed(root.ctx(), &item, path,
+                   {"type", "where", "center", "radius", "depth", "speed", "direction"});
+      if (!typed.present() || !typed.require("type")) return;
+      if (!typed.choice("type", {Choice<BoundaryKind>{"fixed", BoundaryKind::kFixed},
+                                 Choice<BoundaryKind>{"indent", BoundaryKind::kIndent}},
+                        &b.type)) {
+        return;
+      }
+    }
+    if (b.type == BoundaryKind::kFixed) {
+      Reader r(root.ctx(), &item, path, {"type", "where"});
+      if (!r.require("where")) return;
+      Reader w = r.object("where", {"surface", "region", "normal", "below", "above", "center",
+                                    "radius"});
+      if (!w.present()) return;
+      VertexSelect& s = b.where;
+      w.boolean("surface", &s.surface_only);
+      w.string("region", &s.region);
+      w.direction("normal", &s.normal);
+      w.quantity("below", dim::kLength, &s.below);
+      w.quantity("above", dim::kLength, &s.above);
+      if (w.has("normal") && !w.has("below") && !w.has("above")) {
+        w.fail("normal", "needs \"below\" or \"above\"");
+        return;
+      }
+      if (w.has("below") && w.has("above") && s.below < s.above) {
+        w.fail("below", "below < above selects no vertex");
+        return;
+      }
+      if (w.has("center") != w.has("radius")) {
+        w.fail(w.has("center") ? "radius" : "center", "\"center\" and \"radius\" go together");
+        return;
+      }
+      if (w.has("center")) {
+        Vec3d c{};
+        w.vec3("center", dim::kLength, &c);
+        s.center = c;
+        w.quantity("radius", dim::kLength, &s.radius, Range::positive());
+      }
+      if (!w.has("region") && !w.has("below") && !w.has("above") && !w.has("center")) {
+        w.fail("", "selects every vertex (or every surface vertex): give \"below\", \"above\", "
+                   "\"center\"/\"radius\" or \"region\"");
+        return;
+      }
+      if (w.has("region") && s.region.empty()) {
+        w.fail("region", "empty region name");
+        return;
+      }
+    } else {
+      Reader r(root.ctx(), &item, path, {"type", "center", "radius", "depth", "speed", "direction"});
+      if (!r.require("center") || !r.require("radius") || !r.require("depth") ||
+          !r.require("speed")) {
+        return;
+      }
+      r.vec3("center", dim::kLength, &b.center);
+      r.quantity("radius", dim::kLength, &b.radius, Range::positive());
+      r.quantity("depth", dim::kLength, &b.depth, Range::positive());
+      r.quantity("speed", dim::kSpeed, &b.speed, Range::positive());
+      if (!r.direction("direction", &b.direction) && r.present()) {
+        const double distance = norm(b.center);
+        if (!(distance > 0.0)) {
+          r.fail("direction", "required when the centre is the origin (default: towards the origin)");
+          return;
+        }
+        b.direction = -b.center / distance;
+      }
+    }
+    scene.boundary.push_back(b);
+  }
+}
+
+// "auto" (nullopt) or a point with units.
+bool read_auto_point(Reader& r, std::string_view key, std::optional<Vec3d>* out) {
+  const json* v = r.find(key);
+  if (!v) return false;
+  if (v->is_string() && v->get<std::string>() == "auto") {
+    out->reset();
+    return true;
+  }
+  Vec3d p{};
+  if (!r.vec3(key, dim::kLength, &p)) return false;
+  *out = p;
+  return true;
+}
+
+void read_needle(Reader& root, Scene& scene) {
+  Reader r = root.object("needle", {"enabled", "shape", "tip_radius", "direction", "start",
+                                    "standoff", "speed", "max_travel", "trajectory"});
+  if (!r.present()) return;
+  NeedleDef& n = scene.needle;
+  n.enabled = true;
+  r.boolean("enabled", &n.enabled);
+  r.choice("shape", {Choice<NeedleShape>{"point", NeedleShape::kPoint},
+                     Choice<NeedleShape>{"sphere", NeedleShape::kSphere},
+                     Choice<NeedleShape>{"flat", NeedleShape::kFlat}},
+           &n.shape);
+  r.quantity("tip_radius", dim::kLength, &n.tip_radius, Range::positive());
+  r.direction("direction", &n.direction);
+  read_auto_point(r, "start", &n.start);
+  r.quantity("standoff", dim::kLength, &n.standoff, Range::non_negative());
+  r.quantity("speed", dim::kSpeed, &n.speed, Range::positive());
+  r.quantity("max_travel", dim::kLength, &n.max_travel, Range::non_negative());
+  r.file_path("trajectory", &n.trajectory);
+}
+
+void read_puncture(Reader& root, Scene& scene) {
+  Reader r = root.object("puncture",
+                         {"criterion", "threshold", "force_drop", "drop_time", "shaft_friction"});
+  if (!r.present()) return;
+  PunctureDef& p = scene.puncture;
+  if (!r.require("criterion")) return;
+  r.choice("criterion", {Choice<PunctureCriterion>{"none", PunctureCriterion::kNone},
+                         Choice<PunctureCriterion>{"force", PunctureCriterion::kForce},
+                         Choice<PunctureCriterion>{"strain", PunctureCriterion::kStrain},
+                         Choice<PunctureCriterion>{"energy", PunctureCriterion::kEnergy}},
+           &p.criterion);
+  // The threshold's dimension follows the criterion; with "none" it is ignored, so that
+  // --set puncture.criterion=none works on any scene.
+  if (p.criterion != PunctureCriterion::kNone && r.require("threshold")) {
+    const Dimension d = p.criterion == PunctureCriterion::kForce    ? dim::kForce
+                        : p.criterion == PunctureCriterion::kEnergy ? dim::kEnergy
+                                                                    : dim::kNone;
+    r.quantity("threshold", d, &p.threshold, Range::positive());
+  }
+  r.number("force_drop", &p.force_drop, Range::open_closed(0.0, 1.0));
+  r.quantity("drop_time", dim::kTime, &p.drop_time, Range::non_negative());
+  r.quantity("shaft_friction", dim::kStiffness, &p.shaft_friction, Range::non_negative());
+}
+
+void read_holding_pipette(Reader& root, Scene& scene) {
+  Reader r = root.object("holding_pipette", {"enabled", "mode", "inner_radius", "outer_radius",
+                                             "suction", "friction", "side", "position"});
+  if (!r.present()) return;
+  HoldingPipetteDef& h = scene.holding_pipette;
+  h.enabled = true;
+  r.boolean("enabled", &h.enabled);
+  r.choice("mode", {Choice<HoldingMode>{"suction", HoldingMode::kSuction},
+                    Choice<HoldingMode>{"fixed", HoldingMode::kFixed}},
+           &h.mode);
+  if (h.enabled && !r.require("inner_radius")) return;
+  r.quantity("inner_radius", dim::kLength, &h.inner_radius, Range::positive());
+  if (r.quantity("outer_radius", dim::kLength, &h.outer_radius, Range::non_negative()) &&
+      h.outer_radius != 0.0 && h.outer_radius < h.inner_radius) {
+    r.fail("outer_radius", "must be >= inner_radius (" +
+                               format_quantity(h.inner_radius, dim::kLength) + ") or 0");
+    return;
+  }
+  r.quantity("suction", dim::kPressure, &h.suction, Range::non_negative());
+  r.number("friction", &h.friction, Range::non_negative());
+  Vec3d side{};
+  if (r.direction("side", &side)) h.side = side;
+  read_auto_point(r, "position", &h.position);
+}
+
+void read_haptics(Reader& root, Scene& scene) {
+  Reader r = root.object("haptics", {"device", "rate", "workspace_scale", "force_scale",
+                                     "max_force", "max_stiffness", "interpolation", "stall_timeout",
+                                     "coupling_stiffness", "coupling_damping", "replay_file",
+                                     "network_host", "network_port"});
+  if (!r.present()) return;
+  HapticsDef& h = scene.haptics;
+  r.choice("device", {Choice<HapticDeviceKind>{"none", HapticDeviceKind::kNone},
+                      Choice<HapticDeviceKind>{"scripted", HapticDeviceKind::kScripted},
+                      Choice<HapticDeviceKind>{"emulated", HapticDeviceKind::kEmulated},
+                      Choice<HapticDeviceKind>{"replay", HapticDeviceKind::kReplay},
+                      Choice<HapticDeviceKind>{"network", HapticDeviceKind::kNetwork}},
+           &h.device);
+  r.quantity("rate", dim::kFrequency, &h.rate, Range::positive());
+  r.number("workspace_scale", &h.workspace_scale, Range::positive());
+  r.number("force_scale", &h.force_scale, Range::positive());
+  r.quantity("max_force", dim::kForce, &h.max_force, Range::positive());
+  r.quantity("max_stiffness", dim::kStiffness, &h.max_stiffness, Range::positive());
+  r.choice("interpolation",
+           {Choice<HapticInterpolation>{"first_order_hold", HapticInterpolation::kFirstOrderHold},
+            Choice<HapticInterpolation>{"stiffness", HapticInterpolation::kStiffness}},
+           &h.interpolation);
+  r.quantity("stall_timeout", dim::kTime, &h.stall_timeout, Range::positive());
+  r.auto_or_quantity("coupling_stiffness", dim::kStiffness, &h.coupling_stiffness,
+                     Range::positive());
+  r.auto_or_quantity("coupling_damping", dim::kDamping, &h.coupling_damping,
+                     Range::non_negative());
+  r.file_path("replay_file", &h.replay_file);
+  if (r.string("network_host", &h.network_host) && h.network_host.empty()) {
+    r.fail("network_host", "empty host");
+    return;
+  }
+  int64_t port = h.network_port;
+  if (r.integer("network_port", &port, 1, 65535)) h.network_port = static_cast<int>(port);
+  if (h.device == HapticDeviceKind::kReplay && h.replay_file.empty() && r.present()) {
+    r.fail("replay_file", "required with device \"replay\"");
+  }
+}
+
+void read_output(Reader& root, Scene& scene) {
+  Reader r = root.object("output", {"frames", "frame_interval", "sample_interval"});
+  if (!r.present()) return;
+  OutputDef& o = scene.output;
+  if (r.has("frames") && r.has("frame_interval")) {
+    r.fail("frame_interval", "give either \"frames\" or \"frame_interval\", not both");
+    return;
+  }
+  int64_t frames = o.frames;
+  if (r.integer("frames", &frames, 0, 1'000'000)) o.frames = static_cast<int>(frames);
+  double interval = 0.0;
+  if (r.quantity("frame_interval", dim::kTime, &interval, Range::positive())) {
+    o.frame_interval = interval;
+  }
+  r.quantity("sample_interval", dim::kTime, &o.sample_interval, Range::non_negative());
+}
+
+// Where the needle axis first meets the generated ball (centred at the origin).
+void resolve_refine_at(Context& ctx, Scene& scene) {
+  MeshGenerateDef& g = scene.mesh.generate;
+  if (scene.mesh.source != MeshSource::kGenerate || !g.refine_at_needle) return;
+  const std::string path = "mesh.generate.refine_at";
+  if (!scene.needle.enabled) {
+    ctx.fail(path, "\"needle\" needs an enabled needle section");
+    return;
+  }
+  const double radius = g.diameter / 2;
+  const Vec3d d = scene.needle.direction;
+  if (!scene.needle.start) {
+    g.refine_at = -radius * d;  // the auto start lies on the axis through the centre
+    return;
+  }
+  const Vec3d s = *scene.needle.start;
+  const double b = dot(s, d);
+  const double c = dot(s, s) - radius * radius;
+  const double disc = b * b - c;
+  if (c <= 0.0) {
+    g.refine_at = s;  // the needle starts inside the cell
+    return;
+  }
+  if (disc < 0.0 || -b - std::sqrt(disc) < 0.0) {
+    ctx.fail(path, "\"needle\": the needle axis (needle.start, needle.direction) misses the cell");
+    return;
+  }
+  g.refine_at = s + (-b - std::sqrt(disc)) * d;
+}
+
+// Seed 002 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
+void resolve_speed_moduli(Context& ctx, Scene& scene) {
+  for (RegionMaterialDef& entry : scene.materials) {
+    std::vector<SpeedModulusPoint>& t = entry.material.young_by_speed;
+    if (t.empty()) continue;
+    const std::string path = "materials." + entry.region + ".young_by_speed";
+    if (!scene.needle.enabled) {
+      ctx.fail(path, "needs needle.speed, but the scene has no enabled needle");
+      return;
+    }
+    const double v = scene.needle.speed;
+    size_t i = 0;
+    while (i + 2 < t.size() && v > t[i + 1].speed) ++i;
+    const double young =
+        t[i].young + (v - t[i].speed) * (t[i + 1].young - t[i].young) / (t[i + 1].speed - t[i].speed);
+    if (!(young > 0.0)) {
+      ctx.fail(path, "extrapolated modulus at needle.speed " +
+                         format_quantity(v, dim::kSpeed) + " is " +
+                         format_quantity(young, dim::kPressure) + ", must be > 0 Pa");
+      return;
+    }
+    entry.material.young = young;
+  }
+}
+
+// For generated meshes the regions are known: every material must name one, and every region
+// must have a material.
+void check_generated_regions(Context& ctx, const Scene& scene) {
+  if (scene.mesh.source != MeshSource::kGenerate || ctx.failed()) return;
+  const MeshGenerateDef& g = scene.mesh.generate;
+  std::vector<std::string> regions = {"cytoplasm"};
+  if (g.zona_thickness > 0.0) regions.push_back("zona");
+  if (g.nucleus_diameter > 0.0) regions.push_back("nucleus");
+  std::string list;
+  for (const std::string& r : regions) list += (list.empty() ? "" : ", ") + r;
+  for (const RegionMaterialDef& m : scene.materials) {
+    if (m.region == "default" ||
+        std::find(regions.begin(), regions.end(), m.region) != regions.end()) {
+      continue;
+    }
+    std::string why;
+    if (m.region == "zona") why = "mesh.generate.zona_thickness is 0; ";
+    if (m.region == "nucleus") why = "mesh.generate.nucleus_diameter is 0; ";
+    ctx.fail("materials." + m.region, "the generated mesh has no region '" + m.region + "' (" +
+                                          why + "it has: " + list + ")");
+    return;
+  }
+  for (const std::string& r : regions) {
+    if (!find_material(scene, r)) {
+      ctx.fail("materials", "no material for region '" + r + "': add materials." + r +
+                                " or materials.default");
+      return;
+    }
+  }
+}
+
+void check_scene(Context& ctx, Scene& scene) {
+  if (ctx.failed()) return;
+  resolve_refine_at(ctx, scene);
+  resolve_speed_moduli(ctx, scene);
+  check_generated_regions(ctx, scene);
+  if (ctx.failed()) return;
+  const bool generated = scene.mesh.source == MeshSource::kGenerate;
+  const double cell_radius = scene.mesh.generate.diameter / 2;
+  if (generated && scene.holding_pipette.enabled &&
+      scene.holding_pipette.inner_radius >= cell_radius) {
+    ctx.fail("holding_pipette.inner_radius",
+             format_quantity(scene.holding_pipette.inner_radius, dim::kLength) +
+                 " must be smaller than the cell radius (" +
+                 format_quantity(cell_radius, dim::kLength) + ")");
+    return;
+  }
+  // Something must end the run.
+  if (scene.integrator.duration == 0.0) {
+    bool has_indent = false;
+    for (const BoundaryDef& b : scene.boundary) has_indent |= b.type == BoundaryKind::kIndent;
+    if (scene.needle.enabled && scene.needle.trajectory.empty() && scene.needle.max_travel == 0.0) {
+      ctx.fail("needle.max_travel", "set it or integrator.duration: nothing else ends the run");
+    } else if (!scene.needle.enabled && !has_indent) {
+      ctx.fail("integrator.duration", "required: the scene has no needle or indent to end the run");
+    }
+  }
+}
+
+std::string trim(std::string_view s) {
+  const size_t a = s.find_first_not_of(" \t");
+  if (a == std::string_view::npos) return {};
+  const size_t b = s.find_last_not_of(" \t");
+  return std::string(s.substr(a, b - a + 1));
+}
+
+bool parse_index(const std::string& s, size_t* out) {
+  if (s.empty()) return false;
+  const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), *out);
+  return ec == std::errc() && end == s.data() + s.size();
+}
+
+// Length unit name for a file unit factor, for scene_to_json.
+const char* length_unit_name(double factor) {
+  static constexpr struct {
+    double factor;
+    const char* name;
+  } kNames[] = {{1.0, "m"}, {1e-2, "cm"}, {1e-3, "mm"}, {1e-6, "um"}, {1e-9, "nm"}, {1e-12, "pm"},
+                {1e3, "km"}};
+  for (const auto& n : kNames) {
+    if (n.factor == factor) return n.name;
+  }
+  return nullptr;
+}
+
+json quantity_json(double v, Dimension d) { return format_quantity(v, d, 17); }
+
+json vec_json(Vec3d v, Dimension d) {
+  return json::array({quantity_json(v.x, d), quantity_json(v.y, d), quantity_json(v.z, d)});
+}
+
+json direction_json(Vec3d v) { return json::array({v.x, v.y, v.z}); }
+
+// Collects the first duplicate key while nlohmann parses (it would silently keep the last one).
+class DuplicateKeyFinder {
+ public:
+  bool operator()(int /*depth*/, json::parse_event_t event, json& parsed) {
+    switch (event) {
+      case json::parse_event_t::object_start:
+        stack_.push_back(Frame{true, {}, {}, 0});
+        break;
+      case json::parse_event_t::array_start:
+        stack_.push_back(Frame{false, {}, {}, 0});
+        break;
+      case json::parse_event_t::key: {
+        Frame& top = stack_.back();
+        top.key = parsed.get<std::string>();
+        if (!top.keys.insert(top.key).second && duplicate_.empty()) {
+          duplicate_ = path();
+        }
+        break;
+      }
+      case json::parse_event_t::object_end:
+      case json::parse_event_t::array_end:
+        stack_.pop_back();
+        if (!stack_.empty() && !stack_.back().object) ++stack_.back().index;
+        break;
+      case json::parse_event_t::value:
+        if (!stack_.empty() && !stack_.back().object) ++stack_.back().index;
+        break;
+    }
+    return true;
+  }
+  const std::string& duplicate() const { return duplicate_; }
+
+ private:
+  struct Frame {
+    bool object;
+    std::set<std::string> keys;
+    std::string key;
+    size_t index;
+  };
+  std::string path() const {
+    std::string p;
+    for (const Frame& f : stack_) p = join_path(p, f.object ? f.key : std::to_string(f.index));
+    return p;
+  }
+  std::vector<Frame> stack_;
+  std::string duplicate_;
+};
+
+}  // namespace
+
+Status apply_override(json& doc, const std::string& assignment) {
+  const size_t eq = assignment.find('=');
+  if (eq == std::string::npos) {
+    return make_error("--set %s: expected key.path=value", assignment.c_str());
+  }
+  const std::string key = trim(std::string_view(assignment).substr(0, eq));
+  const std::string text = trim(std::string_view(assignment).substr(eq + 1));
+  std::vector<std::string> segments;
+  for (size_t start = 0;;) {
+    const size_t dot = key.find('.', start);
+    segments.push_back(key.substr(start, dot == std::string::npos ? std::string::npos : dot - start));
+    if (dot == std::string::npos) break;
+    start = dot + 1;
+  }
+  for (const std::string& s : segments) {
+    if (s.empty()) return make_error("--set %s: empty key in '%s'", assignment.c_str(), key.c_str());
+  }
+  // JSON when it parses as JSON (2000, true, [1, 0, 0], "quoted"), else the text itself
+  // ("20kPa", "0.6 mm/s", "auto").
+  json value = json::parse(text, nullptr, /*allow_exceptions=*/false);
+  if (value.is_discarded()) value = text;
+  if (!doc.is_object()) return make_error("--set %s: the scene is not a JSON object", assignment.c_str());
+  json* node = &doc;
+  std::string walked;
+  for (size_t i = 0; i < segments.size(); ++i) {
+    const std::string& s = segments[i];
+    const bool last = i + 1 == segments.size();
+    if (node->is_object()) {
+      if (last) {
+        (*node)[s] = std::move(value);
+        return Status::ok_status();
+      }
+      if (node->find(s) == node->end()) (*node)[s] = json::object();
+      node = &(*node)[s];
+    } else if (node->is_array()) {
+      size_t index = 0;
+      if (!parse_index(s, &index) || index >= node->size()) {
+        return make_error("--set %s: '%s' is an array of %zu; '%s' is not an index into it",
+                          assignment.c_str(), walked.c_str(), node->size(), s.c_str());
+      }
+      if (last) {
+        (*node)[index] = std::move(value);
+        return Status::ok_status();
+      }
+      node = &(*node)[index];
+    } else {
+      return make_error("--set %s: '%s' is a %s, not an object", assignment.c_str(),
+                        walked.c_str(), node->type_name());
+    }
+    walked = join_path(walked, s);
+  }
+  return Status::ok_status();  // not reached: the loop returns at the last segment
+}
+
+Result<Scene> parse_scene(const json& input, const std::string& source_name,
+                          const std::vector<std::string>& overrides) {
+  Context ctx;
+  ctx.source = source_name.empty() ? std::string("scene") : source_name;
+  ctx.base_dir = fs::path(source_name).parent_path();
+  if (ctx.base_dir.empty()) ctx.base_dir = ".";
+  json doc = input;
+  for (const std::string& o : overrides) {
+    Status st = apply_override(doc, o);
+    if (!st) return Error{ctx.source + ": " + st.error().message};
+    ctx.overridden.push_back(trim(std::string_view(o).substr(0, o.find('='))));
+  }
+
+  Scene scene;
+  scene.source = source_name;
+  scene.name = fs::path(source_name).stem().string();
+  Reader root(ctx, &doc, "",
+              {"version", "name", "description", "mesh", "model", "materials", "integrator",
+               "boundary", "needle", "puncture", "holding_pipette", "haptics", "output"});
+  int64_t version = 1;
+  root.integer("version", &version, 1, 1);
+  root.string("name", &scene.name);
+  root.string("description", &scene.description);
+  read_mesh(root, scene);
+  root.choice("model", kModels, &scene.model);
+  read_needle(root, scene);
+  read_materials(root, scene);
+  read_integrator(root, scene);
+  read_boundary(root, scene);
+  read_puncture(root, scene);
+  read_holding_pipette(root, scene);
+  read_haptics(root, scene);
+  read_output(root, scene);
+  check_scene(ctx, scene);
+  if (ctx.failed()) return *ctx.error;
+  return scene;
+}
+
+Result<Scene> load_scene(const std::string& path, const std::vector<std::string>& overrides) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) return make_error("%s: is a directory, not a scene file", path.c_str());
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return make_error("%s: cannot open (%s)", path.c_str(), std::strerror(errno));
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) return make_error("%s: read error", path.c_str());
+  DuplicateKeyFinder duplicates;
+  json doc;
+  try {
+    // Keeps the callback by reference semantics: nlohmann copies the functor, so it is wrapped.
+    doc = json::parse(text.str(), [&duplicates](int depth, json::parse_event_t event, json& parsed) {
+      return duplicates(depth, event, parsed);
+    });
+  } catch (const json::parse_error& e) {
+    // "[json.exception.parse_error.101] parse error at line 3, column 5: ..." -> "line 3, ..."
+    std::string what = e.what();
+    const size_t at = what.find("parse error at ");
+    if (at != std::string::npos) what = what.substr(at + std::strlen("parse error at "));
+    return make_error("%s: %s", path.c_str(), what.c_str());
+  } catch (const json::exception& e) {
+    return make_error("%s: %s", path.c_str(), e.what());
+  }
+  if (!duplicates.duplicate().empty()) {
+    return make_error("%s: %s: duplicate key", path.c_str(), duplicates.duplicate().c_str());
+  }
+  return parse_scene(doc, path, overrides);
+}
+
+Result<std::string> find_scene(const std::string& name, const std::vector<std::string>& search_dirs) {
+  if (name.empty()) return make_error("empty scene name");
+  std::error_code ec;
+  if (fs::is_regular_file(name, ec)) return name;
+  if (name.find('/') != std::string::npos) return make_error("%s: scene file not found", name.c_str());
+  std::vector<fs::path> dirs(search_dirs.begin(), search_dirs.end());
+  if (const char* env = std::getenv("ZONA_SCENES_DIR"); env && *env) dirs.emplace_back(env);
+  dirs.emplace_back("scenes");
+  const bool has_extension = fs::path(name).extension() == ".json";
+  std::string looked;
+  for (const fs::path& dir : dirs) {
+    const fs::path candidate = dir / (has_extension ? name : name + ".json");
+    if (fs::is_regular_file(candidate, ec)) return candidate.string();
+    looked += (looked.empty() ? "" : ", ") + dir.string();
+  }
+  return make_error("scene '%s' not found: not a file, and no %s%s in: %s", name.c_str(),
+                    name.c_str(), has_extension ? "" : ".json", looked.c_str());
+}
+
+const MaterialDef* find_material(const Scene& scene, const std::string& region) {
+  const MaterialDef* fallback = nullptr;
+  for (const RegionMaterialDef& m : scene.materials) {
+    if (m.region == region) return &m.material;
+    if (m.region == "default") fallback = &m.material;
+  }
+  return fallback;
+}
+
+const char* model_name(ModelKind model) {
+  for (const Choice<ModelKind>& c : kModels) {
+    if (c.value == model) return c.name;
+  }
+  return "?";
+}
+
+json scene_to_json(const Scene& scene) {
+  using namespace dim;
+  json j = json::object();
+  j["version"] = 1;
+  j["name"] = scene.name;
+  j["description"] = scene.description;
+
+  json mesh = json::object();
+  if (scene.mesh.source == MeshSource::kFile) {
+    mesh["file"] = scene.mesh.file;
+    const char* unit = length_unit_name(scene.mesh.file_unit);
+    mesh["unit"] = unit ? unit : "m";
+  } else {
+    const MeshGenerateDef& g = scene.mesh.generate;
+    json gen = json::object();
+    gen["diameter"] = quantity_json(g.diameter, kLength);
+    gen["zona_thickness"] = quantity_json(g.zona_thickness, kLength);
+    gen["nucleus_diameter"] = quantity_json(g.nucleus_diameter, kLength);
+    if (g.target_vertices > 0) {
+      gen["vertices"] = g.target_vertices;
+    } else {
+      gen["edge_length"] = quantity_json(g.edge_length, kLength);
+    }
+    if (g.refine_edge_length > 0.0) {
+      gen["refine_edge_length"] = quantity_json(g.refine_edge_length, kLength);
+      gen["refine_radius"] = quantity_json(g.refine_radius, kLength);
+      gen["refine_at"] = g.refine_at_needle ? json("needle") : vec_json(g.refine_at, kLength);
+    }
+    mesh["generate"] = gen;
+  }
+  j["mesh"] = mesh;
+  j["model"] = model_name(scene.model);
+
+  json materials = json::object();
+  for (const RegionMaterialDef& entry : scene.materials) {
+    const MaterialDef& m = entry.material;
+    json e = json::object();
+    if (m.young_by_speed.empty()) {
+      e["young"] = quantity_json(m.young, kPressure);
+    } else {
+      json table = json::array();
+      for (const SpeedModulusPoint& p : m.young_by_speed) {
+        table.push_back({{"speed", quantity_json(p.speed, kSpeed)},
+                         {"young", quantity_json(p.young, kPressure)}});
+      }
+      e["young_by_speed"] = table;
+    }
+    e["poisson"] = m.poisson;
+    switch (m.mass_spec) {
+      case MassSpec::kDensity: e["density"] = quantity_json(m.density, kDensity); break;
+      case MassSpec::kTotalMass: e["mass"] = quantity_json(m.total_mass, kMass); break;
+      case MassSpec::kVertexMass: e["vertex_mass"] = quantity_json(m.vertex_mass, kMass); break;
+    }
+    e["damping"] = quantity_json(m.damping, kFrequency);
+    materials[entry.region] = e;
+  }
+  j["materials"] = materials;
+
+  const IntegratorDef& in = scene.integrator;
+  json integrator = json::object();
+  integrator["dt"] = in.dt ? quantity_json(*in.dt, kTime) : json("auto");
+  integrator["dt_safety"] = in.dt_safety;
+  integrator["mass_scaling"] = in.mass_scaling;
+  if (in.target_dt) integrator["target_dt"] = quantity_json(*in.target_dt, kTime);
+  integrator["duration"] = quantity_json(in.duration, kTime);
+  j["integrator"] = integrator;
+
+  json boundary = json::array();
+  for (const BoundaryDef& b : scene.boundary) {
+    json e = json::object();
+    if (b.type == BoundaryKind::kFixed) {
+      e["type"] = "fixed";
+      json w = json::object();
+      const VertexSelect& s = b.where;
+      if (s.surface_only) w["surface"] = true;
+      if (!s.region.empty()) w["region"] = s.region;
+      const bool below = s.below != kInf;
+      const bool above = s.above != -kInf;
+      if (below || above) w["normal"] = direction_json(s.normal);
+      if (below) w["below"] = quantity_json(s.below, kLength);
+      if (above) w["above"] = quantity_json(s.above, kLength);
+      if (s.center) {
+        w["center"] = vec_json(*s.center, kLength);
+        w["radius"] = quantity_json(s.radius, kLength);
+      }
+      e["where"] = w;
+    } else {
+      e["type"] = "indent";
+      e["center"] = vec_json(b.center, kLength);
+      e["radius"] = quantity_json(b.radius, kLength);
+      e["depth"] = quantity_json(b.depth, kLength);
+      e["speed"] = quantity_json(b.speed, kSpeed);
+      e["direction"] = direction_json(b.direction);
+    }
+    boundary.push_back(e);
+  }
+  j["boundary"] = boundary;
+
+  const NeedleDef& n = scene.needle;
+  json needle = json::object();
+  needle["enabled"] = n.enabled;
+  if (n.enabled) {
+    static constexpr const char* kShapes[] = {"point", "sphere", "flat"};
+    needle["shape"] = kShapes[static_cast<int>(n.shape)];
+    needle["tip_radius"] = quantity_json(n.tip_radius, kLength);
+    needle["direction"] = direction_json(n.direction);
+    needle["start"] = n.start ? vec_json(*n.start, kLength) : json("auto");
+    needle["standoff"] = quantity_json(n.standoff, kLength);
+    needle["speed"] = quantity_json(n.speed, kSpeed);
+    needle["max_travel"] = quantity_json(n.max_travel, kLength);
+    if (!n.trajectory.empty()) needle["trajectory"] = n.trajectory;
+  }
+  j["needle"] = needle;
+
+  const PunctureDef& p = scene.puncture;
+  static constexpr const char* kCriteria[] = {"none", "force", "strain", "energy"};
+  json puncture = json::object();
+  puncture["criterion"] = kCriteria[static_cast<int>(p.criterion)];
+  if (p.criterion == PunctureCriterion::kForce) puncture["threshold"] = quantity_json(p.threshold, kForce);
+  if (p.criterion == PunctureCriterion::kStrain) puncture["threshold"] = p.threshold;
+  if (p.criterion == PunctureCriterion::kEnergy) puncture["threshold"] = quantity_json(p.threshold, kEnergy);
+  puncture["force_drop"] = p.force_drop;
+  puncture["drop_time"] = quantity_json(p.drop_time, kTime);
+  puncture["shaft_friction"] = quantity_json(p.shaft_friction, kStiffness);
+  j["puncture"] = puncture;
+
+  const HoldingPipetteDef& h = scene.holding_pipette;
+  json holding = json::object();
+  holding["enabled"] = h.enabled;
+  if (h.enabled) {
+    holding["mode"] = h.mode == HoldingMode::kSuction ? "suction" : "fixed";
+    holding["inner_radius"] = quantity_json(h.inner_radius, kLength);
+    holding["outer_radius"] = quantity_json(h.outer_radius, kLength);
+    holding["suction"] = quantity_json(h.suction, kPressure);
+    holding["friction"] = h.friction;
+    if (h.side) holding["side"] = direction_json(*h.side);
+    holding["position"] = h.position ? vec_json(*h.position, kLength) : json("auto");
+  }
+  j["holding_pipette"] = holding;
+
+  const HapticsDef& hp = scene.haptics;
+  static constexpr const char* kDevices[] = {"none", "scripted", "emulated", "replay", "network"};
+  json haptics = json::object();
+  haptics["device"] = kDevices[static_cast<int>(hp.device)];
+  haptics["rate"] = quantity_json(hp.rate, kFrequency);
+  haptics["workspace_scale"] = hp.workspace_scale;
+  haptics["force_scale"] = hp.force_scale;
+  haptics["max_force"] = quantity_json(hp.max_force, kForce);
+  haptics["max_stiffness"] = quantity_json(hp.max_stiffness, kStiffness);
+  haptics["interpolation"] =
+      hp.interpolation == HapticInterpolation::kStiffness ? "stiffness" : "first_order_hold";
+  haptics["stall_timeout"] = quantity_json(hp.stall_timeout, kTime);
+  haptics["coupling_stiffness"] =
+      hp.coupling_stiffness ? quantity_json(*hp.coupling_stiffness, kStiffness) : json("auto");
+  haptics["coupling_damping"] =
+      hp.coupling_damping ? quantity_json(*hp.coupling_damping, kDamping) : json("auto");
+  if (!hp.replay_file.empty()) haptics["replay_file"] = hp.replay_file;
+  haptics["network_host"] = hp.network_host;
+  haptics["network_port"] = hp.network_port;
+  j["haptics"] = haptics;
+
+  const OutputDef& o = scene.output;
+  json output = json::object();
+  if (o.frame_interval) {
+    output["frame_interval"] = quantity_json(*o.frame_interval, kTime);
+  } else {
+    output["frames"] = o.frames;
+  }
+  output["sample_interval"] = quantity_json(o.sample_interval, kTime);
+  j["output"] = output;
+  return j;
+}
+
+}  // namespace zona

@@ -1,0 +1,268 @@
+// Scenes: the description of one experiment (mesh, materials, tools, outputs) loaded from JSON.
+//
+// A scene file writes units in its values ("17.9 kPa", "56 um"); load_scene() validates every
+// key, converts to SI once and returns plain structs with defaults (like Box2D's b2DefaultBodyDef:
+// a default-constructed Scene is a valid starting point). docs/scenes.md lists every key.
+// Values that depend on the mesh (the needle's start beside a file mesh, ...) stay std::nullopt
+// ("auto") here and are resolved when the model is built.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <nlohmann/json_fwd.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/base.h"
+#include "engine/vec.h"
+
+namespace zona {
+
+/// Which physics model runs the scene.
+enum class ModelKind {
+  kSvk,        ///< St Venant-Kirchhoff mass-tensor FEM (seed 000, non-linear)
+  kLinear,     ///< linear mass-tensor FEM (seed 000; valid for small displacements)
+  kParticles,  ///< particle membrane model (seed 001)
+};
+
+/// Where the mesh comes from.
+enum class MeshSource {
+  kGenerate,  ///< the cell mesh generator, from MeshGenerateDef
+  kFile,      ///< a Gmsh / TetGen / VTU file
+};
+
+/// Parameters of the cell mesh generator (mirrors CellMeshSpec in engine/mesh_generate.h; the
+/// generated cell is centred at the origin).
+struct MeshGenerateDef {
+  double diameter = 56e-6;          ///< cell diameter [m]
+  double zona_thickness = 0.0;      ///< outer shell (zona pellucida / chorion) thickness [m]; 0: none
+  double nucleus_diameter = 0.0;    ///< nucleus diameter [m]; 0: no nucleus region
+  int64_t target_vertices = 0;      ///< uniform mesh of about this many vertices; 0: use edge_length
+  double edge_length = 0.0;         ///< edge length away from refinement [m]; 0: use target_vertices
+  double refine_edge_length = 0.0;  ///< edge length at refine_at [m]; 0: no graded refinement
+  double refine_radius = 0.0;       ///< radius of the finely meshed zone around refine_at [m]
+  Vec3d refine_at{0.0, 0.0, 0.0};   ///< centre of refinement [m]
+  bool refine_at_needle = false;    ///< refine_at was "needle": where the needle axis enters the cell
+};
+
+/// The mesh of the scene: a file or generator parameters.
+struct MeshDef {
+  MeshSource source = MeshSource::kGenerate;
+  std::string file;            ///< mesh file path (resolved against the scene's folder), kFile only
+  double file_unit = 1.0;      ///< length of one file coordinate unit [m] (1e-6 for "um")
+  MeshGenerateDef generate;    ///< generator parameters, kGenerate only
+};
+
+/// How a material's mass is given; the model builder turns each into lumped vertex masses.
+enum class MassSpec {
+  kDensity,     ///< density [kg/m^3] times tetrahedron volume
+  kTotalMass,   ///< total mass of the tetrahedra this material covers, spread by volume
+  kVertexMass,  ///< fixed mass per vertex, split between materials by tetrahedron count
+};
+
+/// One point of a speed-dependent Young's modulus table (seed 002 eq. 9).
+struct SpeedModulusPoint {
+  double speed = 0.0;  ///< needle speed [m/s]
+  double young = 0.0;  ///< Young's modulus at that speed [Pa]
+};
+
+/// Elastic material of one region. Isotropic; linear or SVK per Scene::model.
+struct MaterialDef {
+  double young = 0.0;    ///< Young's modulus [Pa] (> 0); from young_by_speed at needle.speed if set
+  double poisson = 0.3;  ///< Poisson ratio, [0, 0.5)
+  MassSpec mass_spec = MassSpec::kDensity;
+  double density = 1000.0;   ///< mass density [kg/m^3], kDensity
+  double total_mass = 0.0;   ///< mass of all tetrahedra using this material [kg], kTotalMass
+  double vertex_mass = 0.0;  ///< mass of each vertex [kg], kVertexMass
+  double damping = 0.0;      ///< mass-proportional damping: gamma = damping * M [1/s]
+  /// Speed-dependent modulus (seed 002 eq. 9): Young's modulus linear in needle speed through
+  /// these points (extrapolated linearly beyond the ends); empty when `young` is given directly.
+  /// Sorted by increasing speed, (point_count >= 2).
+  std::vector<SpeedModulusPoint> young_by_speed;
+};
+
+/// A material and the region it applies to ("zona", "cytoplasm", "nucleus", a file's physical
+/// name or tag as text, or "default" for every region without its own entry).
+struct RegionMaterialDef {
+  std::string region;
+  MaterialDef material;
+};
+
+/// Time stepping (explicit centred difference, seed 000 eq. 7).
+struct IntegratorDef {
+  std::optional<double> dt;   ///< time step [s]; nullopt: auto = dt_safety * critical step
+  double dt_safety = 0.9;     ///< fraction of the critical step used by auto dt, (0, 1]
+  double mass_scaling = 1.0;  ///< factor on all masses (>= 1) to lengthen the stable step
+  /// When set: raise mass_scaling as far as needed for the auto step to reach this [s]
+  std::optional<double> target_dt;
+  double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
+};
+
+/// Vertices selected by a boundary condition: those meeting every condition that is set.
+struct VertexSelect {
+  bool surface_only = false;  ///< only boundary-surface vertices
+  std::string region;         ///< only vertices of this region's tetrahedra; empty: any
+  Vec3d normal{0.0, 0.0, 1.0};  ///< unit normal of the half-space test below / above
+  double below = std::numeric_limits<double>::infinity();    ///< keep dot(x, normal) <= below [m]
+  double above = -std::numeric_limits<double>::infinity();   ///< keep dot(x, normal) >= above [m]
+  std::optional<Vec3d> center;  ///< ball test centre [m]; nullopt: no ball test
+  double radius = 0.0;          ///< ball test radius [m]: keep |x - center| <= radius
+};
+
+enum class BoundaryKind {
+  kFixed,   ///< selected vertices never move
+  kIndent,  ///< surface patch pushed along `direction` at `speed` up to `depth`, then held
+};
+
+/// One boundary condition.
+struct BoundaryDef {
+  BoundaryKind type = BoundaryKind::kFixed;
+  VertexSelect where;        ///< kFixed: the fixed vertices
+  Vec3d center{0.0, 0.0, 0.0};     ///< kIndent: patch centre on the surface [m]
+  double radius = 0.0;             ///< kIndent: patch radius (surface vertices within it) [m]
+  double depth = 0.0;              ///< kIndent: final indentation depth [m]
+  double speed = 0.0;              ///< kIndent: indentation speed [m/s]
+  Vec3d direction{0.0, 0.0, -1.0}; ///< kIndent: unit push direction (default: towards the origin)
+};
+
+enum class NeedleShape {
+  kPoint,   ///< seed 000: the tip is a point, contact by ray-triangle; load spread over tip_radius
+  kSphere,  ///< hemispherical tip of tip_radius
+  kFlat,    ///< flat circular end of tip_radius (blunt pipette)
+};
+
+/// The injection micropipette: a rigid tool driven by a script or, later, the haptic coupling.
+struct NeedleDef {
+  bool enabled = false;       ///< the scene has a needle
+  NeedleShape shape = NeedleShape::kPoint;
+  double tip_radius = 1e-6;   ///< tip radius [m]
+  Vec3d direction{1.0, 0.0, 0.0};  ///< unit direction of travel (towards the cell)
+  std::optional<Vec3d> start;  ///< tip position at t = 0 [m]; nullopt: auto (standoff before the
+                               ///< surface on the axis through the origin)
+  double standoff = 5e-6;     ///< gap between tip and cell surface for an auto start [m]
+  double speed = 1e-4;        ///< insertion speed [m/s]
+  double max_travel = 0.0;    ///< travel after which the needle stops [m]; 0: no limit
+  std::string trajectory;     ///< CSV of tip positions over time (path resolved); empty: straight
+};
+
+enum class PunctureCriterion {
+  kNone,    ///< the membrane never punctures
+  kForce,   ///< axial needle force reaches threshold [N]
+  kStrain,  ///< largest principal Green strain in the zona at the tip reaches threshold [-]
+  kEnergy,  ///< elastic energy stored in the cell reaches threshold [J]
+};
+
+/// Membrane puncture: when it happens and what follows.
+struct PunctureDef {
+  PunctureCriterion criterion = PunctureCriterion::kNone;
+  double threshold = 0.0;       ///< [N], [-] or [J] by criterion
+  double force_drop = 1.0;      ///< fraction of the tip contact force released at puncture, (0, 1]
+  double drop_time = 0.0;       ///< time over which it is released [s]
+  double shaft_friction = 0.0;  ///< axial drag on the needle per inserted length [N/m]
+};
+
+enum class HoldingMode {
+  kSuction,  ///< suction pressure on the aspirated patch, rim contact with Coulomb friction
+  kFixed,    ///< the vertices of the aspirated patch are fixed (the simple option)
+};
+
+/// The holding pipette that keeps the cell in place by suction (seed 002).
+struct HoldingPipetteDef {
+  bool enabled = false;       ///< the scene has a holding pipette
+  HoldingMode mode = HoldingMode::kSuction;
+  double inner_radius = 0.0;  ///< inner (aspiration) radius [m]
+  double outer_radius = 0.0;  ///< outer radius of the rim [m]; 0: thin rim at inner_radius
+  double suction = 2.5e3;     ///< suction pressure [Pa]
+  double friction = 0.3;      ///< Coulomb friction coefficient rim-cell [-]
+  std::optional<Vec3d> side;  ///< unit vector from the cell centre to the pipette; nullopt:
+                              ///< needle.direction (opposite the needle)
+  std::optional<Vec3d> position;  ///< centre of the pipette mouth [m]; nullopt: the cell surface
+                                  ///< on `side`
+};
+
+enum class HapticDeviceKind {
+  kNone,      ///< no haptic thread
+  kScripted,  ///< constant-speed insertion or trajectory file
+  kEmulated,  ///< a mass-spring-damper operator model
+  kReplay,    ///< a recorded session
+  kNetwork,   ///< UDP bridge to an external device driver
+};
+
+enum class HapticInterpolation {
+  kFirstOrderHold,  ///< linear extrapolation from the last two force samples
+  kStiffness,       ///< last force plus local stiffness times device motion since the sample
+};
+
+/// The haptic channel: device, rate, hand-to-cell scaling, device limits.
+struct HapticsDef {
+  HapticDeviceKind device = HapticDeviceKind::kNone;
+  double rate = 1000.0;              ///< haptic loop rate [Hz]
+  double workspace_scale = 5e-3;     ///< tool displacement per device displacement [-]
+  double force_scale = 1e5;          ///< device force per tool force [-]
+  double max_force = 3.3;            ///< device force limit [N]
+  double max_stiffness = 400.0;      ///< device stiffness limit [N/m]
+  HapticInterpolation interpolation = HapticInterpolation::kStiffness;
+  double stall_timeout = 0.05;       ///< fade the force out after this long without a sample [s]
+  std::optional<double> coupling_stiffness;  ///< virtual coupling [N/m]; nullopt: auto (Llewellyn)
+  std::optional<double> coupling_damping;    ///< virtual coupling [N*s/m]; nullopt: auto
+  std::string replay_file;           ///< recorded session for kReplay (path resolved)
+  std::string network_host = "127.0.0.1";  ///< UDP peer for kNetwork
+  int network_port = 47600;                ///< UDP port for kNetwork
+};
+
+/// What a run writes.
+struct OutputDef {
+  int frames = 10;               ///< VTU frames over the run (evenly spaced); 0: none
+  std::optional<double> frame_interval;  ///< time between frames [s]; overrides frames when set
+  double sample_interval = 1e-5; ///< time between force.csv rows [s]; 0: every step
+};
+
+/// One experiment, in SI. Default-constructed: a 56 um generated ball with no tools.
+struct Scene {
+  std::string name;         ///< short name (defaults to the file's stem)
+  std::string description;  ///< free text
+  std::string source;       ///< file the scene came from ("" when parsed from memory)
+  MeshDef mesh;
+  ModelKind model = ModelKind::kSvk;
+  std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
+  IntegratorDef integrator;
+  std::vector<BoundaryDef> boundary;      ///< in file order
+  NeedleDef needle;
+  PunctureDef puncture;
+  HoldingPipetteDef holding_pipette;
+  HapticsDef haptics;
+  OutputDef output;
+};
+
+/// Loads and validates a scene file. `overrides` are "key.path=value" strings (the CLI's --set)
+/// applied to the JSON before validation. Errors are one line: "FILE: key.path: what is wrong".
+Result<Scene> load_scene(const std::string& path, const std::vector<std::string>& overrides = {});
+
+/// Validates an already parsed scene. `source_name` prefixes error messages and, when it is a
+/// path, relative paths in the scene (mesh file, trajectory) resolve against its folder.
+Result<Scene> parse_scene(const nlohmann::json& json, const std::string& source_name,
+                          const std::vector<std::string>& overrides = {});
+
+/// Applies one "key.path=value" override to a JSON document. The value is parsed as JSON when it
+/// is valid JSON (numbers, true/false, arrays, objects, quoted strings), otherwise taken as a
+/// string ("20kPa", "auto"). Missing objects on the path are created; a path through a value
+/// that is not an object (or an array with an index in range) is an error.
+Status apply_override(nlohmann::json& json, const std::string& assignment);
+
+/// Resolves a scene argument: an existing file path, or a name ("mouse_oocyte", with or without
+/// ".json") looked up in `search_dirs`, then $ZONA_SCENES_DIR, then ./scenes.
+Result<std::string> find_scene(const std::string& name,
+                               const std::vector<std::string>& search_dirs = {});
+
+/// The material for a region name: its own entry, else "default", else nullptr.
+const MaterialDef* find_material(const Scene& scene, const std::string& region);
+
+/// The scene as JSON with every value written in SI units ("1.79e+04 Pa"), which parse_scene
+/// reads back to the same Scene; used to record the resolved scene next to a run's results.
+nlohmann::json scene_to_json(const Scene& scene);
+
+/// Name of a model ("svk", "linear", "particles") as written in scene files.
+const char* model_name(ModelKind model);
+
+}  // namespace zona
