@@ -1,0 +1,49 @@
+// CPU internal-force assembly (both formulations, multi-threaded, bitwise deterministic),
+// global tangent stiffness and the largest natural frequency, for tests and quasi-static tools.
+//
+// Determinism: each tetrahedron writes its four corner forces to its own slots of
+// State::tet_force (no shared writes), then each vertex sums its slots in the fixed order of
+// the vertex-to-tetrahedron adjacency (ascending tetrahedron index). Energies and counts are
+// summed per fixed-size chunk and the chunks in order. No result depends on the thread count.
+#pragma once
+
+#include <Eigen/SparseCore>
+#include <span>
+
+#include "engine/model.h"
+#include "engine/state.h"
+
+namespace zona {
+
+/// Element pass: corner forces of every tetrahedron at displacements state.u into
+/// state.tet_force, energy and health per chunk into state.tet_chunks. Runs on state.pool.
+void compute_tet_forces(const Model& model, State& state);
+
+/// Sums the element-pass chunks into diag: elastic energy, health bits, counts, first indices.
+void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
+
+/// Elastic force on vertex v [N]: its corner slots of state.tet_force summed in adjacency order.
+inline Vec3d gather_vertex_force(const Model& model, const State& state, size_t v) {
+  const int32_t* tets = model.adjacency.tets.data();
+  const int8_t* corner = model.adjacency.corner.data();
+  const Vec3d* slots = state.tet_force.data();
+  Vec3d f{0, 0, 0};
+  for (int32_t i = model.adjacency.offsets[v]; i < model.adjacency.offsets[v + 1]; ++i)
+    f += slots[4 * static_cast<size_t>(tets[i]) + static_cast<size_t>(corner[i])];
+  return f;
+}
+
+/// Elastic forces -dW/du at state.u into state.force [N] (fixed and prescribed vertices
+/// included), with the elastic energy and element health in state.diag. Does not step.
+void compute_elastic_forces(const Model& model, State& state);
+
+/// Global tangent stiffness d^2W/du^2 at displacements u [N/m], (3 vertex_count)^2, symmetric;
+/// the model's constitutive law (SVK tangent or linear K). Host-only, allocates.
+Eigen::SparseMatrix<double> assemble_stiffness(const Model& model, std::span<const Vec3d> u);
+
+/// Largest natural frequency omega_max [rad/s] of the linearised model (M^-1 K at rest, fixed
+/// vertices removed) by power iteration; the explicit centred-difference scheme is stable for
+/// dt <= 2 / omega_max. Converges from below. Host-only, allocates.
+double estimate_max_frequency(const Model& model, int iterations = 400);
+
+}  // namespace zona

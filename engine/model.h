@@ -1,0 +1,132 @@
+// The immutable physics model: materials, lumped masses, per-tetrahedron geometry or mass
+// tensors, boundary conditions and the stable time step, built once from a descriptor.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "engine/base.h"
+#include "engine/fem_element.h"
+#include "engine/mass_tensor.h"
+#include "engine/material.h"
+#include "engine/mesh.h"
+
+namespace zona {
+
+/// What the model does about inverted and collapsing SVK elements.
+enum class InversionHandling : int32_t {
+  kReport = 0,        ///< plain SVK; step() flags inverted/collapsing elements and goes on
+  kClampStretch = 1,  ///< inversion-safe SVK: principal stretches clamped (fem_element.h)
+};
+
+/// A material for the tetrahedra of one region tag.
+struct RegionMaterial {
+  int32_t region = 0;  ///< region tag (Mesh::tet_region)
+  Material material;
+};
+
+/// Everything build_model needs besides the mesh. Defaults give a usable SVK model of the
+/// mouse zona pellucida (seed 000 Table I) with an automatic stable step.
+struct ModelDesc {
+  /// Material of every tetrahedron whose region has no entry in `region_materials`.
+  Material material{};
+  /// Per-region overrides.
+  std::vector<RegionMaterial> region_materials;
+  /// Lumped vertex mass [kg]: 0 derives masses from the densities (rho V / 4 per tetrahedron
+  /// corner); > 0 gives every vertex this mass (the seed's choice: 0.07995e-5 mg = 7.995e-12 kg).
+  double vertex_mass = 0;
+  ConstitutiveModel constitutive = ConstitutiveModel::kSvk;
+  Formulation formulation = Formulation::kGradient;
+  InversionHandling inversion = InversionHandling::kReport;
+  /// Smallest principal stretch the clamped SVK evaluates [-] (kClampStretch only).
+  double clamp_stretch = kSvkCollapseStretch;
+  /// Vertices held at zero displacement.
+  std::vector<int32_t> fixed_vertices;
+  /// Uniform mass scaling factor (>= 1 to speed up quasi-static runs): every mass times this,
+  /// the critical step times its square root. The factor used is reported in Model.
+  double mass_scaling = 1.0;
+  /// When > 0: raise mass_scaling as far as needed for the automatic step to reach this [s].
+  double target_dt = 0;
+  /// Time step [s]: 0 chooses dt_safety * dt_critical. A value above dt_critical is refused.
+  double dt = 0;
+  /// Fraction of the critical step used by the automatic step, in (0, 1].
+  double dt_safety = 0.9;
+  /// step() flags an energy blow-up when kinetic + elastic energy exceeds this factor times
+  /// (initial energy + work put in by loads and prescribed vertices).
+  double energy_blowup_factor = 10.0;
+  /// Experiments only: accept dt above dt_critical (every step then reports
+  /// kStepDtAboveCritical). Used to show the blow-up; never set it in a simulation.
+  bool unsafe_allow_dt_above_critical = false;
+  /// Threads used by the precompute (1: serial). Does not change the result.
+  int precompute_threads = 1;
+};
+
+/// Integration coefficients of one vertex for the centred-difference update
+/// u+ = a u - b u- + c f (DESIGN.md section 3), with gamma = alpha M:
+/// a = 2M / (M + gamma dt/2), b = (M - gamma dt/2) / (M + gamma dt/2), c = dt^2 / (M + gamma dt/2).
+struct VertexCoefficients {
+  double a = 0;  ///< [-]
+  double b = 0;  ///< [-]
+  double c = 0;  ///< [s^2/kg]
+};
+
+/// The immutable model. Build it with build_model; afterwards only read it.
+struct Model {
+  // Mesh.
+  std::vector<Vec3d> rest_positions;  ///< rest positions [m], (vertex_count)
+  std::vector<Tet> tets;              ///< vertex indices, (tet_count)
+  VertexTetAdjacency adjacency;       ///< tetrahedra around each vertex, ascending
+
+  // Materials.
+  std::vector<Material> materials;     ///< distinct materials, (material_count)
+  std::vector<Lame> material_lame;     ///< their Lame coefficients [Pa], (material_count)
+  std::vector<int32_t> tet_material;   ///< material index per tetrahedron, (tet_count)
+  ConstitutiveModel constitutive = ConstitutiveModel::kSvk;
+  Formulation formulation = Formulation::kGradient;
+  InversionHandling inversion = InversionHandling::kReport;
+  double clamp_stretch = kSvkCollapseStretch;  ///< [-]
+
+  // Precomputed element data.
+  std::vector<TetShape<double>> tet_shape;  ///< shape gradients [1/m] and volume [m^3], (tet_count)
+  MassTensors tensors;  ///< stored tensors, filled only for Formulation::kTensorStored
+
+  // Masses and boundary conditions.
+  std::vector<double> vertex_mass;          ///< lumped mass, scaled [kg], (vertex_count)
+  std::vector<double> vertex_damping;       ///< gamma = alpha M [kg/s], (vertex_count)
+  std::vector<VertexCoefficients> vertex_coefficients;  ///< update coefficients, (vertex_count)
+  std::vector<int32_t> fixed_vertices;      ///< sorted, unique
+  std::vector<uint8_t> vertex_fixed;        ///< 1 for fixed vertices, (vertex_count)
+
+  // Time step.
+  double dt = 0;               ///< time step [s]
+  double dt_critical = 0;      ///< estimated stability limit min_e h_e / c_e [s]
+  double min_altitude = 0;     ///< smallest element altitude h_min [m]
+  double max_wave_speed = 0;   ///< largest effective dilatational wave speed c_d [m/s]
+  double mass_scaling = 1.0;   ///< factor applied to every mass [-]
+  bool unsafe_allow_dt_above_critical = false;
+
+  // Health thresholds.
+  double energy_blowup_factor = 10.0;  ///< [-]
+  /// Energies below this are noise [J]: mu * total volume * (1e-8)^2.
+  double energy_floor = 0;
+
+  // Precompute timings (seed 000 Table II column 3).
+  double precompute_seconds = 0;         ///< whole build_model [s]
+  double tensor_precompute_seconds = 0;  ///< stored tensors alone, 0 when not stored [s]
+
+  size_t vertex_count() const { return rest_positions.size(); }
+  size_t tet_count() const { return tets.size(); }
+  /// Lame coefficients of tetrahedron t [Pa].
+  const Lame& tet_lame(size_t t) const { return material_lame[static_cast<size_t>(tet_material[t])]; }
+};
+
+/// Builds a model. The mesh must have passed validate_mesh (positive volumes). Errors (one
+/// line each): invalid materials (E <= 0, nu outside [0, 0.5), ...), fixed vertex out of range,
+/// bad mass scaling or safety factor, dt above the critical step.
+Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc);
+
+/// One-line summary: sizes, model, formulation, dt and dt_critical, mass scaling.
+std::string describe_model(const Model& model);
+
+}  // namespace zona
