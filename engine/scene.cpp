@@ -1051,6 +1051,42 @@ class DuplicateKeyFinder {
   std::string duplicate_;
 };
 
+// Keys that exclude each other under one parent ("vertices" or "edge_length"). When --set
+// gives one of them, the file's others are dropped: the command line wins over the file.
+void drop_alternatives(json& doc, const std::string& set_path,
+                       const std::vector<std::string>& overridden) {
+  static const std::vector<std::vector<std::string>> kGroups = {
+      {"file", "generate"},      {"vertices", "edge_length"},      {"young", "young_by_speed"},
+      {"density", "mass", "vertex_mass"}, {"frames", "frame_interval"}, {"dt", "target_dt"}};
+  const size_t dot = set_path.rfind('.');
+  if (dot == std::string::npos) return;
+  const std::string parent_path = set_path.substr(0, dot);
+  const std::string key = set_path.substr(dot + 1);
+  json* parent = &doc;
+  for (size_t start = 0; start <= parent_path.size();) {
+    const size_t next = std::min(parent_path.find('.', start), parent_path.size());
+    const std::string segment = parent_path.substr(start, next - start);
+    if (!parent->is_object() || parent->find(segment) == parent->end()) return;
+    parent = &(*parent)[segment];
+    start = next + 1;
+  }
+  if (!parent->is_object()) return;
+  for (const std::vector<std::string>& group : kGroups) {
+    if (std::find(group.begin(), group.end(), key) == group.end()) continue;
+    // dt "auto" and target_dt live together; only an explicit dt excludes target_dt.
+    if (key == "dt" && parent->value("dt", json()) == json("auto")) continue;
+    for (const std::string& other : group) {
+      const std::string other_path = parent_path + "." + other;
+      if (other == key ||
+          std::find(overridden.begin(), overridden.end(), other_path) != overridden.end()) {
+        continue;
+      }
+      parent->erase(other);
+      if (key == "generate" && other == "file") parent->erase("unit");
+    }
+  }
+}
+
 }  // namespace
 
 Status apply_override(json& doc, const std::string& assignment) {
@@ -1082,7 +1118,12 @@ Status apply_override(json& doc, const std::string& assignment) {
     const bool last = i + 1 == segments.size();
     if (node->is_object()) {
       if (last) {
-        (*node)[s] = std::move(value);
+        // null removes the key: the way to fall back to a default from the command line.
+        if (value.is_null()) {
+          node->erase(s);
+        } else {
+          (*node)[s] = std::move(value);
+        }
         return Status::ok_status();
       }
       if (node->find(s) == node->end()) (*node)[s] = json::object();
@@ -1119,6 +1160,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
     if (!st) return Error{ctx.source + ": " + st.error().message};
     ctx.overridden.push_back(trim(std::string_view(o).substr(0, o.find('='))));
   }
+  for (const std::string& path : ctx.overridden) drop_alternatives(doc, path, ctx.overridden);
 
   Scene scene;
   scene.source = source_name;
