@@ -1,0 +1,128 @@
+// End-to-end tests of the `zona` command line: exit codes, one-line errors, JSON outputs.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+namespace {
+
+struct CliRun {
+  int exit_code = -1;
+  std::string out;  // stdout
+  std::string err;  // stderr
+};
+
+// Runs the zona binary with `args`; stdout and stderr are captured through temp files.
+CliRun run_zona(const std::string& args) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path();
+  const std::string tag = std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+                          "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name();
+  const std::string out_path = (dir / ("zona_cli_out_" + tag)).string();
+  const std::string err_path = (dir / ("zona_cli_err_" + tag)).string();
+  const std::string cmd =
+      std::string(ZONA_CLI_PATH) + " " + args + " >" + out_path + " 2>" + err_path;
+  const int status = std::system(cmd.c_str());
+  CliRun r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  auto slurp = [](const std::string& p) {
+    std::ifstream f(p);
+    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  };
+  r.out = slurp(out_path);
+  r.err = slurp(err_path);
+  std::filesystem::remove(out_path);
+  std::filesystem::remove(err_path);
+  return r;
+}
+
+std::string data(const std::string& name) { return std::string(ZONA_TEST_DATA_DIR) + "/" + name; }
+
+int count_lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+TEST(Cli, MeshInfoJsonHasTheRequiredKeys) {
+  const CliRun r = run_zona("mesh info --json " + data("box2_v41_ascii.msh"));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  for (const char* key : {"vertices", "tets", "boundary_triangles", "volume_m3",
+                          "min_dihedral_deg", "max_dihedral_deg", "regions"})
+    EXPECT_TRUE(j.contains(key)) << key;
+  EXPECT_GT(j["tets"].get<int>(), 0);
+  EXPECT_GT(j["min_dihedral_deg"].get<double>(), 0.0);
+  EXPECT_LT(j["max_dihedral_deg"].get<double>(), 180.0);
+  EXPECT_GE(j["regions"].size(), 2u);  // the fixture has two physical volumes
+}
+
+TEST(Cli, MissingFileIsOneLineErrorNamingIt) {
+  const CliRun r = run_zona("mesh info /nonexistent/cell.msh");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("/nonexistent/cell.msh"), std::string::npos) << r.err;
+  EXPECT_TRUE(r.out.empty());
+}
+
+TEST(Cli, BrokenFileIsOneLineErrorWithLine) {
+  const std::string path =
+      (std::filesystem::temp_directory_path() / "zona_cli_broken.msh").string();
+  {
+    std::ofstream f(path);
+    f << "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 2 1 x\n";
+  }
+  const CliRun r = run_zona("mesh info " + path);
+  std::filesystem::remove(path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("zona_cli_broken.msh:5"), std::string::npos) << r.err;
+}
+
+TEST(Cli, GenerateThenInfoRoundTrip) {
+  const std::string path =
+      (std::filesystem::temp_directory_path() / "zona_cli_gen.msh").string();
+  const CliRun g = run_zona("mesh generate --diameter 56um --vertices 2000 --json --out " + path);
+  ASSERT_EQ(g.exit_code, 0) << g.err;
+  const nlohmann::json jg = nlohmann::json::parse(g.out);
+  const CliRun i = run_zona("mesh info --json " + path);
+  std::filesystem::remove(path);
+  ASSERT_EQ(i.exit_code, 0) << i.err;
+  const nlohmann::json ji = nlohmann::json::parse(i.out);
+  EXPECT_EQ(jg["vertices"], ji["vertices"]);
+  EXPECT_EQ(jg["tets"], ji["tets"]);
+  EXPECT_NEAR(ji["vertices"].get<double>(), 2000.0, 200.0);
+  // A 56 um ball: 4/3 pi (28 um)^3 = 9.195e-14 m^3, within 3 %.
+  EXPECT_NEAR(ji["volume_m3"].get<double>(), 9.1952e-14, 0.03 * 9.1952e-14);
+  EXPECT_GE(ji["min_dihedral_deg"].get<double>(), 10.0);
+}
+
+TEST(Cli, GenerateRejectsBadUnit) {
+  const CliRun r = run_zona("mesh generate --diameter 56kPa --vertices 100 --out /tmp/x.msh");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("--diameter"), std::string::npos) << r.err;
+}
+
+TEST(Cli, InfoJsonListsBackends) {
+  const CliRun r = run_zona("info --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  ASSERT_TRUE(j["backends_compiled"].is_array());
+  EXPECT_EQ(j["backends_compiled"][0], "cpu");
+  EXPECT_TRUE(j["devices"].is_array());
+}
+
+TEST(Cli, EveryCommandHasHelp) {
+  for (const char* cmd : {"", "info", "mesh", "mesh info", "mesh generate", "mesh convert"}) {
+    const CliRun r = run_zona(std::string(cmd) + " --help");
+    EXPECT_EQ(r.exit_code, 0) << cmd;
+    EXPECT_NE(r.out.find("Usage"), std::string::npos) << cmd << ": " << r.out;
+  }
+}
+
+}  // namespace
