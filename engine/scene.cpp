@@ -995,7 +995,7 @@ const char* length_unit_name(double factor) {
   return nullptr;
 }
 
-json quantity_json(double v, Dimension d) { return format_quantity(v, d, 17); }
+json quantity_json(double v, Dimension d) { return format_quantity(v, d, 0); }
 
 json vec_json(Vec3d v, Dimension d) {
   return json::array({quantity_json(v.x, d), quantity_json(v.y, d), quantity_json(v.z, d)});

@@ -63,9 +63,12 @@ std::string generic_unit(Dimension d) {
   return out;
 }
 
+// Every unit zona accepts is a power of ten times an SI product, so a factor is kept as its
+// decimal exponent: the conversion then shifts the number's exponent and rounds once ("56 um"
+// becomes exactly the double 56e-6, as if written in C++).
 struct UnitSymbol {
   const char* symbol;
-  double factor;  // to SI
+  int exponent10;  // factor to SI = 10^exponent10
   Dimension dimension;
   bool prefixable;
 };
@@ -73,22 +76,28 @@ struct UnitSymbol {
 // The base units a scene may use. "g" is the prefixable mass unit so that "kg" and "mg" both
 // come out of the prefix rule.
 constexpr UnitSymbol kUnits[] = {
-    {"m", 1.0, dim::kLength, true},      {"s", 1.0, dim::kTime, true},
-    {"g", 1e-3, dim::kMass, true},       {"N", 1.0, dim::kForce, true},
-    {"Pa", 1.0, dim::kPressure, true},   {"Hz", 1.0, dim::kFrequency, true},
-    {"J", 1.0, dim::kEnergy, true},      {"W", 1.0, dim::kPower, true},
-    {"%", 0.01, dim::kNone, false},
+    {"m", 0, dim::kLength, true},      {"s", 0, dim::kTime, true},
+    {"g", -3, dim::kMass, true},       {"N", 0, dim::kForce, true},
+    {"Pa", 0, dim::kPressure, true},   {"Hz", 0, dim::kFrequency, true},
+    {"J", 0, dim::kEnergy, true},      {"W", 0, dim::kPower, true},
+    {"%", -2, dim::kNone, false},
 };
 
 struct Prefix {
   const char* text;  // UTF-8
-  double factor;
+  int exponent10;
 };
 
 // Both the micro sign U+00B5 and the Greek mu U+03BC are accepted: keyboards produce either.
 constexpr Prefix kPrefixes[] = {
-    {"p", 1e-12}, {"n", 1e-9}, {"u", 1e-6}, {"\xC2\xB5", 1e-6}, {"\xCE\xBC", 1e-6},
-    {"m", 1e-3},  {"c", 1e-2}, {"k", 1e3},  {"M", 1e6},         {"G", 1e9},
+    {"p", -12}, {"n", -9}, {"u", -6}, {"\xC2\xB5", -6}, {"\xCE\xBC", -6},
+    {"m", -3},  {"c", -2}, {"k", 3},  {"M", 6},         {"G", 9},
+};
+
+// A parsed unit expression: 10^exponent10 times SI, of the given dimension.
+struct UnitFactor {
+  int exponent10 = 0;
+  Dimension dimension;
 };
 
 const UnitSymbol* find_unit(std::string_view symbol) {
@@ -98,11 +107,11 @@ const UnitSymbol* find_unit(std::string_view symbol) {
   return nullptr;
 }
 
-// Resolves one symbol ("kPa", "um", "m") into factor and dimension. An exact base-unit match
-// wins over prefix + unit, so "m" is metre and "mm" is millimetre.
-bool resolve_symbol(std::string_view symbol, Quantity* out) {
+// Resolves one symbol ("kPa", "um", "m"). An exact base-unit match wins over prefix + unit,
+// so "m" is metre and "mm" is millimetre.
+bool resolve_symbol(std::string_view symbol, UnitFactor* out) {
   if (const UnitSymbol* u = find_unit(symbol)) {
-    *out = {u->factor, u->dimension};
+    *out = {u->exponent10, u->dimension};
     return true;
   }
   for (const Prefix& p : kPrefixes) {
@@ -110,7 +119,7 @@ bool resolve_symbol(std::string_view symbol, Quantity* out) {
     if (symbol.size() > n && symbol.substr(0, n) == p.text) {
       const UnitSymbol* u = find_unit(symbol.substr(n));
       if (u && u->prefixable) {
-        *out = {p.factor * u->factor, u->dimension};
+        *out = {p.exponent10 + u->exponent10, u->dimension};
         return true;
       }
     }
@@ -161,9 +170,19 @@ std::string si_unit(Dimension dimension) {
   return generic_unit(dimension);
 }
 
-Result<Quantity> parse_unit(const std::string& text) {
+namespace {
+
+// 10^exponent10 as the nearest double (correctly rounded by from_chars).
+double power_of_ten(int exponent10) {
+  const std::string text = "1e" + std::to_string(exponent10);
+  double value = 0.0;
+  std::from_chars(text.data(), text.data() + text.size(), value);
+  return value;
+}
+
+Result<UnitFactor> parse_unit_factor(const std::string& text) {
   const std::string_view s(text);
-  Quantity total{1.0, dim::kNone};
+  UnitFactor total;
   size_t i = 0;
   bool denominator = false;
   bool expect_factor = true;
@@ -190,7 +209,7 @@ Result<Quantity> parse_unit(const std::string& text) {
                           std::string(s.substr(start)).c_str(), kKnownUnits);
       }
       const std::string_view symbol = s.substr(start, i - start);
-      Quantity unit;
+      UnitFactor unit;
       if (!resolve_symbol(symbol, &unit)) {
         return make_error("unknown unit '%s' in \"%s\" (%s)", std::string(symbol).c_str(),
                           text.c_str(), kKnownUnits);
@@ -223,7 +242,7 @@ Result<Quantity> parse_unit(const std::string& text) {
         i += 2;
       }
       if (denominator) exponent = -exponent;
-      total.value *= std::pow(unit.value, exponent);
+      total.exponent10 += unit.exponent10 * exponent;
       total.dimension = total.dimension * power(unit.dimension, exponent);
       expect_factor = false;
     } else {
@@ -249,6 +268,14 @@ Result<Quantity> parse_unit(const std::string& text) {
   }
   if (expect_factor) return make_error("unit \"%s\": ends with an operator", text.c_str());
   return total;
+}
+
+}  // namespace
+
+Result<Quantity> parse_unit(const std::string& text) {
+  Result<UnitFactor> unit = parse_unit_factor(text);
+  if (!unit) return unit.error();
+  return Quantity{power_of_ten(unit->exponent10), unit->dimension};
 }
 
 Result<double> parse_unit(const std::string& text, Dimension expected) {
@@ -282,10 +309,27 @@ Result<Quantity> parse_quantity(const std::string& text) {
   size_t rest = static_cast<size_t>(end - s.data());
   skip_spaces(s, &rest);
   if (rest == s.size()) return Quantity{number, dim::kNone};
-  Result<Quantity> unit = parse_unit(std::string(s.substr(rest)));
+  Result<UnitFactor> unit = parse_unit_factor(std::string(s.substr(rest)));
   if (!unit) return unit.error();
-  const double value = number * unit->value;
-  if (!std::isfinite(value)) return make_error("\"%s\": value out of range", text.c_str());
+  if (unit->exponent10 == 0) return Quantity{number, unit->dimension};
+  // Shift the decimal exponent in the text and convert once: "9.1952e-5 mg" reads as
+  // "9.1952e-11", so the result is the double nearest to the decimal value.
+  const std::string_view digits(first, static_cast<size_t>(end - first));
+  const size_t e = digits.find_first_of("eE");
+  long exponent = 0;
+  if (e != std::string_view::npos) {
+    std::string_view exp_text = digits.substr(e + 1);
+    if (!exp_text.empty() && exp_text[0] == '+') exp_text.remove_prefix(1);
+    std::from_chars(exp_text.data(), exp_text.data() + exp_text.size(), exponent);
+  }
+  const std::string shifted =
+      std::string(digits.substr(0, e)) + "e" + std::to_string(exponent + unit->exponent10);
+  double value = 0.0;
+  const auto [shifted_end, shifted_ec] =
+      std::from_chars(shifted.data(), shifted.data() + shifted.size(), value);
+  if (shifted_ec != std::errc() || !std::isfinite(value)) {
+    return make_error("\"%s\": value out of range", text.c_str());
+  }
   return Quantity{value, unit->dimension};
 }
 
@@ -305,8 +349,14 @@ Result<double> parse_quantity(const std::string& text, Dimension expected) {
 }
 
 std::string format_quantity(double value_si, Dimension dimension, int significant_digits) {
-  char number[64];
-  std::snprintf(number, sizeof(number), "%.*g", significant_digits, value_si);
+  char number[64] = {};
+  if (significant_digits <= 0) {
+    // Shortest text that reads back to the same double.
+    const auto result = std::to_chars(number, number + sizeof(number) - 1, value_si);
+    *result.ptr = '\0';
+  } else {
+    std::snprintf(number, sizeof(number), "%.*g", significant_digits, value_si);
+  }
   const std::string unit = si_unit(dimension);
   if (unit.empty()) return number;
   return std::string(number) + " " + unit;

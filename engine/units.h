@@ -85,8 +85,8 @@ Result<Quantity> parse_quantity(const std::string& text);
 /// (and for zero, which is zero in every unit); otherwise it is a "missing unit" error.
 Result<double> parse_quantity(const std::string& text, Dimension expected);
 
-/// Formats an SI value with its SI unit ("1.79e+04 Pa", "5.6e-05 m"); significant_digits = 17
-/// round-trips exactly through parse_quantity.
+/// Formats an SI value with its SI unit ("17900 Pa", "5.6e-05 m") to `significant_digits`;
+/// 0 gives the shortest text that round-trips exactly through parse_quantity.
 std::string format_quantity(double value_si, Dimension dimension, int significant_digits = 6);
 
 }  // namespace zona

@@ -42,6 +42,21 @@ TEST(Units, ScenesQuantitiesConvertToSi) {
   expect_rel(si("400 N/m", dim::kStiffness), 400.0);
 }
 
+TEST(Units, ConversionRoundsOnceLikeACppLiteral) {
+  // The unit's power of ten shifts the number's exponent before conversion, so the result is
+  // the double nearest to the decimal value: exactly the C++ literal.
+  EXPECT_EQ(si("56 um", dim::kLength), 56e-6);
+  EXPECT_EQ(si("100 um", dim::kLength), 100e-6);
+  EXPECT_EQ(si("9.1952e-5 mg", dim::kMass), 9.1952e-11);
+  EXPECT_EQ(si("9.1952E+1 mg", dim::kMass), 9.1952e-5);
+  EXPECT_EQ(si("17.9 kPa", dim::kPressure), 17.9e3);
+  EXPECT_EQ(si("0.1 mm/s", dim::kSpeed), 0.1e-3);
+  EXPECT_EQ(si("3.3 uN", dim::kForce), 3.3e-6);
+  EXPECT_EQ(si("1 g/cm^3", dim::kDensity), 1000.0);
+  EXPECT_EQ(si("5. um", dim::kLength), 5e-6);
+  EXPECT_EQ(parse_unit("um", dim::kLength).value(), 1e-6);
+}
+
 TEST(Units, PrefixesAndSpelling) {
   expect_rel(si("20kPa", dim::kPressure), 20e3);  // no space, as typed on a command line
   expect_rel(si("5 \xC2\xB5m", dim::kLength), 5e-6);  // micro sign U+00B5
@@ -156,15 +171,19 @@ TEST(Units, NamesAndFormatting) {
   const Dimension odd{1, -4, 0};
   EXPECT_EQ(si_unit(odd), "kg*m^-4");
   EXPECT_EQ(parse_unit(si_unit(odd))->dimension, odd);
-  // 17 significant digits round-trip exactly, for every named SI unit.
+  // The shortest form (0) and 17 significant digits both round-trip exactly.
   for (Dimension d : {dim::kLength, dim::kPressure, dim::kDensity, dim::kFrequency,
                       dim::kDamping, dim::kStiffness, dim::kNone, odd}) {
     const double value = 1.0 / 3.0 * 17.9e3;
-    Result<double> back = parse_quantity(format_quantity(value, d, 17), d);
-    ASSERT_TRUE(back.ok()) << format_quantity(value, d, 17) << ": " << back.error().message;
-    EXPECT_EQ(*back, value) << si_unit(d);
+    for (int digits : {0, 17}) {
+      Result<double> back = parse_quantity(format_quantity(value, d, digits), d);
+      ASSERT_TRUE(back.ok()) << format_quantity(value, d, digits) << ": " << back.error().message;
+      EXPECT_EQ(*back, value) << si_unit(d);
+    }
   }
   EXPECT_EQ(format_quantity(17.9e3, dim::kPressure), "17900 Pa");
+  EXPECT_EQ(format_quantity(3.3, dim::kForce, 0), "3.3 N");
+  EXPECT_EQ(format_quantity(1e-5, dim::kLength, 0), "1e-05 m");
 }
 
 }  // namespace
