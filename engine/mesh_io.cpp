@@ -175,6 +175,7 @@ bool Cursor::record(std::vector<std::string_view>& tokens) {
     }
     if (!tokens.empty()) return true;
   }
+  if (!failed_) mark();
   return false;
 }
 
@@ -380,6 +381,9 @@ Result<std::vector<Vec3d>> compact_points(RawMesh& raw, const std::string& name,
 Result<Mesh> finish_mesh(RawMesh raw, const std::string& name, const ReadMeshOptions& options,
                          std::vector<std::string>* warnings) {
   if (Status s = check_scale(name, options.scale); !s) return s.error();
+  if (raw.tets.empty())
+    return make_error("%s: no tetrahedra in the file (%zu points)", name.c_str(),
+                      raw.points.size());
   size_t dropped = 0;
   Result<std::vector<Vec3d>> points = compact_points(raw, name, options.scale, dropped);
   if (!points) return points.error();

@@ -93,8 +93,8 @@ class GmshReader {
         ok = skip_section(section);  // $NodeData, $Periodic, $Comments, ...
       if (!ok) break;
     }
+    if (!c_.failed() && !have_nodes_) c_.fail("no $Nodes section in the file");
     if (c_.failed()) return c_.error();
-    if (!have_nodes_) return make_error("%s: no $Nodes section", name_.c_str());
     return std::move(out_);
   }
 
