@@ -107,15 +107,27 @@ ZONA_HOST_DEVICE ZONA_INLINE Vec3<T> tet_face_vector(const TetShape<T>& s, int j
   return (T(6) * s.volume) * s.grad[j];
 }
 
-/// Displacement gradient H = sum_j u_j grad_j^T [-].
+/// Displacement gradient from the edge displacements du[i] = u_{i+1} - u_0 (i = 0..2) [-]:
+/// H = sum_{j>=1} (u_j - u_0) grad_j^T, equal to sum_j u_j grad_j^T because the gradients sum
+/// to zero. A mixed-precision kernel forms the differences in float64 and passes them in float32:
+/// a rigid offset of the element (tens of um at cell scale) then costs no digits.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> tet_displacement_gradient_from_edges(const TetShape<T>& s,
+                                                                         const Vec3<T> du[3]) {
+  Mat3<T> h;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      h.m[r][c] = du[0][r] * s.grad[1][c] + du[1][r] * s.grad[2][c] + du[2][r] * s.grad[3][c];
+  return h;
+}
+
+/// Displacement gradient H = sum_j u_j grad_j^T [-], of the vertex displacements u [m].
+/// Evaluated through the edge differences (exactly zero for a rigid translation).
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> tet_displacement_gradient(const TetShape<T>& s,
                                                               const Vec3<T> u[4]) {
-  Mat3<T> h = Mat3<T>::zero();
-  for (int j = 0; j < 4; ++j)
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) h.m[r][c] += u[j][r] * s.grad[j][c];
-  return h;
+  const Vec3<T> du[3] = {u[1] - u[0], u[2] - u[0], u[3] - u[0]};
+  return tet_displacement_gradient_from_edges(s, du);
 }
 
 /// Green strain E = (H + H^T + H^T H) / 2 [-].

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "engine/forces_cpu.h"
 
@@ -140,6 +141,23 @@ void commit_step(const Model& model, State& state) {
   ++state.step_count;
 }
 
+// Kinetic damping's reset: velocity zero at t_n in the centred sense, v_n = (u_{n+1} -
+// u_{n-1}) / 2dt = 0, by choosing u_{n-1} so that the next update lands on it:
+// u_{n-1} = (a u_n + c f_n) / (1 + b). (Merely setting u_{n-1} = u_n zeroes v_{n-1/2} instead and,
+// repeated at kinetic-energy peaks, pumps energy into modes with omega dt > 1.)
+void restart_at_rest(const Model& model, State& state) {
+  compute_elastic_forces(model, state);
+  for (size_t v = 0; v < model.vertex_count(); ++v) {
+    if (state.vertex_constraint[v] != kVertexFree) {
+      state.u_prev[v] = state.u[v];
+      continue;
+    }
+    const VertexCoefficients& k = model.vertex_coefficients[v];
+    state.u_prev[v] =
+        (k.a * state.u[v] + k.c * (state.force[v] + state.external_force[v])) / (1.0 + k.b);
+  }
+}
+
 }  // namespace
 
 StepStatus step(const Model& model, State& state) {
@@ -223,7 +241,36 @@ AdvanceResult advance(const Model& model, State& state, double duration) {
   return result;
 }
 
-RelaxResult relax_to_equilibrium(const Model& model, State& state, const RelaxOptions& options) {
+namespace {
+
+// Residual, reference and constraint force of the configuration whose forces are in
+// state.force (static: no inertia).
+void static_diagnostics(const Model& model, State& state) {
+  StepDiagnostics& d = state.diag;
+  double residual_sq = 0, reference_sq = 0;
+  Vec3d reaction{0, 0, 0};
+  for (size_t v = 0; v < model.vertex_count(); ++v) {
+    const Vec3d f_total = state.force[v] + state.external_force[v];
+    reference_sq += dot(state.external_force[v], state.external_force[v]);
+    if (state.vertex_constraint[v] == kVertexFree) {
+      residual_sq += dot(f_total, f_total);
+    } else {
+      reference_sq += dot(state.force[v], state.force[v]);
+      if (state.vertex_constraint[v] == kVertexPrescribed) reaction -= f_total;
+    }
+  }
+  d.residual_norm = std::sqrt(residual_sq);
+  d.reference_force_norm = std::sqrt(reference_sq);
+  d.constraint_force = reaction;
+  d.kinetic_energy = 0;
+}
+
+bool converged(const RelaxOptions& o, const StepDiagnostics& d) {
+  return d.residual_norm <= o.absolute_tolerance ||
+         d.residual_norm <= o.relative_tolerance * d.reference_force_norm;
+}
+
+RelaxResult relax_kinetic(const Model& model, State& state, const RelaxOptions& options) {
   RelaxResult result;
   double previous_kinetic = 0;
   for (int64_t i = 0; i < options.max_steps; ++i) {
@@ -233,24 +280,106 @@ RelaxResult relax_to_equilibrium(const Model& model, State& state, const RelaxOp
         ((s & kStepDtAboveCritical) && !model.unsafe_allow_dt_above_critical))
       break;
     ++result.steps;
-    const StepDiagnostics& d = state.diag;
-    result.residual_norm = d.residual_norm;
-    result.reference_force_norm = d.reference_force_norm;
     // The residual is that of u_n, the configuration the step's forces were evaluated at.
-    if (d.residual_norm <= options.absolute_tolerance ||
-        d.residual_norm <= options.relative_tolerance * d.reference_force_norm) {
+    if (converged(options, state.diag)) {
       result.converged = true;
       break;
     }
-    // Kinetic damping: past a kinetic-energy peak, stop every vertex (u_{n-1} = u_n).
-    if (d.kinetic_energy < previous_kinetic) {
-      std::copy(state.u.begin(), state.u.end(), state.u_prev.begin());
+    // Kinetic damping: past a kinetic-energy peak, stop every vertex.
+    if (state.diag.kinetic_energy < previous_kinetic) {
+      restart_at_rest(model, state);
       ++result.kinetic_resets;
       previous_kinetic = 0;
     } else {
-      previous_kinetic = d.kinetic_energy;
+      previous_kinetic = state.diag.kinetic_energy;
     }
   }
+  return result;
+}
+
+RelaxResult relax_adaptive(const Model& model, State& state, const RelaxOptions& options) {
+  RelaxResult result;
+  const size_t nv = model.vertex_count();
+  const double dt = model.dt;
+  std::vector<Vec3d> previous_force(nv, Vec3d{0, 0, 0});
+  std::copy(state.u.begin(), state.u.end(), state.u_prev.begin());  // start at rest
+  double c = 0;  // damping rate [1/s]
+  for (int64_t i = 0;; ++i) {
+    compute_elastic_forces(model, state);
+    result.status |= (state.diag.element_health & kElementInverted ? kStepInvertedElement : 0u) |
+                     (state.diag.element_health & kElementCollapsing ? kStepCollapsingElement : 0u) |
+                     (state.diag.element_health & kElementClamped ? kStepClampedElement : 0u);
+    static_diagnostics(model, state);
+    if (converged(options, state.diag)) {
+      result.converged = true;
+      break;
+    }
+    if (i >= options.max_steps) break;
+    // Rayleigh quotient of the last increment: omega_1^2 ~ du.K du / du.M du.
+    if (i > 0) {
+      double num = 0, den = 0;
+      for (size_t v = 0; v < nv; ++v)
+        if (state.vertex_constraint[v] == kVertexFree) {
+          const Vec3d du = state.u[v] - state.u_prev[v];
+          num -= dot(du, state.force[v] - previous_force[v]);
+          den += model.vertex_mass[v] * dot(du, du);
+        }
+      // A negative quotient (softening, collapse) keeps the last rate.
+      if (num > 0 && den > 0) c = std::min(2.0 * std::sqrt(num / den), 2.0 / dt);
+    }
+    // Damped centred difference with rate c: u+ = u + k1 (u - u-) + k2 f / M.
+    const double k1 = (2.0 - c * dt) / (2.0 + c * dt);
+    const double k2 = 2.0 * dt * dt / (2.0 + c * dt);
+    bool finite = true;
+    for (size_t v = 0; v < nv; ++v) {
+      Vec3d next{0, 0, 0};
+      if (state.vertex_constraint[v] == kVertexFree) {
+        const double m = model.vertex_mass[v];
+        next = m > 0 ? state.u[v] + k1 * (state.u[v] - state.u_prev[v]) +
+                           (k2 / m) * (state.force[v] + state.external_force[v])
+                     : state.u[v];
+        finite = finite && finite3(next);
+      } else if (state.vertex_constraint[v] == kVertexPrescribed) {
+        next = state.u[v];  // already at its target
+      }
+      state.u_next[v] = next;
+    }
+    if (!finite) {
+      result.status |= kStepNonFinite;
+      break;
+    }
+    std::copy(state.force.begin(), state.force.end(), previous_force.begin());
+    std::swap(state.u_prev, state.u);
+    std::swap(state.u, state.u_next);
+    ++result.steps;
+  }
+  result.residual_norm = state.diag.residual_norm;
+  result.reference_force_norm = state.diag.reference_force_norm;
+  return result;
+}
+
+}  // namespace
+
+RelaxResult relax_to_equilibrium(const Model& model, State& state, const RelaxOptions& options) {
+  // Put prescribed vertices at their targets first: the residual is that of u_n, and a state at
+  // rest with targets not yet reached would look converged.
+  for (size_t i = 0; i < state.prescribed_vertices.size(); ++i) {
+    const size_t v = static_cast<size_t>(state.prescribed_vertices[i]);
+    state.u[v] = state.u_prev[v] = state.prescribed_displacement[i];
+  }
+  RelaxResult result = options.method == RelaxMethod::kKineticDamping
+                           ? relax_kinetic(model, state, options)
+                           : relax_adaptive(model, state, options);
+  if (options.method == RelaxMethod::kKineticDamping) {
+    // Report the static diagnostics of the final configuration.
+    compute_elastic_forces(model, state);
+    static_diagnostics(model, state);
+    result.residual_norm = state.diag.residual_norm;
+    result.reference_force_norm = state.diag.reference_force_norm;
+  }
+  // The answer is a configuration at rest: a following step() starts from zero velocity.
+  std::copy(state.u.begin(), state.u.end(), state.u_prev.begin());
+  state.energy_budget_valid = false;
   return result;
 }
 

@@ -60,8 +60,19 @@ struct AdvanceResult {
 /// was not advanced (non-finite or refused).
 AdvanceResult advance(const Model& model, State& state, double duration);
 
+/// How relax_to_equilibrium removes kinetic energy.
+enum class RelaxMethod : int32_t {
+  /// Adaptive dynamic relaxation (Underwood 1983): a global damping rate c = 2 omega_1, with
+  /// omega_1^2 the Rayleigh quotient of the last increment, -du.df / du.M du; the slowest mode
+  /// is damped critically. Default: ~20x fewer steps than kinetic damping (docs/physics.md).
+  kAdaptiveDamping = 0,
+  /// Kinetic damping (Cundall): undamped steps, every velocity zeroed at each kinetic-energy peak.
+  kKineticDamping = 1,
+};
+
 /// Options of relax_to_equilibrium.
 struct RelaxOptions {
+  RelaxMethod method = RelaxMethod::kAdaptiveDamping;
   /// Converged when |f_el + f_ext| over free vertices <= relative_tolerance * the reference
   /// force norm (loads and constraint forces) ...
   double relative_tolerance = 1e-8;
@@ -80,10 +91,13 @@ struct RelaxResult {
   double reference_force_norm = 0; ///< [N]
 };
 
-/// Dynamic relaxation by kinetic damping (Cundall): explicit steps, and whenever the kinetic
-/// energy passes a peak every velocity is set to zero; stops when the force residual is small.
-/// The static answer does not depend on masses, mass scaling or dt. Loads and prescribed
-/// targets are held at their current values.
+/// Dynamic relaxation to the static equilibrium f_el(u) + f_ext = 0 of the free vertices, by
+/// explicit pseudo-time steps of model.dt with the damping of `options.method` (the model's own
+/// damping is not used); stops when the force residual is small. The static answer does not
+/// depend on masses, mass scaling or dt. Loads and prescribed targets are held at their current
+/// values; prescribed vertices are first moved to their targets. On return state.diag holds the
+/// residual, the element health and the constraint force of the final configuration.
+/// Allocates one scratch array per call (not a step path).
 RelaxResult relax_to_equilibrium(const Model& model, State& state, const RelaxOptions& options);
 
 }  // namespace zona

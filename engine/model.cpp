@@ -6,6 +6,8 @@
 #include <cmath>
 #include <limits>
 
+#include "engine/forces_cpu.h"
+
 namespace zona {
 namespace {
 
@@ -122,55 +124,84 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
     if (desc.vertex_mass > 0) mass[v] = lumped_volume[v] > 0 ? desc.vertex_mass : 0.0;
   }
 
-  // Critical step before scaling: dt_e = h_e / c_e, h_e the element's smallest altitude and
-  // c_e its dilatational wave speed with the smallest effective density M_v / V_v of its
-  // corners (= rho for density masses). See docs/physics.md for how this compares with the
-  // exact limit 2 / omega_max.
-  double dt_crit0 = std::numeric_limits<double>::infinity();
+  // Critical step before scaling. Element eigenvalue inequality: with the element's share of
+  // each corner's mass, at least rho_e V / 4 where rho_e is the smallest effective density
+  // M_v / V_v of its corners (= rho for density masses), omega_max^2 <= max_e omega_e^2, and
+  // (Cauchy-Schwarz on tr(eps) = sum g_j.u_j, and |sym(U G^T)| <= |U| sigma_max(G)):
+  //   omega_e^2 <= (4 / rho_e) (lambda sum_j |g_j|^2 + 2 mu lambda_max(G G^T)),
+  // so dt_e = 2 / omega_e = sqrt(rho_e / (lambda sum|g|^2 + 2 mu lambda_max)). The altitude
+  // estimate h / c_d is kept for reports (it is not a bound: docs/physics.md).
+  double dt_bound0 = std::numeric_limits<double>::infinity();
+  double dt_altitude0 = std::numeric_limits<double>::infinity();
   model.min_altitude = std::numeric_limits<double>::infinity();
   model.max_wave_speed = 0;
   for (size_t t = 0; t < nt; ++t) {
     const Tet& e = mesh.tets[t];
+    const TetShape<double>& shape = model.tet_shape[t];
+    const Lame& lame = model.tet_lame(t);
     Vec3d p[4];
     double rho = std::numeric_limits<double>::infinity();
     for (int c = 0; c < 4; ++c) {
       p[c] = mesh.rest_positions[e[c]];
       rho = std::min(rho, mass[e[c]] / lumped_volume[e[c]]);
     }
-    const double h = 3.0 * model.tet_shape[t].volume / max_face_area(p);
-    const double cd = dilatational_wave_speed(model.tet_lame(t), rho);
+    Mat3d ggt = Mat3d::zero();
+    for (int j = 0; j < 4; ++j) ggt = ggt + outer(shape.grad[j], shape.grad[j]);
+    double eig[3];
+    Mat3d vectors;
+    symmetric_eigen3(ggt, eig, &vectors);
+    const double lambda_max = std::max({eig[0], eig[1], eig[2]});
+    dt_bound0 =
+        std::min(dt_bound0, std::sqrt(rho / (lame.lambda * trace(ggt) + 2 * lame.mu * lambda_max)));
+    const double h = 3.0 * shape.volume / max_face_area(p);
+    const double cd = dilatational_wave_speed(lame, rho);
     model.min_altitude = std::min(model.min_altitude, h);
     model.max_wave_speed = std::max(model.max_wave_speed, cd);
-    dt_crit0 = std::min(dt_crit0, h / cd);
+    dt_altitude0 = std::min(dt_altitude0, h / cd);
   }
 
-  // Mass scaling: the requested factor, raised if a target step asks for more.
+  // Mass scaling: the requested factor, raised if a target step asks for more. A power-iteration
+  // limit is not known yet here; the bound decides the factor (conservative).
   double scaling = desc.mass_scaling;
   if (desc.target_dt > 0) {
-    const double needed = desc.target_dt / (desc.dt_safety * dt_crit0);
+    const double needed = desc.target_dt / (desc.dt_safety * dt_bound0);
     scaling = std::max(scaling, needed * needed);
   }
   model.mass_scaling = scaling;
-  model.dt_critical = dt_crit0 * std::sqrt(scaling);
+  model.dt_element_bound = dt_bound0 * std::sqrt(scaling);
+  model.dt_altitude_estimate = dt_altitude0 * std::sqrt(scaling);
   model.max_wave_speed /= std::sqrt(scaling);
-  model.dt = desc.dt > 0 ? desc.dt : desc.dt_safety * model.dt_critical;
-  if (model.dt > model.dt_critical && !desc.unsafe_allow_dt_above_critical)
-    return make_error(
-        "model: dt %.4g s is above the critical step %.4g s (h_min %.4g m, c_d %.4g m/s, mass "
-        "scaling %g); use dt = 0 (automatic), a smaller dt, or mass scaling",
-        model.dt, model.dt_critical, model.min_altitude, model.max_wave_speed, scaling);
 
-  // Masses, damping and the centred-difference coefficients.
+  // Masses, damping, fixed vertices; then the step and the centred-difference coefficients.
   model.vertex_mass.resize(nv);
   model.vertex_damping.resize(nv);
   model.vertex_coefficients.resize(nv);
   model.vertex_fixed.assign(nv, 0);
   for (int32_t v : desc.fixed_vertices) model.vertex_fixed[v] = 1;
+  for (size_t v = 0; v < nv; ++v)
+    if (model.vertex_fixed[v]) model.fixed_vertices.push_back(static_cast<int32_t>(v));
   for (size_t v = 0; v < nv; ++v) {
-    const double m = mass[v] * scaling;
-    const double gamma = alpha[v] * m;
-    model.vertex_mass[v] = m;
-    model.vertex_damping[v] = gamma;
+    model.vertex_mass[v] = mass[v] * scaling;
+    model.vertex_damping[v] = alpha[v] * model.vertex_mass[v];
+  }
+
+  // The step: the bound, or 2 / omega_max from power iteration on the finished masses.
+  model.dt_critical = model.dt_element_bound;
+  if (desc.critical_step == CriticalStep::kPowerIteration) {
+    model.omega_max = estimate_max_frequency(model, 300);
+    if (model.omega_max > 0) model.dt_critical = 2.0 / model.omega_max;
+  }
+  model.dt = desc.dt > 0 ? desc.dt : desc.dt_safety * model.dt_critical;
+  if (model.dt > model.dt_critical && !desc.unsafe_allow_dt_above_critical)
+    return make_error(
+        "model: dt %.4g s is above the critical step %.4g s (%s; h_min %.4g m, c_d %.4g m/s, "
+        "mass scaling %g); use dt = 0 (automatic), a smaller dt, or mass scaling",
+        model.dt, model.dt_critical,
+        desc.critical_step == CriticalStep::kPowerIteration ? "2/omega_max" : "element bound",
+        model.min_altitude, model.max_wave_speed, scaling);
+  for (size_t v = 0; v < nv; ++v) {
+    const double m = model.vertex_mass[v];
+    const double gamma = model.vertex_damping[v];
     VertexCoefficients& k = model.vertex_coefficients[v];
     if (m > 0) {
       const double denom = m + 0.5 * gamma * model.dt;
@@ -180,8 +211,6 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
       k = {1.0, 0.0, 0.0};
     }
   }
-  for (size_t v = 0; v < nv; ++v)
-    if (model.vertex_fixed[v]) model.fixed_vertices.push_back(static_cast<int32_t>(v));
 
   model.energy_floor = min_mu * total_volume * 1e-16;
 
@@ -204,11 +233,12 @@ std::string describe_model(const Model& model) {
                                                                      : "tensor_rebuilt";
   char line[512];
   std::snprintf(line, sizeof line,
-                "%zu vertices, %zu tets, %s (%s%s), dt %.4g s (critical %.4g s: h_min %.4g m, "
+                "%zu vertices, %zu tets, %s (%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
                 "c_d %.4g m/s), mass scaling %g, precompute %.3f ms",
                 model.vertex_count(), model.tet_count(), cm, fm,
                 model.inversion == InversionHandling::kClampStretch ? ", clamped" : "", model.dt,
-                model.dt_critical, model.min_altitude, model.max_wave_speed, model.mass_scaling,
+                model.dt_critical, model.omega_max > 0 ? "2/omega_max" : "element bound",
+                model.min_altitude, model.max_wave_speed, model.mass_scaling,
                 model.precompute_seconds * 1e3);
   return line;
 }

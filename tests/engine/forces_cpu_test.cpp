@@ -1,0 +1,256 @@
+// CPU force assembly: formulations agree on a mesh, patch test, uniaxial stretch against the
+// closed-form SVK answer, rotation, determinism across thread counts, stiffness, frequency.
+#include "engine/forces_cpu.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#include "tests/engine/physics_test_meshes.h"
+
+namespace zona {
+namespace {
+
+using testing::box_mesh;
+using testing::vertices_where;
+
+constexpr double kL = 10e-6;  // box edge [m]
+
+Model make_model(const Mesh& mesh, ConstitutiveModel cm, Formulation fm) {
+  ModelDesc d;
+  d.constitutive = cm;
+  d.formulation = fm;
+  Result<Model> m = build_model(mesh, d);
+  EXPECT_TRUE(m.ok()) << (m.ok() ? "" : m.error().message);
+  return std::move(m).value();
+}
+
+// A smooth non-affine displacement with strains of order `strain`.
+std::vector<Vec3d> wavy_displacement(const Mesh& mesh, double strain) {
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) {
+    const Vec3d x = mesh.rest_positions[v] / kL;
+    u[v] = strain * kL *
+           Vec3d{std::sin(2.0 * x.y + 0.3) * x.x, 0.5 * std::cos(1.5 * x.z) * x.y + 0.2 * x.x * x.x,
+                 -0.4 * x.z * x.x + 0.3 * std::sin(x.y)};
+  }
+  return u;
+}
+
+std::vector<Vec3d> forces_of(const Model& model, std::span<const Vec3d> u, int threads = 1,
+                             double* energy = nullptr) {
+  State s = make_state(model, threads);
+  std::copy(u.begin(), u.end(), s.u.begin());
+  compute_elastic_forces(model, s);
+  if (energy) *energy = s.diag.elastic_energy;
+  return s.force;
+}
+
+double max_norm(const std::vector<Vec3d>& f) {
+  double m = 0;
+  for (const Vec3d& v : f) m = std::max(m, norm(v));
+  return m;
+}
+
+TEST(ForcesCpu, AllFormulationsAgreeOnAMesh) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 3, 3, 3);
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.2);
+  for (ConstitutiveModel cm : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear}) {
+    double wg, ws, wr;
+    const auto fg = forces_of(make_model(mesh, cm, Formulation::kGradient), u, 1, &wg);
+    const auto fs = forces_of(make_model(mesh, cm, Formulation::kTensorStored), u, 1, &ws);
+    const auto fr = forces_of(make_model(mesh, cm, Formulation::kTensorRebuilt), u, 1, &wr);
+    const double scale = max_norm(fg);
+    for (size_t v = 0; v < u.size(); ++v) {
+      EXPECT_LE(norm(fs[v] - fg[v]), 1e-12 * scale) << "vertex " << v;
+      EXPECT_LE(norm(fr[v] - fg[v]), 1e-12 * scale) << "vertex " << v;
+    }
+    EXPECT_NEAR(ws, wg, 1e-12 * wg);
+    EXPECT_NEAR(wr, wg, 1e-12 * wg);
+  }
+}
+
+TEST(ForcesCpu, AssemblyEqualsTheSumOfElementForces) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 3, 2);
+  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.3);
+  double energy;
+  const auto f = forces_of(model, u, 2, &energy);
+  std::vector<Vec3d> ref(u.size(), Vec3d{0, 0, 0});
+  double ref_energy = 0;
+  for (size_t t = 0; t < model.tet_count(); ++t) {
+    const Tet& e = model.tets[t];
+    const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+    Vec3d fe[4];
+    ref_energy += tet_svk_forces(model.tet_shape[t], model.tet_lame(t).lambda,
+                                 model.tet_lame(t).mu, ue, fe);
+    for (int c = 0; c < 4; ++c) ref[e[c]] += fe[c];
+  }
+  // Same terms in the same order (ascending tetrahedron): identical bits.
+  for (size_t v = 0; v < u.size(); ++v) EXPECT_EQ(norm(f[v] - ref[v]), 0.0);
+  EXPECT_NEAR(energy, ref_energy, 1e-14 * ref_energy);
+}
+
+TEST(ForcesCpu, ForcesAreBitwiseIdenticalForAnyThreadCount) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 5, 4, 4);  // 480 tets: several chunks
+  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.25);
+  double e1, e2, e3;
+  const auto f1 = forces_of(model, u, 1, &e1);
+  const auto f2 = forces_of(model, u, 2, &e2);
+  const auto f3 = forces_of(model, u, 3, &e3);
+  EXPECT_EQ(std::memcmp(f1.data(), f2.data(), f1.size() * sizeof(Vec3d)), 0);
+  EXPECT_EQ(std::memcmp(f1.data(), f3.data(), f1.size() * sizeof(Vec3d)), 0);
+  EXPECT_EQ(std::memcmp(&e1, &e2, sizeof e1), 0);
+  EXPECT_EQ(std::memcmp(&e1, &e3, sizeof e1), 0);
+}
+
+// Patch test: an affine displacement u = A x + b gives a uniform strain, so every interior
+// vertex is in equilibrium and every element carries the same stress.
+TEST(ForcesCpu, PatchTestAffineDisplacement) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 3, 3, 3);
+  const Mat3d a{{{0.08, 0.03, -0.02}, {0.01, -0.05, 0.04}, {0.02, 0.06, 0.1}}};
+  const Vec3d b{1e-6, -2e-6, 0.5e-6};
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v] + b;
+  auto interior = [&](size_t v) {
+    const Vec3d x = mesh.rest_positions[v];
+    for (int i = 0; i < 3; ++i)
+      if (x[i] < 1e-3 * kL || x[i] > (1 - 1e-3) * kL) return false;
+    return true;
+  };
+  for (ConstitutiveModel cm : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear})
+    for (Formulation fm :
+         {Formulation::kGradient, Formulation::kTensorStored, Formulation::kTensorRebuilt}) {
+      const Model model = make_model(mesh, cm, fm);
+      const auto f = forces_of(model, u);
+      const double scale = max_norm(f);
+      int interior_count = 0;
+      for (size_t v = 0; v < u.size(); ++v)
+        if (interior(v)) {
+          ++interior_count;
+          EXPECT_LE(norm(f[v]), 1e-11 * scale) << "interior vertex " << v;
+        }
+      EXPECT_EQ(interior_count, 8);
+      // Uniform stress: every element's displacement gradient is A.
+      for (size_t t = 0; t < model.tet_count(); ++t) {
+        const Tet& e = model.tets[t];
+        const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+        const Mat3d h = tet_displacement_gradient(model.tet_shape[t], ue);
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) EXPECT_NEAR(h.m[r][c], a.m[r][c], 1e-13);
+      }
+    }
+}
+
+// Uniaxial stretch: F = diag(s, q, q) with the lateral stretch q making S22 = S33 = 0.
+// Closed form for SVK: E22 = -nu E11, S11 = E_young E11, P11 = s S11; the x = L face carries
+// the total force P11 * A and the lateral faces none.
+TEST(ForcesCpu, UniaxialStretchMatchesClosedFormSvk) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 3, 3, 3);
+  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
+  const Material mat = model.materials[0];
+  for (double s : {1.3, 0.8}) {
+    const double e11 = 0.5 * (s * s - 1);
+    const double q = std::sqrt(1 + 2 * (-mat.poisson * e11));
+    std::vector<Vec3d> u(mesh.vertex_count());
+    for (size_t v = 0; v < u.size(); ++v) {
+      const Vec3d x = mesh.rest_positions[v];
+      u[v] = Vec3d{(s - 1) * x.x, (q - 1) * x.y, (q - 1) * x.z};
+    }
+    double energy;
+    const auto f = forces_of(model, u, 1, &energy);
+    const double p11 = s * mat.young * e11;
+    Vec3d right{0, 0, 0}, top{0, 0, 0};
+    for (int32_t v : vertices_where(mesh, 0, kL, 1e-9 * kL)) right += f[v];
+    for (int32_t v : vertices_where(mesh, 1, kL, 1e-9 * kL))
+      if (mesh.rest_positions[v].x > 1e-9 * kL && mesh.rest_positions[v].x < kL * (1 - 1e-9))
+        top += f[v];
+    // The internal force on the loaded face balances the applied traction: -P11 A.
+    EXPECT_NEAR(right.x, -p11 * kL * kL, 1e-10 * std::abs(p11) * kL * kL) << "stretch " << s;
+    EXPECT_NEAR(right.y, 0.0, 1e-10 * std::abs(p11) * kL * kL);
+    EXPECT_LE(norm(top), 1e-10 * std::abs(p11) * kL * kL);
+    // W = V (E_young / 2) E11^2 for uniaxial stress.
+    EXPECT_NEAR(energy, kL * kL * kL * 0.5 * mat.young * e11 * e11, 1e-10 * energy);
+  }
+}
+
+TEST(ForcesCpu, RigidRotationOfAMesh) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 2, 2);
+  const double c = std::cos(0.7), s = std::sin(0.7);
+  const Mat3d r{{{c, -s, 0}, {s, c, 0}, {0, 0, 1}}};
+  std::vector<Vec3d> u(mesh.vertex_count()), stretch(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) {
+    u[v] = r * mesh.rest_positions[v] - mesh.rest_positions[v];
+    stretch[v] = Vec3d{0.1 * mesh.rest_positions[v].x, 0, 0};
+  }
+  const double scale =
+      max_norm(forces_of(make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient),
+                         stretch));
+  EXPECT_LE(max_norm(forces_of(make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient),
+                               u)),
+            1e-10 * scale);
+  // The linear model sees a strain of 1 - cos(0.7) = 24 % and pushes back hard.
+  EXPECT_GT(max_norm(forces_of(
+                make_model(mesh, ConstitutiveModel::kLinear, Formulation::kGradient), u)),
+            scale);
+}
+
+TEST(ForcesCpu, AssembledStiffnessMatchesForceDifferences) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 2, 1);
+  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.2);
+  const Eigen::SparseMatrix<double> k = assemble_stiffness(model, u);
+  // Direction of the derivative.
+  std::vector<Vec3d> d = wavy_displacement(mesh, 1.0);
+  for (Vec3d& x : d) x = Vec3d{x.y, -x.z, x.x};
+  const double h = 1e-6 * kL;
+  std::vector<Vec3d> up(u), um(u);
+  for (size_t v = 0; v < u.size(); ++v) {
+    up[v] += (h / kL) * d[v];
+    um[v] -= (h / kL) * d[v];
+  }
+  const auto fp = forces_of(model, up), fm = forces_of(model, um);
+  Eigen::VectorXd dv(3 * u.size());
+  for (size_t v = 0; v < u.size(); ++v)
+    for (int i = 0; i < 3; ++i) dv[static_cast<Eigen::Index>(3 * v + i)] = d[v][i] / kL;
+  const Eigen::VectorXd kd = k * dv;
+  double scale = kd.cwiseAbs().maxCoeff();
+  for (size_t v = 0; v < u.size(); ++v)
+    for (int i = 0; i < 3; ++i) {
+      const double fd = -(fp[v][i] - fm[v][i]) / (2 * h);
+      EXPECT_NEAR(kd[static_cast<Eigen::Index>(3 * v + i)], fd, 1e-6 * scale);
+    }
+  // Symmetric.
+  const Eigen::SparseMatrix<double> kt = k.transpose();
+  EXPECT_LE((k - kt).norm(), 1e-12 * k.norm());
+}
+
+TEST(ForcesCpu, MaxFrequencyMatchesADenseEigensolver) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 1, 1);
+  ModelDesc desc;
+  desc.fixed_vertices = {0, 3};
+  const Model model = build_model(mesh, desc).value();
+  const std::vector<Vec3d> rest(model.vertex_count(), Vec3d{0, 0, 0});
+  const Eigen::MatrixXd k = Eigen::MatrixXd(assemble_stiffness(model, rest));
+  // Linear stiffness at rest, free DOFs only, mass-normalised.
+  std::vector<int> free;
+  for (size_t v = 0; v < model.vertex_count(); ++v)
+    if (!model.vertex_fixed[v])
+      for (int i = 0; i < 3; ++i) free.push_back(static_cast<int>(3 * v + i));
+  const Eigen::Index n = static_cast<Eigen::Index>(free.size());
+  Eigen::MatrixXd a(n, n);
+  for (Eigen::Index r = 0; r < n; ++r)
+    for (Eigen::Index c = 0; c < n; ++c)
+      a(r, c) = k(free[r], free[c]) / std::sqrt(model.vertex_mass[free[r] / 3] *
+                                                model.vertex_mass[free[c] / 3]);
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(a);
+  const double exact = std::sqrt(eig.eigenvalues().maxCoeff());
+  EXPECT_NEAR(estimate_max_frequency(model, 2000), exact, 1e-6 * exact);
+}
+
+}  // namespace
+}  // namespace zona
