@@ -15,6 +15,7 @@
 #include <sstream>
 #include <string_view>
 
+#include "engine/scene_reader.h"
 #include "engine/units.h"
 
 namespace zona {
@@ -22,438 +23,7 @@ namespace {
 
 using json = nlohmann::json;
 namespace fs = std::filesystem;
-
-constexpr double kInf = std::numeric_limits<double>::infinity();
-
-// ---------------------------------------------------------------------------------------------
-// Validation context: the first error wins; every later read becomes a no-op so that the loader
-// reads like a list of keys instead of a ladder of early returns.
-
-struct Context {
-  std::string source;                   // prefix of every message (the file path)
-  fs::path base_dir;                    // relative paths in the scene resolve against it
-  std::vector<std::string> overridden;  // key paths set by --set, to say where a value came from
-  std::optional<Error> error;
-
-  bool failed() const { return error.has_value(); }
-
-  void fail(const std::string& path, const std::string& message) {
-    if (error) return;
-    std::string text = source + ": ";
-    if (!path.empty()) text += path + ": ";
-    text += message;
-    for (const std::string& o : overridden) {
-      if (path == o || path.rfind(o + ".", 0) == 0) {
-        text += " (value from --set)";
-        break;
-      }
-    }
-    error = Error{std::move(text)};
-  }
-};
-
-std::string join_path(const std::string& parent, std::string_view key) {
-  return parent.empty() ? std::string(key) : parent + "." + std::string(key);
-}
-
-// Edit distance for "did you mean" hints on unknown keys.
-size_t edit_distance(std::string_view a, std::string_view b) {
-  std::vector<size_t> row(b.size() + 1);
-  for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
-  for (size_t i = 1; i <= a.size(); ++i) {
-    size_t diagonal = row[0];
-    row[0] = i;
-    for (size_t j = 1; j <= b.size(); ++j) {
-      const size_t up = row[j];
-      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
-      diagonal = up;
-    }
-  }
-  return row[b.size()];
-}
-
-/// Allowed interval of a value; the message says it with units.
-struct Range {
-  double lo = -kInf;
-  double hi = kInf;
-  bool lo_open = false;
-  bool hi_open = false;
-  const char* note = nullptr;  // why, when not obvious
-
-  static Range any() { return {}; }
-  static Range positive() { return {0.0, kInf, true, false}; }
-  static Range non_negative() { return {0.0, kInf, false, false}; }
-  static Range at_least(double lo) { return {lo, kInf, false, false}; }
-  static Range closed(double lo, double hi) { return {lo, hi, false, false}; }
-  static Range open_closed(double lo, double hi) { return {lo, hi, true, false}; }
-  static Range closed_open(double lo, double hi) { return {lo, hi, false, true}; }
-
-  bool contains(double v) const {
-    const bool above_lo = lo_open ? v > lo : v >= lo;
-    const bool below_hi = hi_open ? v < hi : v <= hi;
-    return above_lo && below_hi;
-  }
-
-  std::string describe(Dimension d) const {
-    std::string text;
-    if (lo == -kInf && hi == kInf) return "must be finite";
-    if (hi == kInf) {
-      text = std::string(lo_open ? "must be > " : "must be >= ") + format_quantity(lo, d);
-    } else if (lo == -kInf) {
-      text = std::string(hi_open ? "must be < " : "must be <= ") + format_quantity(hi, d);
-    } else {
-      text = std::string("must be in ") + (lo_open ? "(" : "[") + format_quantity(lo, dim::kNone) +
-             ", " + format_quantity(hi, dim::kNone) + (hi_open ? ")" : "]");
-      const std::string unit = si_unit(d);
-      if (!unit.empty()) text += " " + unit;
-    }
-    if (note) text += std::string(" (") + note + ")";
-    return text;
-  }
-};
-
-// The value as the user wrote it, for messages.
-std::string written(const json& v) {
-  if (v.is_string()) return "\"" + v.get<std::string>() + "\"";
-  return v.dump();
-}
-
-// Parses a quantity from a JSON string ("56 um") or number (dimensionless, or zero).
-bool read_quantity(Context& ctx, const json& v, const std::string& path, Dimension d,
-                   double* out) {
-  if (v.is_string()) {
-    Result<double> q = parse_quantity(v.get<std::string>(), d);
-    if (!q) {
-      ctx.fail(path, q.error().message);
-      return false;
-    }
-    *out = *q;
-    return true;
-  }
-  if (v.is_number()) {
-    const double x = v.get<double>();
-    if (d == dim::kNone || x == 0.0) {
-      *out = x;
-      return true;
-    }
-    ctx.fail(path, v.dump() + ": missing unit, expected " + dimension_name(d) + ", e.g. \"" +
-                       v.dump() + " " + si_unit(d) + "\"");
-    return false;
-  }
-  if (d == dim::kNone) {
-    ctx.fail(path, "expected a number, got " + std::string(v.type_name()));
-  } else {
-    ctx.fail(path, "expected " + dimension_name(d) + " written with its unit, like \"1 " +
-                       si_unit(d) + "\", got " + v.type_name());
-  }
-  return false;
-}
-
-// "x y z unit", "(x, y, z) unit" or "[x, y, z] unit": three numbers sharing one unit.
-bool read_vec3_string(Context& ctx, const std::string& text, const std::string& path, Dimension d,
-                      Vec3d* out) {
-  std::string s = text;
-  for (char& c : s) {
-    if (c == '(' || c == ')' || c == '[' || c == ']' || c == ',') c = ' ';
-  }
-  const char* p = s.data();
-  const char* end = s.data() + s.size();
-  double xyz[3] = {0.0, 0.0, 0.0};
-  for (double& component : xyz) {
-    while (p < end && *p == ' ') ++p;
-    if (p < end && *p == '+') ++p;
-    const auto [next, ec] = std::from_chars(p, end, component);
-    if (ec != std::errc() || !std::isfinite(component)) {
-      ctx.fail(path, "\"" + text + "\": expected three numbers and a unit, like \"0 0 -30 um\"");
-      return false;
-    }
-    p = next;
-  }
-  while (p < end && *p == ' ') ++p;
-  double factor = 1.0;
-  if (p == end) {
-    if (d != dim::kNone && (xyz[0] != 0.0 || xyz[1] != 0.0 || xyz[2] != 0.0)) {
-      ctx.fail(path, "\"" + text + "\": missing unit, expected " + dimension_name(d));
-      return false;
-    }
-  } else {
-    Result<double> unit = parse_unit(std::string(p, end), d);
-    if (!unit) {
-      ctx.fail(path, unit.error().message);
-      return false;
-    }
-    factor = *unit;
-  }
-  *out = {xyz[0] * factor, xyz[1] * factor, xyz[2] * factor};
-  return true;
-}
-
-// A choice among named values ("svk", "linear", ...).
-template <class E>
-struct Choice {
-  const char* name;
-  E value;
-};
-
-// ---------------------------------------------------------------------------------------------
-// Reader of one JSON object. Unknown keys are reported when the reader is made, before any
-// value is read, so that a misspelt key reads "unknown key" rather than "required key missing".
-
-class Reader {
- public:
-  Reader(Context& ctx, const json* node, std::string path,
-         std::initializer_list<std::string_view> allowed)
-      : ctx_(ctx), node_(node), path_(std::move(path)) {
-    if (!node_ || ctx_.failed()) return;
-    if (!node_->is_object()) {
-      ctx_.fail(path_, std::string("expected an object, got ") + node_->type_name());
-      node_ = nullptr;
-      return;
-    }
-    for (const auto& [key, value] : node_->items()) {
-      if (key == "note") {
-        // "note" is the comment key of every object (JSON has no comments).
-        if (!value.is_string()) ctx_.fail(join_path(path_, key), "a note must be a string");
-        continue;
-      }
-      if (std::find(allowed.begin(), allowed.end(), key) != allowed.end()) continue;
-      std::string message = "unknown key";
-      std::string_view best;
-      size_t best_distance = 3;
-      for (std::string_view candidate : allowed) {
-        const size_t distance = edit_distance(key, candidate);
-        if (distance < best_distance) {
-          best_distance = distance;
-          best = candidate;
-        }
-      }
-      if (!best.empty()) message += " (did you mean '" + std::string(best) + "'?)";
-      ctx_.fail(join_path(path_, key), message);
-      return;
-    }
-  }
-
-  bool present() const { return node_ != nullptr && !ctx_.failed(); }
-  Context& ctx() { return ctx_; }
-  const std::string& path() const { return path_; }
-  std::string key_path(std::string_view key) const { return join_path(path_, key); }
-
-  const json* find(std::string_view key) const {
-    if (!present()) return nullptr;
-    const auto it = node_->find(std::string(key));
-    return it == node_->end() ? nullptr : &*it;
-  }
-  bool has(std::string_view key) const { return find(key) != nullptr; }
-
-  /// Fails unless the key is present.
-  bool require(std::string_view key) {
-    if (!present()) return false;
-    if (has(key)) return true;
-    ctx_.fail(key_path(key), "required key missing");
-    return false;
-  }
-
-  Reader object(std::string_view key, std::initializer_list<std::string_view> allowed) {
-    return Reader(ctx_, find(key), key_path(key), allowed);
-  }
-
-  bool quantity(std::string_view key, Dimension d, double* out, Range range = Range::any()) {
-    const json* v = find(key);
-    if (!v) return false;
-    double x = 0.0;
-    if (!read_quantity(ctx_, *v, key_path(key), d, &x)) return false;
-    if (!check_range(key, *v, x, d, range)) return false;
-    *out = x;
-    return true;
-  }
-
-  /// "auto" (nullopt) or a quantity.
-  bool auto_or_quantity(std::string_view key, Dimension d, std::optional<double>* out,
-                        Range range) {
-    const json* v = find(key);
-    if (!v) return false;
-    if (v->is_string() && v->get<std::string>() == "auto") {
-      out->reset();
-      return true;
-    }
-    if (!v->is_string() && !v->is_number()) {
-      ctx_.fail(key_path(key), "expected \"auto\" or " + dimension_name(d) + " with its unit, got " +
-                                   v->type_name());
-      return false;
-    }
-    double x = 0.0;
-    if (!quantity(key, d, &x, range)) return false;
-    *out = x;
-    return true;
-  }
-
-  bool number(std::string_view key, double* out, Range range = Range::any()) {
-    return quantity(key, dim::kNone, out, range);
-  }
-
-  bool integer(std::string_view key, int64_t* out, int64_t lo, int64_t hi) {
-    const json* v = find(key);
-    if (!v) return false;
-    bool ok = false;
-    int64_t x = 0;
-    if (v->is_number_unsigned()) {
-      const uint64_t u = v->get<uint64_t>();
-      ok = u <= static_cast<uint64_t>(hi);
-      x = ok ? static_cast<int64_t>(u) : hi;
-    } else if (v->is_number_integer()) {
-      x = v->get<int64_t>();
-      ok = true;
-    } else if (v->is_number_float()) {
-      const double f = v->get<double>();
-      ok = std::floor(f) == f && std::fabs(f) < 9e15;
-      x = ok ? static_cast<int64_t>(f) : 0;
-      if (!ok) {
-        ctx_.fail(key_path(key), v->dump() + ": expected an integer");
-        return false;
-      }
-    } else {
-      ctx_.fail(key_path(key), std::string("expected an integer, got ") + v->type_name());
-      return false;
-    }
-    if (!ok || x < lo || x > hi) {
-      ctx_.fail(key_path(key), v->dump() + " is out of range: must be in [" + std::to_string(lo) +
-                                   ", " + std::to_string(hi) + "]");
-      return false;
-    }
-    *out = x;
-    return true;
-  }
-
-  bool boolean(std::string_view key, bool* out) {
-    const json* v = find(key);
-    if (!v) return false;
-    if (!v->is_boolean()) {
-      ctx_.fail(key_path(key), std::string("expected true or false, got ") + v->type_name());
-      return false;
-    }
-    *out = v->get<bool>();
-    return true;
-  }
-
-  bool string(std::string_view key, std::string* out) {
-    const json* v = find(key);
-    if (!v) return false;
-    if (!v->is_string()) {
-      ctx_.fail(key_path(key), std::string("expected a string, got ") + v->type_name());
-      return false;
-    }
-    *out = v->get<std::string>();
-    return true;
-  }
-
-  template <class E>
-  bool choice(std::string_view key, std::initializer_list<Choice<E>> choices, E* out) {
-    std::string s;
-    if (!string(key, &s)) return false;
-    std::string names;
-    for (const Choice<E>& c : choices) {
-      if (s == c.name) {
-        *out = c.value;
-        return true;
-      }
-      names += names.empty() ? "" : ", ";
-      names += c.name;
-    }
-    ctx_.fail(key_path(key), "\"" + s + "\" is not one of: " + names);
-    return false;
-  }
-
-  /// A point or vector with units: ["0 um", "0 um", "-30 um"] or "0 0 -30 um".
-  bool vec3(std::string_view key, Dimension d, Vec3d* out) {
-    const json* v = find(key);
-    if (!v) return false;
-    const std::string path = key_path(key);
-    if (v->is_string()) return read_vec3_string(ctx_, v->get<std::string>(), path, d, out);
-    if (!v->is_array() || v->size() != 3) {
-      ctx_.fail(path, "expected three values with units, like [\"0 um\", \"0 um\", \"-30 um\"] or "
-                      "\"0 0 -30 um\"");
-      return false;
-    }
-    Vec3d r{};
-    for (int i = 0; i < 3; ++i) {
-      if (!read_quantity(ctx_, (*v)[static_cast<size_t>(i)], join_path(path, std::to_string(i)), d,
-                         &r[i])) {
-        return false;
-      }
-    }
-    *out = r;
-    return true;
-  }
-
-  /// A unit direction: [x, y, z] (normalised here) or "+x", "-z", "y".
-  bool direction(std::string_view key, Vec3d* out) {
-    const json* v = find(key);
-    if (!v) return false;
-    const std::string path = key_path(key);
-    Vec3d d{};
-    if (v->is_string()) {
-      std::string s = v->get<std::string>();
-      double sign = 1.0;
-      if (!s.empty() && (s[0] == '+' || s[0] == '-')) {
-        sign = s[0] == '-' ? -1.0 : 1.0;
-        s = s.substr(1);
-      }
-      if (s == "x") {
-        d = {sign, 0.0, 0.0};
-      } else if (s == "y") {
-        d = {0.0, sign, 0.0};
-      } else if (s == "z") {
-        d = {0.0, 0.0, sign};
-      } else {
-        ctx_.fail(path, written(*v) + ": expected an axis (\"+x\", \"-z\", ...) or [x, y, z]");
-        return false;
-      }
-    } else {
-      if (!vec3(key, dim::kNone, &d)) return false;
-    }
-    const double length = norm(d);
-    if (!(length > 0.0)) {
-      ctx_.fail(path, "direction must not be zero");
-      return false;
-    }
-    *out = d / length;
-    return true;
-  }
-
-  /// A file path relative to the scene's folder; the file must exist.
-  bool file_path(std::string_view key, std::string* out) {
-    std::string s;
-    if (!string(key, &s)) return false;
-    if (s.empty()) {
-      ctx_.fail(key_path(key), "empty path");
-      return false;
-    }
-    fs::path p(s);
-    if (p.is_relative()) p = ctx_.base_dir / p;
-    std::error_code ec;
-    if (!fs::is_regular_file(p, ec)) {
-      ctx_.fail(key_path(key), "file not found: " + p.string());
-      return false;
-    }
-    *out = p.lexically_normal().string();
-    return true;
-  }
-
-  void fail(std::string_view key, const std::string& message) {
-    ctx_.fail(key.empty() ? path_ : key_path(key), message);
-  }
-
- private:
-  bool check_range(std::string_view key, const json& v, double x, Dimension d, const Range& r) {
-    if (r.contains(x)) return true;
-    ctx_.fail(key_path(key), written(v) + " is out of range: " + r.describe(d));
-    return false;
-  }
-
-  Context& ctx_;
-  const json* node_;
-  std::string path_;
-};
+using namespace scene_detail;
 
 // ---------------------------------------------------------------------------------------------
 // Sections.
@@ -492,30 +62,46 @@ void read_mesh(Reader& root, Scene& scene) {
     return;
   }
   m.source = MeshSource::kGenerate;
-  Reader g = mesh.object("generate", {"diameter", "zona_thickness", "nucleus_diameter", "vertices",
-                                      "edge_length", "refine_edge_length", "refine_radius",
-                                      "refine_at"});
+  Reader g = mesh.object("generate", {"diameter", "radii_scale", "zona_thickness",
+                                      "nucleus_diameter", "vertices", "edge_length",
+                                      "refine_edge_length", "refine_radius", "refine_at"});
   if (!g.present()) return;
   MeshGenerateDef& gen = m.generate;
   if (!g.require("diameter")) return;
   g.quantity("diameter", dim::kLength, &gen.diameter, Range::positive());
+  if (g.vec3("radii_scale", dim::kNone, &gen.radii_scale)) {
+    for (int a = 0; a < 3; ++a) {
+      if (!(gen.radii_scale[a] > 0.0)) {
+        g.fail("radii_scale", "each factor must be > 0");
+        return;
+      }
+    }
+  }
+  // Layers are measured on the smallest semi-axis, where the cell is thinnest.
+  const double min_scale =
+      std::min({gen.radii_scale.x, gen.radii_scale.y, gen.radii_scale.z});
+  const double min_diameter = gen.diameter * min_scale;
   g.quantity("zona_thickness", dim::kLength, &gen.zona_thickness,
-             Range::closed_open(0.0, gen.diameter / 2));
-  const double inner = gen.diameter - 2 * gen.zona_thickness;
+             Range::closed_open(0.0, min_diameter / 2));
+  const double inner = min_diameter - 2 * gen.zona_thickness;
   g.quantity("nucleus_diameter", dim::kLength, &gen.nucleus_diameter,
              Range{0.0, inner, false, true, "smaller than the cell inside the zona"});
-  if (g.has("vertices") && g.has("edge_length")) {
-    g.fail("vertices", "give either \"vertices\" or \"edge_length\", not both");
+  // Size: vertices alone (uniform), edge_length alone, or a graded mesh (edge lengths with
+  // refinement), optionally scaled as a whole to a vertex count.
+  const bool graded = g.has("refine_edge_length");
+  if (g.has("vertices") && g.has("edge_length") && !graded) {
+    g.fail("vertices", "give either \"vertices\" or \"edge_length\" for a uniform mesh, not "
+                       "both (both only with refine_edge_length)");
     return;
   }
   gen.target_vertices = 0;
   gen.edge_length = 0.0;
-  if (!g.integer("vertices", &gen.target_vertices, 8, 2'000'000'000)) {
-    if (!g.quantity("edge_length", dim::kLength, &gen.edge_length,
-                    Range::open_closed(0.0, gen.diameter))) {
-      // Neither given: a coarse default, documented in docs/scenes.md.
-      gen.edge_length = gen.diameter / 10;
-    }
+  g.integer("vertices", &gen.target_vertices, 8, 2'000'000'000);
+  if (!g.quantity("edge_length", dim::kLength, &gen.edge_length,
+                  Range::open_closed(0.0, gen.diameter)) &&
+      (gen.target_vertices == 0 || graded)) {
+    // Not given: a coarse default, documented in docs/scenes.md.
+    gen.edge_length = gen.diameter / 10;
   }
   const double coarse = gen.edge_length > 0.0 ? gen.edge_length : gen.diameter;
   g.quantity("refine_edge_length", dim::kLength, &gen.refine_edge_length,
@@ -864,25 +450,33 @@ void resolve_refine_at(Context& ctx, Scene& scene) {
     ctx.fail(path, "\"needle\" needs an enabled needle section");
     return;
   }
+  // In coordinates divided by radii_scale the ellipsoid is the ball of radius diameter / 2, and
+  // the ray p + t d stays a ray with the same parameter t.
   const double radius = g.diameter / 2;
+  const Vec3d k = g.radii_scale;
   const Vec3d d = scene.needle.direction;
+  const Vec3d ds{d.x / k.x, d.y / k.y, d.z / k.z};
   if (!scene.needle.start) {
-    g.refine_at = -radius * d;  // the auto start lies on the axis through the centre
+    // The auto start lies on the axis through the centre: the entry is where -d meets the surface.
+    g.refine_at = -(radius / norm(ds)) * d;
     return;
   }
-  const Vec3d s = *scene.needle.start;
-  const double b = dot(s, d);
-  const double c = dot(s, s) - radius * radius;
-  const double disc = b * b - c;
+  const Vec3d p = *scene.needle.start;
+  const Vec3d ps{p.x / k.x, p.y / k.y, p.z / k.z};
+  const double a = dot(ds, ds);
+  const double b = dot(ps, ds);
+  const double c = dot(ps, ps) - radius * radius;
+  const double disc = b * b - a * c;
   if (c <= 0.0) {
-    g.refine_at = s;  // the needle starts inside the cell
+    g.refine_at = p;  // the needle starts inside the cell
     return;
   }
-  if (disc < 0.0 || -b - std::sqrt(disc) < 0.0) {
+  const double t = (-b - std::sqrt(std::max(disc, 0.0))) / a;
+  if (disc < 0.0 || t < 0.0) {
     ctx.fail(path, "\"needle\": the needle axis (needle.start, needle.direction) misses the cell");
     return;
   }
-  g.refine_at = s + (-b - std::sqrt(disc)) * d;
+  g.refine_at = p + t * d;
 }
 
 // Seed 002 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
@@ -948,7 +542,8 @@ void check_scene(Context& ctx, Scene& scene) {
   check_generated_regions(ctx, scene);
   if (ctx.failed()) return;
   const bool generated = scene.mesh.source == MeshSource::kGenerate;
-  const double cell_radius = scene.mesh.generate.diameter / 2;
+  const Vec3d k = scene.mesh.generate.radii_scale;
+  const double cell_radius = scene.mesh.generate.diameter / 2 * std::min({k.x, k.y, k.z});
   if (generated && scene.holding_pipette.enabled &&
       scene.holding_pipette.inner_radius >= cell_radius) {
     ctx.fail("holding_pipette.inner_radius",
@@ -981,27 +576,6 @@ bool parse_index(const std::string& s, size_t* out) {
   const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), *out);
   return ec == std::errc() && end == s.data() + s.size();
 }
-
-// Length unit name for a file unit factor, for scene_to_json.
-const char* length_unit_name(double factor) {
-  static constexpr struct {
-    double factor;
-    const char* name;
-  } kNames[] = {{1.0, "m"}, {1e-2, "cm"}, {1e-3, "mm"}, {1e-6, "um"}, {1e-9, "nm"}, {1e-12, "pm"},
-                {1e3, "km"}};
-  for (const auto& n : kNames) {
-    if (n.factor == factor) return n.name;
-  }
-  return nullptr;
-}
-
-json quantity_json(double v, Dimension d) { return format_quantity(v, d, 0); }
-
-json vec_json(Vec3d v, Dimension d) {
-  return json::array({quantity_json(v.x, d), quantity_json(v.y, d), quantity_json(v.z, d)});
-}
-
-json direction_json(Vec3d v) { return json::array({v.x, v.y, v.z}); }
 
 // Collects the first duplicate key while nlohmann parses (it would silently keep the last one).
 class DuplicateKeyFinder {
@@ -1075,6 +649,8 @@ void drop_alternatives(json& doc, const std::string& set_path,
     if (std::find(group.begin(), group.end(), key) == group.end()) continue;
     // dt "auto" and target_dt live together; only an explicit dt excludes target_dt.
     if (key == "dt" && parent->value("dt", json()) == json("auto")) continue;
+    // A graded mesh takes both vertices and edge_length (scaled to the count).
+    if (group[0] == "vertices" && parent->contains("refine_edge_length")) continue;
     for (const std::string& other : group) {
       const std::string other_path = parent_path + "." + other;
       if (other == key ||
@@ -1250,179 +826,6 @@ const char* model_name(ModelKind model) {
     if (c.value == model) return c.name;
   }
   return "?";
-}
-
-json scene_to_json(const Scene& scene) {
-  using namespace dim;
-  json j = json::object();
-  j["version"] = 1;
-  j["name"] = scene.name;
-  j["description"] = scene.description;
-
-  json mesh = json::object();
-  if (scene.mesh.source == MeshSource::kFile) {
-    mesh["file"] = scene.mesh.file;
-    const char* unit = length_unit_name(scene.mesh.file_unit);
-    mesh["unit"] = unit ? unit : "m";
-  } else {
-    const MeshGenerateDef& g = scene.mesh.generate;
-    json gen = json::object();
-    gen["diameter"] = quantity_json(g.diameter, kLength);
-    gen["zona_thickness"] = quantity_json(g.zona_thickness, kLength);
-    gen["nucleus_diameter"] = quantity_json(g.nucleus_diameter, kLength);
-    if (g.target_vertices > 0) {
-      gen["vertices"] = g.target_vertices;
-    } else {
-      gen["edge_length"] = quantity_json(g.edge_length, kLength);
-    }
-    if (g.refine_edge_length > 0.0) {
-      gen["refine_edge_length"] = quantity_json(g.refine_edge_length, kLength);
-      gen["refine_radius"] = quantity_json(g.refine_radius, kLength);
-      gen["refine_at"] = g.refine_at_needle ? json("needle") : vec_json(g.refine_at, kLength);
-    }
-    mesh["generate"] = gen;
-  }
-  j["mesh"] = mesh;
-  j["model"] = model_name(scene.model);
-
-  json materials = json::object();
-  for (const RegionMaterialDef& entry : scene.materials) {
-    const MaterialDef& m = entry.material;
-    json e = json::object();
-    if (m.young_by_speed.empty()) {
-      e["young"] = quantity_json(m.young, kPressure);
-    } else {
-      json table = json::array();
-      for (const SpeedModulusPoint& p : m.young_by_speed) {
-        table.push_back({{"speed", quantity_json(p.speed, kSpeed)},
-                         {"young", quantity_json(p.young, kPressure)}});
-      }
-      e["young_by_speed"] = table;
-    }
-    e["poisson"] = m.poisson;
-    switch (m.mass_spec) {
-      case MassSpec::kDensity: e["density"] = quantity_json(m.density, kDensity); break;
-      case MassSpec::kTotalMass: e["mass"] = quantity_json(m.total_mass, kMass); break;
-      case MassSpec::kVertexMass: e["vertex_mass"] = quantity_json(m.vertex_mass, kMass); break;
-    }
-    e["damping"] = quantity_json(m.damping, kFrequency);
-    materials[entry.region] = e;
-  }
-  j["materials"] = materials;
-
-  const IntegratorDef& in = scene.integrator;
-  json integrator = json::object();
-  integrator["dt"] = in.dt ? quantity_json(*in.dt, kTime) : json("auto");
-  integrator["dt_safety"] = in.dt_safety;
-  integrator["mass_scaling"] = in.mass_scaling;
-  if (in.target_dt) integrator["target_dt"] = quantity_json(*in.target_dt, kTime);
-  integrator["duration"] = quantity_json(in.duration, kTime);
-  j["integrator"] = integrator;
-
-  json boundary = json::array();
-  for (const BoundaryDef& b : scene.boundary) {
-    json e = json::object();
-    if (b.type == BoundaryKind::kFixed) {
-      e["type"] = "fixed";
-      json w = json::object();
-      const VertexSelect& s = b.where;
-      if (s.surface_only) w["surface"] = true;
-      if (!s.region.empty()) w["region"] = s.region;
-      const bool below = s.below != kInf;
-      const bool above = s.above != -kInf;
-      if (below || above) w["normal"] = direction_json(s.normal);
-      if (below) w["below"] = quantity_json(s.below, kLength);
-      if (above) w["above"] = quantity_json(s.above, kLength);
-      if (s.center) {
-        w["center"] = vec_json(*s.center, kLength);
-        w["radius"] = quantity_json(s.radius, kLength);
-      }
-      e["where"] = w;
-    } else {
-      e["type"] = "indent";
-      e["center"] = vec_json(b.center, kLength);
-      e["radius"] = quantity_json(b.radius, kLength);
-      e["depth"] = quantity_json(b.depth, kLength);
-      e["speed"] = quantity_json(b.speed, kSpeed);
-      e["direction"] = direction_json(b.direction);
-    }
-    boundary.push_back(e);
-  }
-  j["boundary"] = boundary;
-
-  const NeedleDef& n = scene.needle;
-  json needle = json::object();
-  needle["enabled"] = n.enabled;
-  if (n.enabled) {
-    static constexpr const char* kShapes[] = {"point", "sphere", "flat"};
-    needle["shape"] = kShapes[static_cast<int>(n.shape)];
-    needle["tip_radius"] = quantity_json(n.tip_radius, kLength);
-    needle["direction"] = direction_json(n.direction);
-    needle["start"] = n.start ? vec_json(*n.start, kLength) : json("auto");
-    needle["standoff"] = quantity_json(n.standoff, kLength);
-    needle["speed"] = quantity_json(n.speed, kSpeed);
-    needle["max_travel"] = quantity_json(n.max_travel, kLength);
-    if (!n.trajectory.empty()) needle["trajectory"] = n.trajectory;
-  }
-  j["needle"] = needle;
-
-  const PunctureDef& p = scene.puncture;
-  static constexpr const char* kCriteria[] = {"none", "force", "strain", "energy"};
-  json puncture = json::object();
-  puncture["criterion"] = kCriteria[static_cast<int>(p.criterion)];
-  if (p.criterion == PunctureCriterion::kForce) puncture["threshold"] = quantity_json(p.threshold, kForce);
-  if (p.criterion == PunctureCriterion::kStrain) puncture["threshold"] = p.threshold;
-  if (p.criterion == PunctureCriterion::kEnergy) puncture["threshold"] = quantity_json(p.threshold, kEnergy);
-  puncture["force_drop"] = p.force_drop;
-  puncture["drop_time"] = quantity_json(p.drop_time, kTime);
-  puncture["shaft_friction"] = quantity_json(p.shaft_friction, kStiffness);
-  j["puncture"] = puncture;
-
-  const HoldingPipetteDef& h = scene.holding_pipette;
-  json holding = json::object();
-  holding["enabled"] = h.enabled;
-  if (h.enabled) {
-    holding["mode"] = h.mode == HoldingMode::kSuction ? "suction" : "fixed";
-    holding["inner_radius"] = quantity_json(h.inner_radius, kLength);
-    holding["outer_radius"] = quantity_json(h.outer_radius, kLength);
-    holding["suction"] = quantity_json(h.suction, kPressure);
-    holding["friction"] = h.friction;
-    if (h.side) holding["side"] = direction_json(*h.side);
-    holding["position"] = h.position ? vec_json(*h.position, kLength) : json("auto");
-  }
-  j["holding_pipette"] = holding;
-
-  const HapticsDef& hp = scene.haptics;
-  static constexpr const char* kDevices[] = {"none", "scripted", "emulated", "replay", "network"};
-  json haptics = json::object();
-  haptics["device"] = kDevices[static_cast<int>(hp.device)];
-  haptics["rate"] = quantity_json(hp.rate, kFrequency);
-  haptics["workspace_scale"] = hp.workspace_scale;
-  haptics["force_scale"] = hp.force_scale;
-  haptics["max_force"] = quantity_json(hp.max_force, kForce);
-  haptics["max_stiffness"] = quantity_json(hp.max_stiffness, kStiffness);
-  haptics["interpolation"] =
-      hp.interpolation == HapticInterpolation::kStiffness ? "stiffness" : "first_order_hold";
-  haptics["stall_timeout"] = quantity_json(hp.stall_timeout, kTime);
-  haptics["coupling_stiffness"] =
-      hp.coupling_stiffness ? quantity_json(*hp.coupling_stiffness, kStiffness) : json("auto");
-  haptics["coupling_damping"] =
-      hp.coupling_damping ? quantity_json(*hp.coupling_damping, kDamping) : json("auto");
-  if (!hp.replay_file.empty()) haptics["replay_file"] = hp.replay_file;
-  haptics["network_host"] = hp.network_host;
-  haptics["network_port"] = hp.network_port;
-  j["haptics"] = haptics;
-
-  const OutputDef& o = scene.output;
-  json output = json::object();
-  if (o.frame_interval) {
-    output["frame_interval"] = quantity_json(*o.frame_interval, kTime);
-  } else {
-    output["frames"] = o.frames;
-  }
-  output["sample_interval"] = quantity_json(o.sample_interval, kTime);
-  j["output"] = output;
-  return j;
 }
 
 }  // namespace zona

@@ -36,14 +36,18 @@ enum class MeshSource {
 /// generated cell is centred at the origin).
 struct MeshGenerateDef {
   double diameter = 56e-6;          ///< cell diameter [m]
+  Vec3d radii_scale{1.0, 1.0, 1.0}; ///< ellipsoid: semi-axes = diameter / 2 * radii_scale [-]
   double zona_thickness = 0.0;      ///< outer shell (zona pellucida / chorion) thickness [m]; 0: none
   double nucleus_diameter = 0.0;    ///< nucleus diameter [m]; 0: no nucleus region
-  int64_t target_vertices = 0;      ///< uniform mesh of about this many vertices; 0: use edge_length
-  double edge_length = 0.0;         ///< edge length away from refinement [m]; 0: use target_vertices
+  /// About this many vertices; 0: sized by the edge lengths. Alone: a uniform mesh; with the
+  /// refinement lengths: the graded mesh scaled as a whole to reach the count.
+  int64_t target_vertices = 0;
+  double edge_length = 5.6e-6;      ///< edge length away from refinement [m]; 0: uniform by count
   double refine_edge_length = 0.0;  ///< edge length at refine_at [m]; 0: no graded refinement
   double refine_radius = 0.0;       ///< radius of the finely meshed zone around refine_at [m]
   Vec3d refine_at{0.0, 0.0, 0.0};   ///< centre of refinement [m]
-  bool refine_at_needle = false;    ///< refine_at was "needle": where the needle axis enters the cell
+  bool refine_at_needle = false;    ///< refine_at was "needle": where the needle axis enters the
+                                    ///< cell (refine_at holds that point, resolved on load)
 };
 
 /// The mesh of the scene: a file or generator parameters.
