@@ -110,6 +110,7 @@ TEST(Scene, MouseOocyteHasSeed000TableOne) {
   EXPECT_EQ(s.model, ModelKind::kSvk);
   const MeshGenerateDef& g = s.mesh.generate;
   expect_rel(g.diameter, 56e-6);
+  EXPECT_LE(g.target_vertices, 5000);  // a few thousand: the main job must be fast
   EXPECT_GT(g.refine_edge_length, 0.0);
   EXPECT_LT(g.refine_edge_length, g.edge_length);
   // Refined where the needle (along +x, auto start on the axis) meets the 28 um sphere.
