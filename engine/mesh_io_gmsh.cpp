@@ -6,6 +6,7 @@
 #include <climits>
 #include <cstring>
 #include <map>
+#include <set>
 
 #include "engine/mesh_io_internal.h"
 
@@ -155,10 +156,9 @@ class GmshReader {
         return c_.fail("physical name must be in double quotes, got '%s'",
                        excerpt(line).c_str());
       if (dim != 3) continue;  // only volumes carry tetrahedra
+      // The first name of a tag wins; a set keeps this linear however many names there are.
       const auto tag32 = static_cast<int32_t>(tag);
-      bool known = false;
-      for (const Region& r : out_.regions) known = known || r.tag == tag32;
-      if (!known)
+      if (named_.insert(tag32).second)
         out_.regions.push_back({tag32, std::string(line.substr(open + 1, close - open - 1))});
     }
     return end_section("PhysicalNames");
@@ -516,6 +516,7 @@ class GmshReader {
   bool have_elements_ = false;
   NodeTagMap tags_;
   std::map<std::pair<int, int32_t>, int32_t> entity_physical_;  // (dim, entity) -> physical
+  std::set<int32_t> named_;                                     // tags with a name already
   RawMesh out_;
 };
 

@@ -10,7 +10,6 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <regex>
 #include <sstream>
 
 namespace zona {
@@ -345,7 +344,6 @@ std::vector<std::map<std::string, std::string>> xml_elements(const std::string& 
   std::vector<std::map<std::string, std::string>> found;
   std::vector<std::string> open;
   well_formed = true;
-  const std::regex attr(R"re(([A-Za-z_]+)="([^"]*)")re");
   for (size_t at = xml.find('<'); at != std::string::npos; at = xml.find('<', at + 1)) {
     const size_t end = xml.find('>', at);
     if (end == std::string::npos) { well_formed = false; break; }
@@ -358,9 +356,15 @@ std::vector<std::map<std::string, std::string>> xml_elements(const std::string& 
     }
     const std::string name = body.substr(0, body.find_first_of(" /"));
     if (name == tag) {
+      // Attributes: name="value" pairs after the element name.
       std::map<std::string, std::string> a;
-      for (std::sregex_iterator it(body.begin(), body.end(), attr), e; it != e; ++it)
-        a[(*it)[1]] = (*it)[2];
+      for (size_t eq = body.find("=\""); eq != std::string::npos; eq = body.find("=\"", eq + 1)) {
+        const size_t name_start = body.rfind(' ', eq) + 1;
+        const size_t close = body.find('"', eq + 2);
+        if (close == std::string::npos) { well_formed = false; break; }
+        a[body.substr(name_start, eq - name_start)] = body.substr(eq + 2, close - eq - 2);
+        eq = close;
+      }
       found.push_back(a);
     }
     if (body.back() != '/') open.push_back(name);
