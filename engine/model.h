@@ -47,7 +47,7 @@ struct ModelDesc {
   /// Per-region overrides.
   std::vector<RegionMaterial> region_materials;
   /// Lumped vertex mass [kg]: 0 derives masses from the densities (rho V / 4 per tetrahedron
-  /// corner); > 0 gives every vertex this mass (the seed's choice: 0.07995e-5 mg = 7.995e-12 kg).
+  /// corner); > 0 gives every vertex this mass (the seed's choice: 0.07995e-5 mg = 7.995e-13 kg).
   double vertex_mass = 0;
   ConstitutiveModel constitutive = ConstitutiveModel::kSvk;
   Formulation formulation = Formulation::kGradient;
