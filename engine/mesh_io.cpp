@@ -293,6 +293,8 @@ Result<std::string> read_file(const std::string& path) {
   FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) return make_error("%s: cannot open: %s", path.c_str(), std::strerror(errno));
   std::string data;
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (!ec) data.reserve(static_cast<size_t>(size));  // a hint only: the read decides the size
   char buffer[1 << 16];
   size_t n;
   while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) data.append(buffer, n);
