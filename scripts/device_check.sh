@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# The GPU workflow in one script (docs/gpu.md, "Developer: GPU workflow").
+#
+#   here:        bash scripts/device_check.sh pack  [BUILD_DIR] [CARRY_DIR]
+#   GPU machine: bash scripts/device_check.sh run   [CARRY_DIR]
+#
+# `pack` builds zona for sm_90 in BUILD_DIR (default build-cuda) and copies the stripped test,
+# benchmark and CLI binaries plus libcudart into CARRY_DIR (default build-device, a few MB:
+# the device machine has no compiler guarantee and no network, so binaries travel).
+# `run` executes on the GPU machine, writing to $OUT (default ./device-out): nvidia-smi,
+# `zona info --json`, the GPU tests, compute-sanitizer memcheck and racecheck over them, the
+# GPU benchmark, and a summary (printed last). Environment:
+#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench (default: all)
+#   TEST_FILTER          gtest filter of the GPU tests (default 'Cuda*')
+#   SANITIZER_FILTER     gtest filter under compute-sanitizer (default: TEST_FILTER)
+#   BENCH_SIZES          vertex counts for the benchmark (default 10000,100000,1000000)
+#   BENCH_VARIANTS       benchmark variants (default all)
+#   BENCH_ARGS           extra benchmark arguments (e.g. "--substeps 200 --repeats 9")
+#   TESTS_TIMEOUT, BENCH_TIMEOUT, SANITIZER_TIMEOUT  seconds per stage (240, 300, 150)
+# Stages run in the order smi, tests, bench, memcheck, racecheck; each writes its log as it goes,
+# so a call cut short still brings back what finished.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+mode=${1:-}
+
+pack() {
+  local build=${1:-build-cuda} carry=${2:-build-device}
+  local nvcc=nvcc
+  command -v nvcc >/dev/null || nvcc=/usr/local/cuda/bin/nvcc
+  set -e
+  cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DZONA_VULKAN=OFF \
+    -DCMAKE_CUDA_COMPILER="$(command -v "$nvcc" || echo "$nvcc")" \
+    -DCMAKE_CUDA_ARCHITECTURES=90 >/dev/null
+  cmake --build "$build" -j "${ZONA_JOBS:-2}" --target zona_tests gpu_step_bench zona
+  rm -rf "$carry"
+  mkdir -p "$carry"
+  cp "$build/tests/zona_tests" "$build/bench/gpu_step_bench" "$build/apps/zona" "$carry/"
+  strip "$carry/zona_tests" "$carry/gpu_step_bench" "$carry/zona"
+  local cudart
+  cudart=$(ldd "$carry/gpu_step_bench" | awk '/libcudart/ {print $3}')
+  [ -n "$cudart" ] && cp -L "$cudart" "$carry/"
+  du -sh "$carry"
+  echo "carry $carry: run with  bash scripts/device_check.sh run $carry"
+}
+
+run() {
+  local carry=${1:-build-device}
+  local out=${OUT:-device-out}
+  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench}
+  local filter=${TEST_FILTER:-Cuda*}
+  mkdir -p "$out"
+  export LD_LIBRARY_PATH="$PWD/$carry${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+  local sanitizer
+  sanitizer=$(command -v compute-sanitizer || echo /usr/local/cuda/bin/compute-sanitizer)
+  local summary="$out/summary.txt"
+  : >"$summary"
+  note() { echo "$*" | tee -a "$summary"; }
+  has() { [[ ",$stages," == *",$1,"* ]]; }
+
+  if has smi; then
+    { nvidia-smi; nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.sm,clocks.mem \
+        --format=csv; "$carry/zona" info --json; } >"$out/nvidia-smi.txt" 2>&1
+    note "device: $(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>&1)"
+  fi
+  if has tests; then
+    timeout "${TESTS_TIMEOUT:-240}" "$carry/zona_tests" --gtest_filter="$filter" \
+      >"$out/tests.log" 2>&1
+    note "tests ($filter): rc $? ; $(grep -E '^\[  (PASSED|FAILED|SKIPPED) ' "$out/tests.log" |
+      tr '\n' ' ')"
+    grep -E '^\[  FAILED  \]' "$out/tests.log" | sort -u | tee -a "$summary"
+  fi
+  if has bench; then
+    # shellcheck disable=SC2086
+    timeout "${BENCH_TIMEOUT:-300}" "$carry/gpu_step_bench" \
+      --sizes "${BENCH_SIZES:-10000,100000,1000000}" --variants "${BENCH_VARIANTS:-all}" \
+      --out "$out/bench.csv" ${BENCH_ARGS:-} >"$out/bench.log" 2>&1
+    note "bench: rc $?"
+    sed -n '/^# /p;/^vertices /,$p' "$out/bench.log" | tee -a "$summary"
+  fi
+  local sfilter=${SANITIZER_FILTER:-$filter}
+  if has memcheck; then
+    timeout "${SANITIZER_TIMEOUT:-150}" "$sanitizer" --tool memcheck --leak-check full \
+      --error-exitcode 9 "$carry/zona_tests" --gtest_filter="$sfilter" >"$out/memcheck.log" 2>&1
+    note "memcheck ($sfilter): rc $? ; $(grep -E 'ERROR SUMMARY' "$out/memcheck.log" | tail -1)"
+  fi
+  if has racecheck; then
+    timeout "${SANITIZER_TIMEOUT:-150}" "$sanitizer" --tool racecheck --error-exitcode 9 \
+      "$carry/zona_tests" --gtest_filter="$sfilter" >"$out/racecheck.log" 2>&1
+    note "racecheck ($sfilter): rc $? ; $(grep -E 'RACECHECK SUMMARY|ERROR SUMMARY' \
+      "$out/racecheck.log" | tail -1)"
+  fi
+}
+
+case "$mode" in
+  pack) shift; pack "$@" ;;
+  run) shift; run "$@" ;;
+  *) echo "usage: $0 pack [BUILD_DIR] [CARRY_DIR] | run [CARRY_DIR]" >&2; exit 2 ;;
+esac
