@@ -6,10 +6,11 @@
 // a 2:1-balanced octree (graded towards the puncture point) is cut to the cell surface by
 // isosurface stuffing (Labelle and Shewchuk 2007: vertices near the surface are snapped onto it,
 // the rest of the crossing tetrahedra are split along it), then the internal layer interfaces
-// are cut the same way wherever the lattice resolves them. It was chosen over TetGen because
-// it is several times faster at 1 million vertices, guarantees no bad angle by construction
-// rather than by optimisation, is deterministic, and adds no library that the GPU machine's
-// copied build folder would have to carry.
+// are cut the same way wherever the lattice resolves them, and the few worst elements are
+// repaired by moving vertices. Chosen over TetGen on measurement: on the same 56 um ball TetGen
+// 1.5 (-pq1.4/10) took 18 s for 195k vertices and still left 2 degree slivers; this takes
+// 1.5 s for 1 million vertices with every dihedral angle above 14 degrees, is deterministic,
+// and adds no library that the GPU machine's copied build folder would have to carry.
 #pragma once
 
 #include <cstdint>

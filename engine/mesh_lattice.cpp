@@ -264,7 +264,8 @@ class LatticeBuilder {
     int64_t relevant_leaves = 0;
     for_each_leaf([&](const Cell& c) { relevant_leaves += relevant(c) ? 1 : 0; });
     lattice_.leaf_count = relevant_leaves;
-    map_ = IndexMap(static_cast<size_t>(relevant_leaves) * 3);
+    // About 2 vertices per cell (corner and centre), more at octree transitions.
+    map_ = IndexMap(static_cast<size_t>(relevant_leaves) * 5 / 2);
     lattice_.positions.reserve(static_cast<size_t>(relevant_leaves) * 5 / 2);
     lattice_.tets.reserve(static_cast<size_t>(relevant_leaves) * 13);
     for_each_leaf([&](const Cell& c) {
