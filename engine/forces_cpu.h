@@ -2,8 +2,9 @@
 // global tangent stiffness and the largest natural frequency, for tests and quasi-static tools.
 //
 // Determinism: each tetrahedron writes its four corner forces to its own slots of
-// State::tet_force (no shared writes), then each vertex sums its slots in the fixed order of
-// the vertex-to-tetrahedron adjacency (ascending tetrahedron index). Energies and counts are
+// State::tet_force (no shared writes; the slots are laid out in adjacency order), then each
+// vertex sums its slots in the fixed order of the vertex-to-tetrahedron adjacency (ascending
+// tetrahedron index). Energies and counts are
 // summed per fixed-size chunk and the chunks in order. No result depends on the thread count.
 #pragma once
 
@@ -22,14 +23,13 @@ void compute_tet_forces(const Model& model, State& state);
 /// Sums the element-pass chunks into diag: elastic energy, health bits, counts, first indices.
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
-/// Elastic force on vertex v [N]: its corner slots of state.tet_force summed in adjacency order.
+/// Elastic force on vertex v [N]: its corner slots of state.tet_force (contiguous, see
+/// Model::corner_slot) summed in adjacency order (ascending tetrahedron).
 inline Vec3d gather_vertex_force(const Model& model, const State& state, size_t v) {
-  const int32_t* tets = model.adjacency.tets.data();
-  const int8_t* corner = model.adjacency.corner.data();
   const Vec3d* slots = state.tet_force.data();
   Vec3d f{0, 0, 0};
   for (int32_t i = model.adjacency.offsets[v]; i < model.adjacency.offsets[v + 1]; ++i)
-    f += slots[4 * static_cast<size_t>(tets[i]) + static_cast<size_t>(corner[i])];
+    f += slots[i];
   return f;
 }
 

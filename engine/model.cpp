@@ -74,6 +74,10 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.rest_positions = mesh.rest_positions;
   model.tets = mesh.tets;
   model.adjacency = build_vertex_tet_adjacency(mesh);
+  model.corner_slot.resize(4 * nt);
+  for (size_t i = 0; i < model.adjacency.tets.size(); ++i)
+    model.corner_slot[4 * static_cast<size_t>(model.adjacency.tets[i]) +
+                      static_cast<size_t>(model.adjacency.corner[i])] = static_cast<int32_t>(i);
   model.constitutive = desc.constitutive;
   model.formulation = desc.formulation;
   model.inversion = desc.inversion;
@@ -213,6 +217,21 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   }
 
   model.energy_floor = min_mu * total_volume * 1e-16;
+
+  // Lane-major batches of four for the CPU's vectorised element pass.
+  const size_t batches = (nt + 3) / 4;
+  model.cpu_tet_batches.assign(batches * kCpuTetBatchStride, 0.0);
+  for (size_t b = 0; b < batches; ++b)
+    for (size_t l = 0; l < 4; ++l) {
+      const size_t t = std::min(4 * b + l, nt - 1);
+      double* out = model.cpu_tet_batches.data() + b * kCpuTetBatchStride + l;
+      const TetShape<double>& shape = model.tet_shape[t];
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 3; ++i) out[4 * (3 * j + i)] = shape.grad[j][i];
+      out[4 * 12] = shape.volume;
+      out[4 * 13] = model.tet_lame(t).lambda;
+      out[4 * 14] = model.tet_lame(t).mu;
+    }
 
   if (desc.formulation == Formulation::kTensorStored) {
     const auto tensor_start = std::chrono::steady_clock::now();

@@ -78,6 +78,9 @@ struct ModelDesc {
   int precompute_threads = 1;
 };
 
+/// Doubles per batch of four tetrahedra in Model::cpu_tet_batches.
+inline constexpr int kCpuTetBatchStride = 60;
+
 /// Integration coefficients of one vertex for the centred-difference update
 /// u+ = a u - b u- + c f (DESIGN.md section 3), with gamma = alpha M:
 /// a = 2M / (M + gamma dt/2), b = (M - gamma dt/2) / (M + gamma dt/2), c = dt^2 / (M + gamma dt/2).
@@ -93,6 +96,10 @@ struct Model {
   std::vector<Vec3d> rest_positions;  ///< rest positions [m], (vertex_count)
   std::vector<Tet> tets;              ///< vertex indices, (tet_count)
   VertexTetAdjacency adjacency;       ///< tetrahedra around each vertex, ascending
+  /// Position of corner c of tetrahedron t in the adjacency lists (the i with
+  /// adjacency.tets[i] == t and adjacency.corner[i] == c), (4 tet_count): the element pass
+  /// writes corner forces there so that the vertex pass reads each vertex's slots contiguously.
+  std::vector<int32_t> corner_slot;
 
   // Materials.
   std::vector<Material> materials;     ///< distinct materials, (material_count)
@@ -106,6 +113,11 @@ struct Model {
   // Precomputed element data.
   std::vector<TetShape<double>> tet_shape;  ///< shape gradients [1/m] and volume [m^3], (tet_count)
   MassTensors tensors;  ///< stored tensors, filled only for Formulation::kTensorStored
+  /// The CPU backend's copy of the gradient-form data in batches of four tetrahedra, lane-major
+  /// so that one load fills four lanes: per batch 15 x 4 doubles (grad[0..3] x/y/z, volume,
+  /// lambda, mu; lane l = tetrahedron 4 b + l, the last one repeated past the end),
+  /// (ceil(tet_count / 4) x 60). Same numbers as tet_shape and tet_lame.
+  std::vector<double> cpu_tet_batches;
 
   // Masses and boundary conditions.
   std::vector<double> vertex_mass;          ///< lumped mass, scaled [kg], (vertex_count)

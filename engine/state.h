@@ -93,7 +93,9 @@ struct State {
 
   // Scratch, sized once by make_state.
   std::vector<Vec3d> u_next;     ///< u_{n+1} before it is accepted [m], (vertex_count)
-  std::vector<Vec3d> tet_force;  ///< per-element corner forces [N], (4 tet_count)
+  /// Per-element corner forces [N], (4 tet_count), in adjacency order: corner c of tetrahedron
+  /// t at Model::corner_slot[4 t + c], so vertex v's are [offsets[v], offsets[v + 1]).
+  std::vector<Vec3d> tet_force;
   std::vector<TetChunkResult> tet_chunks;        ///< (ceil(tet_count / kTetChunk))
   std::vector<VertexChunkResult> vertex_chunks;  ///< (ceil(vertex_count / kVertexChunk))
   std::unique_ptr<ThreadPool> pool;              ///< the CPU backend's threads
