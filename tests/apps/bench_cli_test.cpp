@@ -1,0 +1,113 @@
+// End-to-end tests of `zona bench`: one-line errors for bad options, and a tiny run that writes
+// the CSV (comment lines, header, one row) with one notice for an unavailable GPU.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "kernels/backend_info.h"
+
+namespace {
+
+struct CliRun {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+// Runs the zona binary with `args`, capturing stdout and stderr through temporary files.
+CliRun run_zona(const std::string& args) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path();
+  const std::string tag = "zona_bench_cli_" +
+                          std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) +
+                          "_" + std::to_string(::getpid());
+  const std::string out_path = (dir / (tag + ".out")).string();
+  const std::string err_path = (dir / (tag + ".err")).string();
+  const std::string cmd =
+      std::string(ZONA_CLI_PATH) + " " + args + " >" + out_path + " 2>" + err_path;
+  const int status = std::system(cmd.c_str());
+  CliRun r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  auto slurp = [](const std::string& p) {
+    std::ifstream f(p);
+    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  };
+  r.out = slurp(out_path);
+  r.err = slurp(err_path);
+  std::filesystem::remove(out_path);
+  std::filesystem::remove(err_path);
+  return r;
+}
+
+int count_lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+TEST(BenchCli, BadOptionsAreOneLineErrors) {
+  struct Case {
+    const char* args;
+    const char* named;
+  };
+  for (const Case& c : {Case{"--vertices abc", "abc"}, Case{"--vertices 1000,,5", "--vertices"},
+                        Case{"--backend gpu", "gpu"}, Case{"--model neo", "neo"},
+                        Case{"--formulation tensor", "tensor"}, Case{"--repeats 0", "--repeats"},
+                        Case{"--steps -3", "--steps"}, Case{"--threads x", "--threads"},
+                        Case{"--vertices 5000 --max-vertices 1000", "5000"},
+                        Case{"--assembly nope", "--assembly"}}) {
+    const CliRun r = run_zona(std::string("bench ") + c.args);
+    EXPECT_NE(r.exit_code, 0) << c.args;
+    EXPECT_EQ(count_lines(r.err), 1) << c.args << ": " << r.err;
+    EXPECT_NE(r.err.find(c.named), std::string::npos) << c.args << ": " << r.err;
+    EXPECT_TRUE(r.out.empty()) << c.args;
+  }
+}
+
+TEST(BenchCli, TinyRunWritesTheCsvAndOneNoticeForAMissingGpu) {
+  const std::string path =
+      (std::filesystem::temp_directory_path() / "zona_bench_cli_tiny.csv").string();
+  const CliRun r = run_zona("bench --backend all --vertices 150 --steps 2 --repeats 1 "
+                            "--threads 1 --copy-mib 4 --out " + path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::ifstream f(path);
+  std::vector<std::string> comments, rows;
+  std::string header, line;
+  while (std::getline(f, line)) {
+    if (line.rfind("#", 0) == 0)
+      comments.push_back(line);
+    else if (header.empty())
+      header = line;
+    else
+      rows.push_back(line);
+  }
+  std::filesystem::remove(path);
+  EXPECT_GE(comments.size(), 4u);
+  EXPECT_EQ(header.rfind("backend,model,formulation,", 0), 0u) << header;
+  std::string notice;
+  if (zona::cuda_devices(&notice).empty()) {
+    // No GPU: the CPU row only, and exactly one notice naming cuda.
+    ASSERT_EQ(rows.size(), 1u);
+    EXPECT_EQ(rows[0].rfind("cpu,svk,gradient,1,150,", 0), 0u) << rows[0];
+    int notices = 0;
+    std::istringstream err(r.err);
+    while (std::getline(err, line))
+      if (line.find("notice") != std::string::npos) {
+        ++notices;
+        EXPECT_NE(line.find("cuda"), std::string::npos) << line;
+      }
+    EXPECT_EQ(notices, 1) << r.err;
+  } else {
+    EXPECT_EQ(rows.size(), 2u);
+  }
+  // The summary table goes to stdout when the CSV goes to a file.
+  EXPECT_NE(r.out.find("step_ms"), std::string::npos);
+}
+
+}  // namespace
