@@ -216,22 +216,27 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
 /// returns true on the run's first lane, which then holds the run's total. The tetrahedra are
 /// sorted by (first vertex, second vertex) and their corners by vertex index, so corner 0 of
 /// neighbouring threads is often the same vertex (runs of about six), corner 1 sometimes (about
-/// two): one atomic per run instead of one per corner. Every lane of the warp must call it.
+/// two): one atomic per run instead of one per corner. Equal keys need not be contiguous
+/// (corner 1 of a later run may repeat an earlier one): each lane sums up to the end of its own
+/// run only, and every run's head adds its run. Every lane of the warp must call it.
 template <class V>
 __device__ __forceinline__ bool warp_run_sum(int key, V v[3]) {
   constexpr unsigned kAll = 0xffffffffu;
   const int lane = threadIdx.x & 31;
-  // After the step with offset d, a lane holds the sum over [lane, lane + 2d) within its run:
-  // runs are contiguous, so a neighbour with the same key continues this lane's run.
+  const int previous = __shfl_up_sync(kAll, key, 1);
+  const bool head = lane == 0 || previous != key;
+  // The run of this lane ends before the next head.
+  const unsigned heads = __ballot_sync(kAll, head);
+  const unsigned later = lane == 31 ? 0u : heads & (~0u << (lane + 1));
+  const int end = later ? __ffs(later) - 1 : 32;
+  // After the step with offset d, a lane holds the sum over [lane, min(lane + 2d, end)).
   for (int d = 1; d < 32; d <<= 1) {
-    const int other = __shfl_down_sync(kAll, key, d);
     V o[3];
     for (int i = 0; i < 3; ++i) o[i] = __shfl_down_sync(kAll, v[i], d);
-    if (lane + d < 32 && other == key)
+    if (lane + d < end)
       for (int i = 0; i < 3; ++i) v[i] += o[i];
   }
-  const int previous = __shfl_up_sync(kAll, key, 1);
-  return lane == 0 || previous != key;
+  return head;
 }
 
 /// Adds a corner force to vertex v: one float4 vector atomic (sm_90), or three scalar ones.
