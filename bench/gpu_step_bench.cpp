@@ -5,7 +5,7 @@
 // table last. Runs through the Backend interface, so the numbers are what the product gets.
 //
 //   gpu_step_bench [--sizes 10000,100000,1000000] [--variants all|name,name]
-//                  [--substeps 100] [--repeats 7] [--out FILE.csv]
+//                  [--substeps 100] [--repeats 7] [--out FILE.csv] [--shuffle 1]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -135,6 +135,7 @@ bool wanted(const std::string& list, const char* name) {
 int run(int argc, char** argv) {
   std::string sizes_arg = "10000,100000,1000000", variants_arg = "all", out_path;
   int substeps = 100, repeats = 7;
+  bool shuffle = false;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--sizes")
@@ -147,6 +148,8 @@ int run(int argc, char** argv) {
       repeats = std::max(1, std::stoi(v));
     else if (k == "--out")
       out_path = v;
+    else if (k == "--shuffle")
+      shuffle = v == "1";
     else {
       std::fprintf(stderr, "gpu_step_bench: unknown option %s\n", k.c_str());
       return 2;
@@ -200,6 +203,22 @@ int run(int argc, char** argv) {
       std::fprintf(stderr, "gpu_step_bench: mesh %lld: %s\n", static_cast<long long>(target),
                    mesh.error().message.c_str());
       continue;
+    }
+    if (shuffle) {
+      // A mesh numbered at random, as files from other meshers may come: what the device
+      // layout's reordering is for.
+      std::vector<int32_t> perm(mesh->vertex_count());
+      for (size_t v = 0; v < perm.size(); ++v) perm[v] = static_cast<int32_t>(v);
+      uint64_t x = 88172645463325252ull;
+      for (size_t v = perm.size(); v > 1; --v) {
+        x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+        std::swap(perm[v - 1], perm[x % v]);
+      }
+      std::vector<Vec3d> pos(perm.size());
+      for (size_t v = 0; v < perm.size(); ++v) pos[perm[v]] = mesh->rest_positions[v];
+      mesh->rest_positions = std::move(pos);
+      for (Tet& t : mesh->tets)
+        for (int32_t& v : t) v = perm[v];
     }
     const auto t1 = std::chrono::steady_clock::now();
     const double nv = static_cast<double>(mesh->vertex_count());
@@ -312,6 +331,7 @@ int run(int argc, char** argv) {
       uint64_t hash = 0;
       if (Status s = b.download(out); s) hash = fnv1a(out.u.data(), out.u.size() * sizeof(Vec3d));
 
+      const std::string name = std::string(var.name) + (shuffle ? "_shuffled_mesh" : "");
       const double median = percentile(ms, 0.5);
       const VariantBytes vb = variant_bytes(var);
       const double bytes = vb.total(nv, nt);
@@ -322,15 +342,15 @@ int run(int argc, char** argv) {
       std::snprintf(line, sizeof line,
                     "%s,%s,%.0f,%.0f,%s,%d,%.5f,%.5f,%.5f,%.0f,%.0f,%.1f,%.0f,%.0f,%.5f,%.2f,"
                     "%.5f,%s,%016llx\n",
-                    device.c_str(), date, nv, nt, var.name, substeps, median, percentile(ms, 0.1),
-                    percentile(ms, 0.9), steps_per_s, bytes, vb.per_tet,
+                    device.c_str(), date, nv, nt, name.c_str(), substeps, median,
+                    percentile(ms, 0.1), percentile(ms, 0.9), steps_per_s, bytes, vb.per_tet,
                     bytes / (median * 1e-3) * 1e-9, gbps, floor_ms, median / floor_ms, vfloor_ms,
                     status.c_str(), static_cast<unsigned long long>(hash));
       std::printf("%s", line);
       std::fflush(stdout);
       if (csv) std::fprintf(csv, "%s", line);
       rows.push_back(
-          {static_cast<int64_t>(nv), var.name, median, floor_ms, median / floor_ms, steps_per_s});
+          {static_cast<int64_t>(nv), name, median, floor_ms, median / floor_ms, steps_per_s});
     }
   }
   if (csv) std::fclose(csv);
