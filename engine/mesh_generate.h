@@ -9,7 +9,7 @@
 // are cut the same way wherever the lattice resolves them, and the few worst elements are
 // repaired by moving vertices. Chosen over TetGen on measurement: on the same 56 um ball TetGen
 // 1.5 (-pq1.4/10) took 18 s for 195k vertices and still left 2 degree slivers; this takes
-// 1.5 s for 1 million vertices with every dihedral angle above 14 degrees, is deterministic,
+// 1.6 s for 1 million vertices with every dihedral angle above 14 degrees, is deterministic,
 // and adds no library that the GPU machine's copied build folder would have to carry.
 #pragma once
 
@@ -25,7 +25,8 @@ namespace zona {
 /// What to mesh and how finely. Defaults: a 56 um mouse-oocyte-like ball (set a resolution).
 ///
 /// Resolution, one of:
-///  - `target_vertices` > 0 alone: a uniform mesh with about that many vertices (+-10 %);
+///  - `target_vertices` > 0 alone: a uniform mesh with about that many vertices (+-10 %; a
+///    uniform edge_length given with it is ignored);
 ///  - `edge_length` > 0 alone: a uniform mesh with that lattice edge length;
 ///  - `edge_length`, `refine_edge_length` and `refine_at`: graded, fine at the puncture point;
 ///  - all of the above with `target_vertices` > 0: the graded mesh scaled as a whole (the three
