@@ -12,6 +12,7 @@ void fail(const std::string& message);
 
 void add_info_command(CLI::App& app);
 void add_mesh_commands(CLI::App& app);
+void add_run_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
 void add_forces_command(CLI::App& app);
 

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", std::string("zona ") + ZONA_VERSION);
   zona::cli::add_info_command(app);
   zona::cli::add_mesh_commands(app);
+  zona::cli::add_run_command(app);
   zona::cli::add_bench_command(app);
   zona::cli::add_forces_command(app);
   try {

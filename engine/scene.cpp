@@ -200,7 +200,8 @@ void read_materials(Reader& root, Scene& scene) {
 }
 
 void read_integrator(Reader& root, Scene& scene) {
-  Reader r = root.object("integrator", {"dt", "dt_safety", "mass_scaling", "target_dt", "duration"});
+  Reader r = root.object("integrator", {"dt", "dt_safety", "mass_scaling", "target_dt",
+                                        "mass_scaling_mode", "stiffness_damping", "duration"});
   if (!r.present()) return;
   IntegratorDef& in = scene.integrator;
   r.auto_or_quantity("dt", dim::kTime, &in.dt, Range::positive());
@@ -215,6 +216,11 @@ void read_integrator(Reader& root, Scene& scene) {
     }
     in.target_dt = target;
   }
+  r.choice("mass_scaling_mode",
+           {Choice<MassScalingMode>{"uniform", MassScalingMode::kUniform},
+            Choice<MassScalingMode>{"selective", MassScalingMode::kSelective}},
+           &in.mass_scaling_mode);
+  r.quantity("stiffness_damping", dim::kTime, &in.stiffness_damping, Range::non_negative());
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 
@@ -318,7 +324,7 @@ bool read_auto_point(Reader& r, std::string_view key, std::optional<Vec3d>* out)
 
 void read_needle(Reader& root, Scene& scene) {
   Reader r = root.object("needle", {"enabled", "shape", "tip_radius", "direction", "start",
-                                    "standoff", "speed", "max_travel", "trajectory"});
+                                    "standoff", "speed", "max_travel", "friction", "trajectory"});
   if (!r.present()) return;
   NeedleDef& n = scene.needle;
   n.enabled = true;
@@ -333,6 +339,7 @@ void read_needle(Reader& root, Scene& scene) {
   r.quantity("standoff", dim::kLength, &n.standoff, Range::non_negative());
   r.quantity("speed", dim::kSpeed, &n.speed, Range::positive());
   r.quantity("max_travel", dim::kLength, &n.max_travel, Range::non_negative());
+  r.number("friction", &n.friction, Range::non_negative());
   r.file_path("trajectory", &n.trajectory);
 }
 

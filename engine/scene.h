@@ -93,6 +93,12 @@ struct RegionMaterialDef {
   MaterialDef material;
 };
 
+/// How mass scaling reaches `target_dt`.
+enum class MassScalingMode {
+  kUniform,    ///< every mass times one factor (the slowest modes slow down as much as the fastest)
+  kSelective,  ///< each vertex only as much as its smallest element needs (engine/mass_scaling.h)
+};
+
 /// Time stepping (explicit centred difference, seed 000 eq. 7).
 struct IntegratorDef {
   std::optional<double> dt;   ///< time step [s]; nullopt: auto = dt_safety * critical step
@@ -100,6 +106,11 @@ struct IntegratorDef {
   double mass_scaling = 1.0;  ///< factor on all masses (>= 1) to lengthen the stable step
   /// When set: raise mass_scaling as far as needed for the auto step to reach this [s]
   std::optional<double> target_dt;
+  /// How target_dt is reached (uniform or selective scaling).
+  MassScalingMode mass_scaling_mode = MassScalingMode::kUniform;
+  /// Stiffness-proportional (Kelvin-Voigt) damping coefficient beta [s]: damping force -beta K v,
+  /// for the element-scale ringing that mass-proportional damping cannot reach. 0: none.
+  double stiffness_damping = 0.0;
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 
@@ -147,6 +158,7 @@ struct NeedleDef {
   double standoff = 5e-6;     ///< gap between tip and cell surface for an auto start [m]
   double speed = 1e-4;        ///< insertion speed [m/s]
   double max_travel = 0.0;    ///< travel after which the needle stops [m]; 0: no limit
+  double friction = 0.3;      ///< Coulomb coefficient needle-cell [-] (seed 002's contacts: 0.3)
   std::string trajectory;     ///< CSV of tip positions over time (path resolved); empty: straight
 };
 

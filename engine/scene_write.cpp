@@ -96,6 +96,9 @@ json scene_to_json(const Scene& scene) {
   integrator["dt_safety"] = in.dt_safety;
   integrator["mass_scaling"] = in.mass_scaling;
   if (in.target_dt) integrator["target_dt"] = quantity_json(*in.target_dt, kTime);
+  integrator["mass_scaling_mode"] =
+      in.mass_scaling_mode == MassScalingMode::kSelective ? "selective" : "uniform";
+  integrator["stiffness_damping"] = quantity_json(in.stiffness_damping, kTime);
   integrator["duration"] = quantity_json(in.duration, kTime);
   j["integrator"] = integrator;
 
@@ -142,6 +145,7 @@ json scene_to_json(const Scene& scene) {
     needle["standoff"] = quantity_json(n.standoff, kLength);
     needle["speed"] = quantity_json(n.speed, kSpeed);
     needle["max_travel"] = quantity_json(n.max_travel, kLength);
+    needle["friction"] = n.friction;
     if (!n.trajectory.empty()) needle["trajectory"] = n.trajectory;
   }
   j["needle"] = needle;

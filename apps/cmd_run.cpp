@@ -1,0 +1,213 @@
+// `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv, summary.json,
+// VTU frames and a force-deformation plot.
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include <nlohmann/json.hpp>
+
+#include "apps/commands.h"
+#include "engine/plot.h"
+#include "engine/recorder.h"
+#include "engine/scene.h"
+#include "engine/simulation.h"
+#include "kernels/backend_factory.h"
+
+namespace zona::cli {
+namespace {
+
+struct RunArgs {
+  std::string scene = "mouse_oocyte";
+  bool headless = false;
+  std::string out;
+  std::vector<std::string> sets;
+  std::string backend = "cpu";
+  int threads = 0;
+  double stop_after_puncture = -1;
+  bool no_frames = false;
+  bool quiet = false;
+};
+
+// One progress line on stderr: rewritten in place on a terminal, else a line every few seconds.
+class Progress {
+ public:
+  explicit Progress(bool quiet) : quiet_(quiet), tty_(isatty(STDERR_FILENO) == 1) {}
+  void update(const RunProgress& p) {
+    if (quiet_) return;
+    if (!tty_ && p.wall_seconds < next_line_ && p.time < p.end_time) return;
+    next_line_ = p.wall_seconds + 5.0;
+    const NeedleReport& r = *p.report;
+    std::fprintf(stderr,
+                 "%szona run: t %.4f / %.4f s (%3.0f %%)  travel %6.2f um  deformation %6.2f um  "
+                 "force %7.3f uN%s  wall %.1f s%s",
+                 tty_ ? "\r" : "", p.time, p.end_time, 100.0 * p.time / p.end_time, r.travel * 1e6,
+                 r.deformation * 1e6, r.force * 1e6, r.punctured ? "  punctured" : "",
+                 p.wall_seconds, tty_ ? "   " : "\n");
+    std::fflush(stderr);
+  }
+  void finish() {
+    if (!quiet_ && tty_) std::fprintf(stderr, "\n");
+  }
+
+ private:
+  bool quiet_;
+  bool tty_;
+  double next_line_ = 0;
+};
+
+Status write_text(const std::string& path, const std::string& text) {
+  std::ofstream out(path);
+  if (!out) return make_error("%s: cannot open for writing", path.c_str());
+  out << text;
+  if (!out) return make_error("%s: write failed", path.c_str());
+  return Status::ok_status();
+}
+
+// The force-deformation plot: the curve up to puncture, the rest lighter, the puncture marked.
+Status write_force_plot(const std::string& path, const Simulation& sim, const RunResult& run) {
+  PlotSpec spec;
+  spec.title = sim.scene().name + ": needle force vs membrane deformation (" +
+               model_name(sim.scene().model) + ")";
+  spec.x_label = "deformation at the tip [um]";
+  spec.y_label = "axial needle force [uN]";
+  PlotSeries before{"loading", {}, {}, 0x1f77b4, 2.0, 0};
+  PlotSeries after{"after puncture", {}, {}, 0xaec7e8, 1.5, 0};
+  for (const ForceSample& s : run.samples) {
+    PlotSeries& series = s.punctured ? after : before;
+    series.x.push_back(s.deformation * 1e6);
+    series.y.push_back(s.force * 1e6);
+  }
+  spec.series.push_back(before);
+  if (!after.x.empty()) spec.series.push_back(after);
+  if (run.puncture.punctured) {
+    char label[96];
+    std::snprintf(label, sizeof label, "puncture %.1f um, %.2f uN", run.puncture.deformation * 1e6,
+                  run.puncture.force * 1e6);
+    spec.series.push_back(PlotSeries{label, {run.puncture.deformation * 1e6},
+                                     {run.puncture.force * 1e6}, 0xd62728, 0, 6});
+  }
+  spec.y_min = 0;
+  return write_plot_png(path, spec);
+}
+
+void run_command(const RunArgs& args) {
+  namespace fs = std::filesystem;
+  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  if (!path.ok()) return fail(path.error().message);
+  Result<Scene> scene = load_scene(*path, args.sets);
+  if (!scene.ok()) return fail(scene.error().message);
+  Result<BackendKind> kind = parse_backend_kind(args.backend);
+  if (!kind.ok()) return fail(kind.error().message);
+
+  const std::string out = args.out.empty() ? "zona_run_" + scene->name : args.out;
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (ec) return fail(out + ": cannot create the output folder: " + ec.message());
+
+  RunOptions options;
+  options.simulation.threads = args.threads;
+  if (*kind != BackendKind::kCpu) {
+    BackendOptions backend_options;
+    backend_options.cpu_threads = args.threads;
+    const BackendKind k = *kind;
+    options.simulation.backend_factory = [k, backend_options](std::string* notice) {
+      return make_backend(k, backend_options, notice);
+    };
+  }
+  options.stop_after_puncture = args.stop_after_puncture;
+
+  const auto setup_start = std::chrono::steady_clock::now();
+  Result<std::unique_ptr<Simulation>> created = Simulation::create(*scene, options.simulation);
+  if (!created.ok()) return fail(created.error().message);
+  Simulation& sim = **created;
+  const double setup_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - setup_start).count();
+  if (!args.quiet) {
+    std::fprintf(stderr, "zona run: %s (%s)\n", scene->name.c_str(), path->c_str());
+    std::fprintf(stderr, "zona run: %s\n", describe_model(sim.model()).c_str());
+    std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
+                 sim.backend_description().c_str(),
+                 static_cast<long long>(std::ceil(sim.end_time() / sim.model().dt)), sim.end_time(),
+                 setup_seconds);
+    for (const std::string& note : sim.notes()) std::fprintf(stderr, "zona run: note: %s\n", note.c_str());
+  }
+
+  // Frames as the run goes; a failed frame is reported once and the run goes on.
+  std::unique_ptr<FrameRecorder> frames;
+  std::string frame_error;
+  if (!args.no_frames && scene->output.frames > 0) frames = std::make_unique<FrameRecorder>(out);
+  if (frames)
+    options.frame = [&](const Simulation& s, int) {
+      if (!frame_error.empty()) return;
+      if (Status st = frames->write(s); !st) frame_error = st.error().message;
+    };
+  Progress progress(args.quiet);
+  options.progress = [&](const RunProgress& p) { progress.update(p); };
+
+  const RunResult run = run_simulation(sim, options);
+  progress.finish();
+  if (!frame_error.empty()) std::fprintf(stderr, "zona run: warning: frames: %s\n", frame_error.c_str());
+
+  // Outputs.
+  const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
+  if (Status s = write_force_csv((fs::path(out) / "force.csv").string(), run.samples); !s)
+    return fail(s.error().message);
+  nlohmann::json summary = run_summary_json(sim, run, metrics);
+  summary["numerics"]["setup_time_s"] = setup_seconds;
+  if (Status s = write_text((fs::path(out) / "summary.json").string(), summary.dump(2) + "\n"); !s)
+    return fail(s.error().message);
+  if (Status s = write_text((fs::path(out) / "scene.json").string(),
+                            scene_to_json(*scene).dump(2) + "\n");
+      !s)
+    return fail(s.error().message);
+  const std::string plot = (fs::path(out) / "force_deformation.png").string();
+  if (!plot_png_available()) {
+    std::fprintf(stderr, "zona run: notice: this build has no PNG writer; plot skipped\n");
+  } else if (Status s = write_force_plot(plot, sim, run); !s) {
+    std::fprintf(stderr, "zona run: warning: plot: %s\n", s.error().message.c_str());
+  }
+
+  // What happened, on stdout.
+  if (run.puncture.punctured)
+    std::printf("puncture: t %.4f s, travel %.2f um, deformation %.2f um (%.1f %% of %.1f um), "
+                "force %.3f uN\n",
+                run.puncture.time, run.puncture.needle_travel * 1e6, run.puncture.deformation * 1e6,
+                metrics.deformation_percent, sim.cell_diameter() * 1e6, run.puncture.force * 1e6);
+  else
+    std::printf("puncture: none\n");
+  std::printf("peak force %.3f uN; %lld steps of %.3g s (mass scaling %.4g); wall %.1f s\n",
+              run.peak_force * 1e6, static_cast<long long>(run.steps), sim.model().dt,
+              sim.model().mass_scaling, run.wall_seconds);
+  if (run.status != kStepOk)
+    std::printf("step flags: %s\n", describe_step_status(run.status, sim.model(), sim.state()).c_str());
+  std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
+              frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
+  if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
+}
+
+}  // namespace
+
+void add_run_command(CLI::App& app) {
+  auto args = std::make_shared<RunArgs>();
+  auto* cmd = app.add_subcommand(
+      "run", "Run a scene's injection experiment (default: scenes/mouse_oocyte.json)");
+  cmd->add_option("scene", args->scene, "Scene file or name")->capture_default_str();
+  cmd->add_flag("--headless", args->headless, "No window (the renderer comes later; always on now)");
+  cmd->add_option("--out", args->out, "Output folder (default: zona_run_<scene name>)");
+  cmd->add_option("--set", args->sets, "Override a scene key: key.path=value (repeatable)");
+  cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
+      ->capture_default_str();
+  cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();
+  cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
+                  "Stop this many simulated seconds after puncture (default: run to the end)");
+  cmd->add_flag("--no-frames", args->no_frames, "Write no VTU frames");
+  cmd->add_flag("--quiet", args->quiet, "No progress line");
+  cmd->callback([args] { run_command(*args); });
+}
+
+}  // namespace zona::cli

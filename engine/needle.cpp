@@ -1,0 +1,151 @@
+// Needle geometry (signed distance of the tip and shaft) and its scripted motion.
+#include "engine/needle.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+namespace zona {
+namespace {
+
+// A unit vector perpendicular to d (for points exactly on the axis, where any will do).
+Vec3d any_perpendicular(Vec3d d) {
+  const Vec3d a = std::fabs(d.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
+  const Vec3d p = cross(d, a);
+  return p / norm(p);
+}
+
+// Splits the radial part of x - origin off the axis d: returns s = (x - origin).d, writes the
+// radial distance and unit radial direction.
+double axial_split(Vec3d x, Vec3d origin, Vec3d d, double* rho, Vec3d* radial) {
+  const Vec3d w = x - origin;
+  const double s = dot(w, d);
+  const Vec3d r = w - s * d;
+  *rho = norm(r);
+  *radial = *rho > 0 ? r / *rho : any_perpendicular(d);
+  return s;
+}
+
+}  // namespace
+
+ToolDistance needle_distance(const NeedleGeometry& needle, Vec3d tip, Vec3d x) {
+  const Vec3d d = needle.direction;
+  const double radius = needle.tip_radius;
+  ToolDistance out;
+  double rho = 0;
+  Vec3d radial{0, 0, 0};
+  if (needle.shape != NeedleShape::kFlat) {
+    // Hemisphere centred one radius behind the apex, then the shaft.
+    const Vec3d centre = tip - radius * d;
+    const double s = axial_split(x, centre, d, &rho, &radial);
+    if (s > 0) {
+      const Vec3d w = x - centre;
+      const double r = norm(w);
+      out.distance = r - radius;
+      out.normal = r > 0 ? w / r : d;
+    } else {
+      out.distance = rho - radius;
+      out.normal = radial;
+    }
+    return out;
+  }
+  // Flat end: the disk at the tip point, its rim, the shaft.
+  const double s = axial_split(x, tip, d, &rho, &radial);
+  if (s > 0) {
+    if (rho <= radius) {
+      out.distance = s;
+      out.normal = d;
+    } else {
+      const Vec3d w = s * d + (rho - radius) * radial;
+      out.distance = norm(w);
+      out.normal = w / out.distance;
+    }
+  } else if (rho >= radius) {
+    out.distance = rho - radius;
+    out.normal = radial;
+  } else if (-s < radius - rho) {
+    out.distance = s;  // closer to the end face
+    out.normal = d;
+  } else {
+    out.distance = rho - radius;
+    out.normal = radial;
+  }
+  return out;
+}
+
+Result<NeedleTrajectory> read_needle_trajectory(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return make_error("%s: cannot open the needle trajectory", path.c_str());
+  NeedleTrajectory t;
+  std::string line;
+  int line_number = 0;
+  bool header = false;
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    if (!header) {
+      std::string compact;
+      for (char c : line)
+        if (c != ' ' && c != '\t') compact += c;
+      if (compact != "time_s,x_m,y_m,z_m")
+        return make_error("%s:%d: expected the header 'time_s,x_m,y_m,z_m', got '%s'",
+                          path.c_str(), line_number, line.c_str());
+      header = true;
+      continue;
+    }
+    double v[4];
+    std::stringstream ss(line);
+    std::string cell;
+    int n = 0;
+    while (std::getline(ss, cell, ',')) {
+      if (n >= 4) return make_error("%s:%d: more than 4 columns", path.c_str(), line_number);
+      char* end = nullptr;
+      v[n] = std::strtod(cell.c_str(), &end);
+      while (end && (*end == ' ' || *end == '\t')) ++end;
+      if (end == cell.c_str() || (end && *end != '\0') || !std::isfinite(v[n]))
+        return make_error("%s:%d: column %d: '%s' is not a finite number", path.c_str(),
+                          line_number, n + 1, cell.c_str());
+      ++n;
+    }
+    if (n != 4) return make_error("%s:%d: expected 4 columns, got %d", path.c_str(), line_number, n);
+    if (t.time.empty() && v[0] != 0)
+      return make_error("%s:%d: the first time must be 0 s, got %g", path.c_str(), line_number, v[0]);
+    if (!t.time.empty() && !(v[0] > t.time.back()))
+      return make_error("%s:%d: times must increase strictly (%g after %g)", path.c_str(),
+                        line_number, v[0], t.time.back());
+    t.time.push_back(v[0]);
+    t.position.push_back(Vec3d{v[1], v[2], v[3]});
+  }
+  if (!header) return make_error("%s: empty needle trajectory", path.c_str());
+  if (t.time.size() < 2)
+    return make_error("%s: a needle trajectory needs at least 2 rows, got %zu", path.c_str(),
+                      t.time.size());
+  return t;
+}
+
+Vec3d needle_tip_at(const NeedleScript& script, double t) {
+  const NeedleTrajectory& tr = script.trajectory;
+  if (!tr.time.empty()) {
+    if (t <= tr.time.front()) return tr.position.front();
+    if (t >= tr.time.back()) return tr.position.back();
+    // Binary search for the segment; no allocation.
+    const size_t i = static_cast<size_t>(
+        std::upper_bound(tr.time.begin(), tr.time.end(), t) - tr.time.begin());
+    const double t0 = tr.time[i - 1], t1 = tr.time[i];
+    const double a = (t - t0) / (t1 - t0);
+    return (1 - a) * tr.position[i - 1] + a * tr.position[i];
+  }
+  double travel = script.speed * std::max(t, 0.0);
+  if (script.max_travel > 0) travel = std::min(travel, script.max_travel);
+  return script.start + travel * script.direction;
+}
+
+double needle_script_end_time(const NeedleScript& script) {
+  if (!script.trajectory.time.empty()) return script.trajectory.time.back();
+  if (script.max_travel > 0 && script.speed > 0) return script.max_travel / script.speed;
+  return 0;
+}
+
+}  // namespace zona

@@ -1,0 +1,69 @@
+// What a run leaves behind: force.csv (the recorded curve), summary.json (model, puncture, peak
+// force, training metrics, numerics), and VTU frames with displacement, Green strain and von
+// Mises stress (seed 002 Fig. 14) in a ParaView .pvd series.
+#pragma once
+
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "engine/base.h"
+#include "engine/mesh_io.h"
+#include "engine/simulation.h"
+
+namespace zona {
+
+/// Training metrics of one insertion (seed 002's measures).
+struct TrainingMetrics {
+  /// Mean needle speed from the start to puncture (or the end of the run) [m/s].
+  double mean_insertion_speed = 0;
+  /// Deformation at puncture over the cell diameter along the needle axis [%]; 0 without puncture.
+  double deformation_percent = 0;
+  /// Seed 002's maximum force amplitude ratio (MFAR) [%]: the largest deviation of the force
+  /// from its moving average over the loading phase (first contact to puncture), over the peak
+  /// force. The window is `fluctuation_window` of the loading phase's duration.
+  double force_fluctuation_percent = 0;
+  double fluctuation_window = 0.05;  ///< [-]
+};
+
+/// Computes the metrics from a run's samples (cell_diameter [m] along the needle axis).
+TrainingMetrics compute_training_metrics(const RunResult& run, double cell_diameter,
+                                         double fluctuation_window = 0.05);
+
+/// The force.csv header, one name per column (time_s, needle_travel_m, deformation_m, force_N,
+/// force_x_N, force_y_N, force_z_N, holding_force_N, contacts, elastic_energy_J,
+/// kinetic_energy_J, punctured).
+const std::vector<std::string>& force_csv_columns();
+
+/// Writes the samples as CSV with force_csv_columns(), full double precision.
+Status write_force_csv(const std::string& path, std::span<const ForceSample> samples);
+
+/// The summary of a run: scene and model, puncture {time_s, needle_travel_m, deformation_m,
+/// force_N}, peak_force_N, training metrics, numerics (steps, dt, mass scaling, wall time).
+nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& run,
+                                const TrainingMetrics& metrics);
+
+/// Per-frame fields: point "displacement" [m] (3), "needle_contact" (1); cell "green_strain"
+/// [-] (6: xx yy zz xy yz xz), "von_mises_stress" [Pa] (1, Cauchy stress of the model's law).
+void frame_fields(const Simulation& simulation, std::vector<VtkField>* point_data,
+                  std::vector<VtkField>* cell_data);
+
+/// Writes frames of a simulation into DIR/frames.pvd + DIR/frames_<i>.vtu (deformed positions).
+class FrameRecorder {
+ public:
+  explicit FrameRecorder(const std::string& directory);
+  /// Writes the simulation's current state as the next frame.
+  Status write(const Simulation& simulation);
+  const std::string& pvd_path() const { return writer_.path(); }
+  size_t frame_count() const { return writer_.frame_count(); }
+
+ private:
+  PvdWriter writer_;
+  std::vector<Vec3d> positions_;
+  std::vector<VtkField> point_data_, cell_data_;
+};
+
+}  // namespace zona
