@@ -86,7 +86,8 @@ struct PassContext {
 // GCC builds an AVX2 clone and a baseline clone and picks one at load time; FMA is left out on
 // purpose, because contracting a*b+c would change the bits between the clones.
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+// Not under ThreadSanitizer: its runtime is not up yet when the clones' ifunc resolver runs.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_THREAD__)
 #define ZONA_SIMD_CLONES __attribute__((target_clones("avx2", "default"), flatten))
 #else
 #define ZONA_SIMD_CLONES
@@ -141,7 +142,6 @@ ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const Vec3d* ug = s.u.data();
   Vec3d* out = s.tet_force.data();
-  const int32_t* slot = m.corner_slot.data();
   const Tet* tets = m.tets.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
@@ -199,8 +199,7 @@ ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin
       const P4 w = shape.volume * psi;
       for (int l = 0; l < lanes; ++l) {
         const size_t tl = t[l];
-        for (int c = 0; c < 4; ++c)
-          out[slot[4 * tl + c]] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
+        for (int c = 0; c < 4; ++c) out[4 * tl + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
         r.elastic_energy += w.v[l];
         uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
         if (kSvk && !(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
@@ -225,7 +224,6 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const Vec3d* ug = s.u.data();
   Vec3d* out = s.tet_force.data();
-  const int32_t* slot = m.corner_slot.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     const int64_t end = std::min(nt, (chunk + 1) * kTetChunk);
@@ -236,7 +234,7 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
       uint32_t bits = 0;
       Vec3d f[4];
       r.elastic_energy += Kernel::eval(m, t, u, f, &bits);
-      for (int c = 0; c < 4; ++c) out[slot[4 * t + c]] = f[c];
+      for (int c = 0; c < 4; ++c) out[4 * t + c] = f[c];
       if (bits) {
         // Rare path: counts and the first offender for the message.
         r.health |= bits;

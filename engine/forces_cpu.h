@@ -2,9 +2,8 @@
 // global tangent stiffness and the largest natural frequency, for tests and quasi-static tools.
 //
 // Determinism: each tetrahedron writes its four corner forces to its own slots of
-// State::tet_force (no shared writes; the slots are laid out in adjacency order), then each
-// vertex sums its slots in the fixed order of the vertex-to-tetrahedron adjacency (ascending
-// tetrahedron index). Energies and counts are
+// State::tet_force (no shared writes), then each vertex sums its slots in the fixed order of
+// the vertex-to-tetrahedron adjacency (ascending tetrahedron index). Energies and counts are
 // summed per fixed-size chunk and the chunks in order. No result depends on the thread count.
 #pragma once
 
@@ -23,13 +22,14 @@ void compute_tet_forces(const Model& model, State& state);
 /// Sums the element-pass chunks into diag: elastic energy, health bits, counts, first indices.
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
-/// Elastic force on vertex v [N]: its corner slots of state.tet_force (contiguous, see
-/// Model::corner_slot) summed in adjacency order (ascending tetrahedron).
+/// Elastic force on vertex v [N]: its corner slots of state.tet_force summed in adjacency order
+/// (ascending tetrahedron).
 inline Vec3d gather_vertex_force(const Model& model, const State& state, size_t v) {
   const Vec3d* slots = state.tet_force.data();
+  const int32_t* slot = model.adjacency_slot.data();
   Vec3d f{0, 0, 0};
   for (int32_t i = model.adjacency.offsets[v]; i < model.adjacency.offsets[v + 1]; ++i)
-    f += slots[i];
+    f += slots[slot[i]];
   return f;
 }
 

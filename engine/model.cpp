@@ -74,10 +74,9 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.rest_positions = mesh.rest_positions;
   model.tets = mesh.tets;
   model.adjacency = build_vertex_tet_adjacency(mesh);
-  model.corner_slot.resize(4 * nt);
+  model.adjacency_slot.resize(model.adjacency.tets.size());
   for (size_t i = 0; i < model.adjacency.tets.size(); ++i)
-    model.corner_slot[4 * static_cast<size_t>(model.adjacency.tets[i]) +
-                      static_cast<size_t>(model.adjacency.corner[i])] = static_cast<int32_t>(i);
+    model.adjacency_slot[i] = 4 * model.adjacency.tets[i] + model.adjacency.corner[i];
   model.constitutive = desc.constitutive;
   model.formulation = desc.formulation;
   model.inversion = desc.inversion;

@@ -96,10 +96,10 @@ struct Model {
   std::vector<Vec3d> rest_positions;  ///< rest positions [m], (vertex_count)
   std::vector<Tet> tets;              ///< vertex indices, (tet_count)
   VertexTetAdjacency adjacency;       ///< tetrahedra around each vertex, ascending
-  /// Position of corner c of tetrahedron t in the adjacency lists (the i with
-  /// adjacency.tets[i] == t and adjacency.corner[i] == c), (4 tet_count): the element pass
-  /// writes corner forces there so that the vertex pass reads each vertex's slots contiguously.
-  std::vector<int32_t> corner_slot;
+  /// For each adjacency entry i, the slot 4 t + c of its (tetrahedron, corner) in a tet-major
+  /// corner-force buffer, (4 tet_count): the vertex pass sums a vertex's corner forces through
+  /// it. (Tet-major slots keep each thread's writes in its own cache lines.)
+  std::vector<int32_t> adjacency_slot;
 
   // Materials.
   std::vector<Material> materials;     ///< distinct materials, (material_count)

@@ -2,6 +2,7 @@
 #include "engine/state.h"
 
 #include <algorithm>
+#include <thread>
 
 namespace zona {
 
@@ -23,6 +24,12 @@ State make_state(const Model& model, int thread_count) {
   s.tet_chunks.resize(static_cast<size_t>((static_cast<int64_t>(nt) + kTetChunk - 1) / kTetChunk));
   s.vertex_chunks.resize(
       static_cast<size_t>((static_cast<int64_t>(nv) + kVertexChunk - 1) / kVertexChunk));
+  if (thread_count <= 0) {
+    // One thread per ~2000 tetrahedra (~40 us of element work), up to the hardware's count:
+    // below that the hand-off between threads costs more than it saves.
+    const int hardware = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+    thread_count = std::clamp(static_cast<int>(nt / 2048), 1, hardware);
+  }
   s.pool = std::make_unique<ThreadPool>(thread_count);
   return s;
 }

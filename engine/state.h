@@ -93,8 +93,7 @@ struct State {
 
   // Scratch, sized once by make_state.
   std::vector<Vec3d> u_next;     ///< u_{n+1} before it is accepted [m], (vertex_count)
-  /// Per-element corner forces [N], (4 tet_count), in adjacency order: corner c of tetrahedron
-  /// t at Model::corner_slot[4 t + c], so vertex v's are [offsets[v], offsets[v + 1]).
+  /// Per-element corner forces [N], (4 tet_count): corner c of tetrahedron t at 4 t + c.
   std::vector<Vec3d> tet_force;
   std::vector<TetChunkResult> tet_chunks;        ///< (ceil(tet_count / kTetChunk))
   std::vector<VertexChunkResult> vertex_chunks;  ///< (ceil(vertex_count / kVertexChunk))
@@ -102,7 +101,8 @@ struct State {
 };
 
 /// Creates a zero state (at rest, no loads, no prescribed vertices) for `model`, with
-/// `thread_count` threads (0: one per hardware thread). Results do not depend on it.
+/// `thread_count` threads (0: automatic, one per ~2000 tetrahedra up to the hardware's count).
+/// Results do not depend on it, bit for bit.
 State make_state(const Model& model, int thread_count = 0);
 
 /// Sets the prescribed vertices (replacing the previous set); their targets start at their

@@ -1,5 +1,10 @@
-// Worker threads with spin-then-sleep hand-off (C++20 atomic wait/notify, a futex on Linux).
+// Worker threads with chunk claiming and spin-then-sleep hand-off (C++20 atomic wait/notify,
+// a futex on Linux).
 #include "engine/thread_pool.h"
+
+#include <algorithm>
+
+#include "engine/base.h"
 
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
@@ -16,6 +21,12 @@ namespace {
 // shared two-core machine.
 constexpr int kSpinIterations = 20000;
 
+constexpr uint64_t kField = (uint64_t{1} << 24) - 1;
+
+constexpr uint64_t pack_claim(uint64_t job, uint64_t count, uint64_t next) {
+  return (job & 0xFFFF) << 48 | (count & kField) << 24 | (next & kField);
+}
+
 }  // namespace
 
 ThreadPool::ThreadPool(int thread_count) {
@@ -23,7 +34,7 @@ ThreadPool::ThreadPool(int thread_count) {
   if (thread_count <= 0) thread_count = 1;
   thread_count_ = thread_count;
   workers_.reserve(static_cast<size_t>(thread_count_ - 1));
-  for (int i = 1; i < thread_count_; ++i) workers_.emplace_back([this, i] { worker_main(i); });
+  for (int i = 1; i < thread_count_; ++i) workers_.emplace_back([this] { worker_main(); });
 }
 
 ThreadPool::~ThreadPool() {
@@ -33,39 +44,63 @@ ThreadPool::~ThreadPool() {
   for (std::thread& t : workers_) t.join();
 }
 
-void ThreadPool::run_slice(int index) {
-  const int64_t begin = chunk_count_ * index / thread_count_;
-  const int64_t end = chunk_count_ * (index + 1) / thread_count_;
-  if (begin < end) fn_(context_, begin, end);
+int64_t ThreadPool::drain() {
+  int64_t done = 0;
+  for (;;) {
+    // Announce the claim first: once it succeeds, run() cannot return (and the job's fn_ and
+    // context_ cannot change) until active_ drops again.
+    active_.fetch_add(1, std::memory_order_acq_rel);
+    uint64_t word = claim_.load(std::memory_order_acquire);
+    uint64_t take = 0;
+    while ((word & kField) < ((word >> 24) & kField)) {
+      // Guided self-scheduling: a share of what is left (large claims first, single chunks at
+      // the end), so a step pays a handful of atomic hand-offs, not one per chunk.
+      const uint64_t left = ((word >> 24) & kField) - (word & kField);
+      take = std::max<uint64_t>(1, left / (2 * static_cast<uint64_t>(thread_count_)));
+      if (claim_.compare_exchange_weak(word, word + take, std::memory_order_acq_rel,
+                                       std::memory_order_acquire))
+        break;
+      take = 0;
+    }
+    if (take > 0) {
+      const int64_t chunk = static_cast<int64_t>(word & kField);
+      fn_(context_, chunk, chunk + static_cast<int64_t>(take));
+      done += static_cast<int64_t>(take);
+    }
+    const bool claimed = take > 0;
+    if (active_.fetch_sub(1, std::memory_order_acq_rel) == 1) active_.notify_all();
+    if (!claimed) return done;
+  }
 }
 
 void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
   if (chunk_count <= 0) return;
-  fn_ = fn;
-  context_ = context;
-  chunk_count_ = chunk_count;
+  ZONA_ASSERT(static_cast<uint64_t>(chunk_count) <= kField);
   if (thread_count_ == 1) {
     fn(context, 0, chunk_count);
     return;
   }
-  pending_.store(thread_count_ - 1, std::memory_order_relaxed);
+  fn_ = fn;
+  context_ = context;
+  ++job_;
+  claim_.store(pack_claim(job_, static_cast<uint64_t>(chunk_count), 0), std::memory_order_release);
   generation_.fetch_add(1, std::memory_order_acq_rel);
   generation_.notify_all();
-  run_slice(0);
-  // Wait for the workers: spin first, then sleep on the counter.
+  drain();
+  // Every chunk is claimed; wait for the ones other threads are still running.
   for (int spin = 0; spin < kSpinIterations; ++spin) {
-    if (pending_.load(std::memory_order_acquire) == 0) return;
+    if (active_.load(std::memory_order_acquire) == 0) return;
     ZONA_CPU_RELAX();
   }
-  for (int32_t left = pending_.load(std::memory_order_acquire); left != 0;
-       left = pending_.load(std::memory_order_acquire))
-    pending_.wait(left, std::memory_order_acquire);
+  for (int32_t a = active_.load(std::memory_order_acquire); a != 0;
+       a = active_.load(std::memory_order_acquire))
+    active_.wait(a, std::memory_order_acquire);
 }
 
-void ThreadPool::worker_main(int index) {
+void ThreadPool::worker_main() {
   uint32_t seen = 0;
   for (;;) {
-    // Wait for a new generation: spin, then sleep.
+    // Wait for a new job: spin, then sleep.
     uint32_t g = generation_.load(std::memory_order_acquire);
     for (int spin = 0; g == seen && spin < kSpinIterations; ++spin) {
       ZONA_CPU_RELAX();
@@ -77,8 +112,7 @@ void ThreadPool::worker_main(int index) {
     }
     seen = g;
     if (stop_.load(std::memory_order_acquire)) return;
-    run_slice(index);
-    if (pending_.fetch_sub(1, std::memory_order_acq_rel) == 1) pending_.notify_one();
+    drain();
   }
 }
 

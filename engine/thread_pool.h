@@ -1,5 +1,7 @@
-// A fixed pool of worker threads for the CPU backend's step: static partition of a chunk range,
-// no allocation and no std::function per call, a short spin before sleeping so that the two
+// A fixed pool of worker threads for the CPU backend's step: chunks of a range are claimed one at
+// a time by whichever thread is running, so a descheduled worker (two cores shared with the
+// haptic and render threads, or with a compiler) delays nothing it has not started; no
+// allocation and no std::function per call; a short spin before sleeping so that the two
 // parallel phases of a 50-microsecond step do not pay a futex wake-up each.
 #pragma once
 
@@ -10,10 +12,11 @@
 
 namespace zona {
 
-/// Runs `fn(context, chunk_begin, chunk_end)` over a chunk range split into one contiguous
-/// slice per thread (the caller's thread takes slice 0). The split depends on the thread count,
-/// so callers that need bitwise-identical results across thread counts make every chunk's result
-/// independent of which thread ran it and reduce per-chunk results in chunk order.
+/// Runs `fn(context, begin, end)` over claimed ranges covering every chunk of [0, chunk_count)
+/// exactly once, on the caller's thread and the workers (guided self-scheduling: each claim
+/// takes a share of what is left). Which thread runs which chunk varies from run to run,
+/// so callers that need bitwise-identical results make every chunk's result independent of the
+/// thread that ran it and reduce per-chunk results in chunk order.
 class ThreadPool {
  public:
   using ChunkFn = void (*)(void* context, int64_t chunk_begin, int64_t chunk_end);
@@ -27,24 +30,32 @@ class ThreadPool {
   /// Number of threads that share the work, the caller included.
   int thread_count() const { return thread_count_; }
 
-  /// Runs fn over chunks [0, chunk_count) and returns when every slice is done. Not reentrant:
-  /// one caller at a time (the simulation thread).
+  /// Runs fn over chunks [0, chunk_count) (at most 2^24 chunks) and returns when all are done.
+  /// Not reentrant: one caller at a time (the simulation thread).
   void run(int64_t chunk_count, ChunkFn fn, void* context);
 
  private:
-  void worker_main(int index);
-  void run_slice(int index);
+  void worker_main();
+  // Claims and runs ranges of chunks of the current job until none is left. Returns the number
+  // of chunks run.
+  int64_t drain();
 
   int thread_count_ = 1;
   std::vector<std::thread> workers_;
-  // The job being run; written by the caller before `generation_` is bumped (release) and read
-  // by the workers after they see the new generation (acquire).
+  // The current job. fn_ and context_ are written before the job's claim word is published
+  // (release) and read only by a thread whose claim on that word succeeded (acquire); they are
+  // rewritten only after every claimed chunk has finished (active_ == 0).
   ChunkFn fn_ = nullptr;
   void* context_ = nullptr;
-  int64_t chunk_count_ = 0;
-  std::atomic<uint32_t> generation_{0};
-  std::atomic<int32_t> pending_{0};
+  // Claim word: job (16 bits) | chunk count (24 bits) | next chunk (24 bits). The count lives in
+  // the word so that a late thread can never claim past the end of a job it did not see start.
+  std::atomic<uint64_t> claim_{0};
+  // Threads between "about to claim" and "finished the claimed chunk": run() returns only when
+  // it is zero, which keeps fn_ and context_ valid for every claimed chunk.
+  std::atomic<int32_t> active_{0};
+  std::atomic<uint32_t> generation_{0};  // wake-up signal for sleeping workers
   std::atomic<bool> stop_{false};
+  uint32_t job_ = 0;
 };
 
 }  // namespace zona
