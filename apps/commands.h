@@ -2,6 +2,14 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <functional>
+#include <string>
+
+#include "engine/base.h"
+
+namespace zona {
+class Simulation;
+}
 
 namespace zona::cli {
 
@@ -15,5 +23,15 @@ void add_mesh_commands(CLI::App& app);
 void add_run_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
 void add_forces_command(CLI::App& app);
+void add_render_commands(CLI::App& app);
+
+/// Writes one PNG frame of a simulation (DIR/frame_00000.png, ...), for `zona run --frames DIR`.
+using PngFrameWriter = std::function<zona::Status(const zona::Simulation&)>;
+/// A PNG frame writer of `width` x `height` colouring `color` ("displacement", "stress",
+/// "none"); an error value when built without the Vulkan renderer or without a Vulkan device.
+zona::Result<PngFrameWriter> make_png_frame_writer(const zona::Simulation& simulation,
+                                                   const std::string& directory,
+                                                   const std::string& color, int width = 1280,
+                                                   int height = 720);
 
 }  // namespace zona::cli

@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
   zona::cli::add_run_command(app);
   zona::cli::add_bench_command(app);
   zona::cli::add_forces_command(app);
+  zona::cli::add_render_commands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

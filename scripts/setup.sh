@@ -7,6 +7,7 @@ packages=(
   libeigen3-dev libglm-dev nlohmann-json3-dev libcli11-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libvulkan-dev glslc libglfw3-dev libstb-dev mesa-vulkan-drivers vulkan-validationlayers
+  libimgui-dev fonts-dejavu-core
   python3 python3-matplotlib python3-numpy
 )
 
