@@ -23,8 +23,8 @@ constexpr int kSpinIterations = 20000;
 
 constexpr uint64_t kField = (uint64_t{1} << 24) - 1;
 
-constexpr uint64_t pack_claim(uint64_t job, uint64_t count, uint64_t next) {
-  return (job & 0xFFFF) << 48 | (count & kField) << 24 | (next & kField);
+constexpr uint64_t pack_claim(uint64_t job, uint64_t end, uint64_t next) {
+  return (job & 0xFFFF) << 48 | (end & kField) << 24 | (next & kField);
 }
 
 }  // namespace
@@ -33,8 +33,9 @@ ThreadPool::ThreadPool(int thread_count) {
   if (thread_count <= 0) thread_count = static_cast<int>(std::thread::hardware_concurrency());
   if (thread_count <= 0) thread_count = 1;
   thread_count_ = thread_count;
+  slices_ = std::make_unique<Slice[]>(static_cast<size_t>(thread_count_));
   workers_.reserve(static_cast<size_t>(thread_count_ - 1));
-  for (int i = 1; i < thread_count_; ++i) workers_.emplace_back([this] { worker_main(); });
+  for (int i = 1; i < thread_count_; ++i) workers_.emplace_back([this, i] { worker_main(i); });
 }
 
 ThreadPool::~ThreadPool() {
@@ -44,33 +45,43 @@ ThreadPool::~ThreadPool() {
   for (std::thread& t : workers_) t.join();
 }
 
-int64_t ThreadPool::drain() {
-  int64_t done = 0;
-  for (;;) {
-    // Announce the claim first: once it succeeds, run() cannot return (and the job's fn_ and
-    // context_ cannot change) until active_ drops again.
-    active_.fetch_add(1, std::memory_order_acq_rel);
-    uint64_t word = claim_.load(std::memory_order_acquire);
-    uint64_t take = 0;
-    while ((word & kField) < ((word >> 24) & kField)) {
-      // Guided self-scheduling: a share of what is left (large claims first, single chunks at
-      // the end), so a step pays a handful of atomic hand-offs, not one per chunk.
-      const uint64_t left = ((word >> 24) & kField) - (word & kField);
-      take = std::max<uint64_t>(1, left / (2 * static_cast<uint64_t>(thread_count_)));
-      if (claim_.compare_exchange_weak(word, word + take, std::memory_order_acq_rel,
-                                       std::memory_order_acquire))
-        break;
-      take = 0;
+bool ThreadPool::claim(int r, int64_t* begin, int64_t* end) {
+  std::atomic<uint64_t>& slot = slices_[static_cast<size_t>(r)].word;
+  uint64_t word = slot.load(std::memory_order_acquire);
+  while ((word & kField) < ((word >> 24) & kField)) {
+    // Shrinking pieces (a quarter of what is left): few atomic hand-offs per run, and a tail
+    // that another thread can still take over.
+    const uint64_t left = ((word >> 24) & kField) - (word & kField);
+    const uint64_t take = std::max<uint64_t>(1, left / 4);
+    if (slot.compare_exchange_weak(word, word + take, std::memory_order_acq_rel,
+                                   std::memory_order_acquire)) {
+      *begin = static_cast<int64_t>(word & kField);
+      *end = *begin + static_cast<int64_t>(take);
+      return true;
     }
-    if (take > 0) {
-      const int64_t chunk = static_cast<int64_t>(word & kField);
-      fn_(context_, chunk, chunk + static_cast<int64_t>(take));
-      done += static_cast<int64_t>(take);
-    }
-    const bool claimed = take > 0;
-    if (active_.fetch_sub(1, std::memory_order_acq_rel) == 1) active_.notify_all();
-    if (!claimed) return done;
   }
+  return false;
+}
+
+int64_t ThreadPool::drain(int self) {
+  int64_t done = 0;
+  for (int k = 0; k < thread_count_; ++k) {
+    const int r = (self + k) % thread_count_;
+    for (;;) {
+      // Announce the claim first: once it succeeds, run() cannot return (and the job's fn_ and
+      // context_ cannot change) until active_ drops again.
+      active_.fetch_add(1, std::memory_order_acq_rel);
+      int64_t begin = 0, end = 0;
+      const bool claimed = claim(r, &begin, &end);
+      if (claimed) {
+        fn_(context_, begin, end);
+        done += end - begin;
+      }
+      if (active_.fetch_sub(1, std::memory_order_acq_rel) == 1) active_.notify_all();
+      if (!claimed) break;
+    }
+  }
+  return done;
 }
 
 void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
@@ -83,10 +94,14 @@ void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
   fn_ = fn;
   context_ = context;
   ++job_;
-  claim_.store(pack_claim(job_, static_cast<uint64_t>(chunk_count), 0), std::memory_order_release);
+  const uint64_t count = static_cast<uint64_t>(chunk_count);
+  const uint64_t threads = static_cast<uint64_t>(thread_count_);
+  for (uint64_t i = 0; i < threads; ++i)
+    slices_[i].word.store(pack_claim(job_, count * (i + 1) / threads, count * i / threads),
+                          std::memory_order_release);
   generation_.fetch_add(1, std::memory_order_acq_rel);
   generation_.notify_all();
-  drain();
+  drain(0);
   // Every chunk is claimed; wait for the ones other threads are still running.
   for (int spin = 0; spin < kSpinIterations; ++spin) {
     if (active_.load(std::memory_order_acquire) == 0) return;
@@ -97,7 +112,7 @@ void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
     active_.wait(a, std::memory_order_acquire);
 }
 
-void ThreadPool::worker_main() {
+void ThreadPool::worker_main(int index) {
   uint32_t seen = 0;
   for (;;) {
     // Wait for a new job: spin, then sleep.
@@ -112,7 +127,7 @@ void ThreadPool::worker_main() {
     }
     seen = g;
     if (stop_.load(std::memory_order_acquire)) return;
-    drain();
+    drain(index);
   }
 }
 

@@ -7,14 +7,18 @@
 
 #include <atomic>
 #include <cstdint>
+#include <memory>
 #include <thread>
 #include <vector>
 
 namespace zona {
 
 /// Runs `fn(context, begin, end)` over claimed ranges covering every chunk of [0, chunk_count)
-/// exactly once, on the caller's thread and the workers (guided self-scheduling: each claim
-/// takes a share of what is left). Which thread runs which chunk varies from run to run,
+/// exactly once, on the caller's thread and the workers. Each thread has a home slice (slice i
+/// of thread_count equal slices; the caller is thread 0), claims it in shrinking pieces from the
+/// front and then helps with the others' slices: consecutive runs over the same data (the
+/// element pass, then the vertex pass) mostly keep each slice on one core, yet a descheduled
+/// thread's slice is taken over. Which thread runs which chunk still varies from run to run,
 /// so callers that need bitwise-identical results make every chunk's result independent of the
 /// thread that ran it and reduce per-chunk results in chunk order.
 class ThreadPool {
@@ -35,10 +39,12 @@ class ThreadPool {
   void run(int64_t chunk_count, ChunkFn fn, void* context);
 
  private:
-  void worker_main();
-  // Claims and runs ranges of chunks of the current job until none is left. Returns the number
-  // of chunks run.
-  int64_t drain();
+  void worker_main(int index);
+  // Claims and runs ranges of chunks of the current job, home slice first, until none is left.
+  // Returns the number of chunks run.
+  int64_t drain(int self);
+  // Claims a piece of slice `r`; returns false when it is empty.
+  bool claim(int r, int64_t* begin, int64_t* end);
 
   int thread_count_ = 1;
   std::vector<std::thread> workers_;
@@ -47,9 +53,13 @@ class ThreadPool {
   // rewritten only after every claimed chunk has finished (active_ == 0).
   ChunkFn fn_ = nullptr;
   void* context_ = nullptr;
-  // Claim word: job (16 bits) | chunk count (24 bits) | next chunk (24 bits). The count lives in
-  // the word so that a late thread can never claim past the end of a job it did not see start.
-  std::atomic<uint64_t> claim_{0};
+  // One claim word per slice, each on its own cache line: job (16 bits) | slice end (24 bits)
+  // | next chunk (24 bits). The end lives in the word so that a late thread can never claim
+  // past the end of a job it did not see start.
+  struct alignas(64) Slice {
+    std::atomic<uint64_t> word{0};
+  };
+  std::unique_ptr<Slice[]> slices_;
   // Threads between "about to claim" and "finished the claimed chunk": run() returns only when
   // it is zero, which keeps fn_ and context_ valid for every claimed chunk.
   std::atomic<int32_t> active_{0};
