@@ -2,7 +2,9 @@
 // the element pass (force assembly, each formulation and law), the element pass plus the
 // per-vertex gather, and the whole step (element pass + gather + centred-difference update).
 // Arguments: vertices, law (0 SVK, 1 linear), formulation (0 gradient, 1 tensor_stored,
-// 2 tensor_rebuilt: the Formulation enum), threads (0: one per hardware thread).
+// 2 tensor_rebuilt: the Formulation enum), threads (0: one per hardware thread). Wall-clock
+// time (UseRealTime): the pool's workers do half the work, which the main thread's CPU time
+// would not see.
 #include <benchmark/benchmark.h>
 
 #include "bench/micro/micro_meshes.h"
