@@ -52,6 +52,18 @@ std::string source_commit() {
   return "";
 }
 
+// The run's options in full (defaults included), for the CSV's comment lines.
+std::string command_line(const BenchArgs& a) {
+  std::string c = "zona bench --backend " + a.backend + " --model " + a.model +
+                  " --formulation " + a.formulation + " --vertices " + a.vertices;
+  if (!a.max_vertices.empty()) c += " --max-vertices " + a.max_vertices;
+  c += " --steps " + std::to_string(a.steps) + " --repeats " + std::to_string(a.repeats) +
+       " --threads " + a.threads;
+  if (!a.assembly.empty()) c += " --assembly " + a.assembly;
+  if (a.copy_mib != 256) c += " --copy-mib " + std::to_string(a.copy_mib);
+  return c;
+}
+
 // stderr progress: a redrawn bar on a terminal, one line per finished row otherwise.
 class ProgressPrinter {
  public:
@@ -217,6 +229,7 @@ void add_bench_command(CLI::App& app) {
 
     MachineInfo machine = local_machine_info();
     machine.commit = source_commit();
+    machine.command = command_line(*args);
     std::string device_notice;
     const std::vector<DeviceInfo> devices = cuda_devices(&device_notice);
     if (!devices.empty()) machine.gpu_name = devices.front().name;

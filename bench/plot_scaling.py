@@ -35,6 +35,9 @@ def read_rows(paths):
     for path in paths:
         with open(path, newline="") as f:
             lines = [line for line in f if not line.startswith("#") and line.strip()]
+        # Several runs may be concatenated in one file: later copies of the header are skipped.
+        header = lines[0] if lines else ""
+        lines = lines[:1] + [line for line in lines[1:] if line != header]
         for r in csv.DictReader(lines):
             for key in ("vertices", "tets", "threads", "target_vertices"):
                 r[key] = int(r[key])

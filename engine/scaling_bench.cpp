@@ -723,6 +723,7 @@ std::string scaling_csv_comments(const ScalingBenchResult& result,
   out << "# zona bench: vertices-versus-time scaling (seed 000 Table II), zona "
       << m.zona_version << ", commit " << (m.commit.empty() ? "unknown" : m.commit) << "\n";
   out << "# date: " << m.date << " (UTC)\n";
+  if (!m.command.empty()) out << "# command: " << m.command << "\n";
   out << "# cpu: " << m.cpu_model << ", " << m.hardware_threads << " hardware threads\n";
   out << "# gpu: " << (m.gpu_name.empty() ? "none" : m.gpu_name);
   if (m.gpu_copy_gb_per_s > 0)

@@ -72,6 +72,7 @@ struct MachineInfo {
   double gpu_copy_gb_per_s = 0;   ///< device-to-device copy (read + write) [GB/s], 0 if none
   std::string date;               ///< UTC, YYYY-MM-DD
   std::string commit;             ///< source revision when known ("" otherwise)
+  std::string command;            ///< the command line that reproduces the run ("" if none)
   std::string zona_version;
 };
 
