@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   zona::cli::add_bench_command(app);
   zona::cli::add_forces_command(app);
   zona::cli::add_render_commands(app);
+  zona::cli::add_haptics_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
