@@ -133,7 +133,12 @@ Status create_instance(const ContextOptions& options, Context* context) {
   info.ppEnabledLayerNames = layers.data();
   info.enabledExtensionCount = static_cast<uint32_t>(extensions.size());
   info.ppEnabledExtensionNames = extensions.data();
-  ZONA_VK_TRY(vkCreateInstance(&info, nullptr, &context->instance));
+  const VkResult created = vkCreateInstance(&info, nullptr, &context->instance);
+  // The loader answers INCOMPATIBLE_DRIVER when it found no driver at all: say so plainly.
+  if (created == VK_ERROR_INCOMPATIBLE_DRIVER)
+    return make_error("no Vulkan driver found by the loader (install mesa-vulkan-drivers for "
+                      "lavapipe, or point VK_DRIVER_FILES at a driver's json)");
+  ZONA_VK_TRY(created);
   load_instance_functions(context->instance);
   context->validation = options.validation;
   if (options.validation && vkCreateDebugUtilsMessengerEXT)

@@ -341,7 +341,12 @@ Status prepare_frame(const Context& context, OverlayState* overlay, const Render
   if (Status s = update_surface(frame, cpu->camera.space, &cpu->surface); !s.ok()) return s;
   cpu->color_map = frame.field != ColorField::kNone && !frame.scalar.empty();
   cpu->lo = frame.auto_range ? cpu->surface.scalar_min : frame.scalar_min;
-  cpu->hi = frame.auto_range ? cpu->surface.scalar_max : frame.scalar_max;
+  // Stress under a point-like tip is singular: a few tetrahedra would stretch the range and
+  // leave the rest of the cell one colour, so its automatic top is the 98th percentile (the
+  // peak saturates red). Displacement shows its true maximum, the indentation depth.
+  const double auto_hi =
+      frame.field == ColorField::kStress ? cpu->surface.scalar_p98 : cpu->surface.scalar_max;
+  cpu->hi = frame.auto_range ? auto_hi : frame.scalar_max;
   // A constant field (the cell at rest) gets one legend unit of range: its colour is the
   // map's bottom and the labels stay readable.
   if (!(cpu->hi > cpu->lo)) cpu->hi = cpu->lo + field_unit(frame.field);
@@ -468,7 +473,7 @@ void record_frame(VkCommandBuffer cmd, const Pipelines& p, const Attachments& a,
     draw.eye.w = static_cast<float>(gpu::kShadeGlass);
     // Needle a little more opaque than the holding pipette: it is the tool the eye follows.
     if (cpu.needle_indices) {
-      draw.color = gpu::vec4(0.78f, 0.86f, 0.93f, 0.55f);
+      draw.color = gpu::vec4(0.78f, 0.86f, 0.93f, 0.35f);
       vkCmdPushConstants(cmd, p.mesh_layout, kStages, 0, sizeof(draw), &draw);
       vkCmdDrawIndexed(cmd, cpu.needle_indices, 1, 0, 0, 0);
     }

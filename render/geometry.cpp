@@ -109,6 +109,18 @@ Status update_surface(const RenderFrame& frame, const RenderSpace& space, Surfac
   }
   s->scalar_min = std::isfinite(lo) ? lo : 0.0;
   s->scalar_max = std::isfinite(hi) ? hi : 0.0;
+  s->scalar_p98 = s->scalar_max;
+  if (!frame.scalar.empty() && n > 0) {
+    s->scratch.clear();
+    for (const gpu::vec4& p : s->mesh.positions)
+      if (std::isfinite(p.w)) s->scratch.push_back(p.w);
+    if (!s->scratch.empty()) {
+      const size_t k = std::min(s->scratch.size() - 1, (s->scratch.size() * 98) / 100);
+      std::nth_element(s->scratch.begin(), s->scratch.begin() + static_cast<std::ptrdiff_t>(k),
+                       s->scratch.end());
+      s->scalar_p98 = s->scratch[k];
+    }
+  }
   // Smooth normals: the sum of the unnormalised face normals (area-weighted) around a vertex,
   // from the deformed positions so that indentation is shaded.
   const std::vector<uint32_t>& idx = s->mesh.indices;

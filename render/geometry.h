@@ -48,6 +48,8 @@ struct SurfaceGeometry {
   std::vector<int32_t> mesh_vertex;       ///< compact index -> mesh vertex, (surface vertex count)
   MeshData mesh;                          ///< compact vertices and triangles
   double scalar_min = 0, scalar_max = 0;  ///< range of the scalar over the surface
+  double scalar_p98 = 0;                  ///< its 98th percentile over the surface vertices
+  std::vector<float> scratch;             ///< for the percentile
 };
 
 /// Fills `surface` from the frame: deformed positions, area-weighted vertex normals from the

@@ -71,6 +71,27 @@ TEST(RenderGeometry, CompactsToTheVerticesTheTrianglesUse) {
     EXPECT_EQ(s.mesh.positions[i].w, scalar[static_cast<size_t>(s.mesh_vertex[i])]);
 }
 
+TEST(RenderGeometry, PercentileIgnoresASingularPeak) {
+  // 100 vertices on a strip of triangles with values 0..98 and one tip value of 1e6.
+  std::vector<Vec3d> rest;
+  std::vector<float> scalar;
+  std::vector<Triangle> triangles;
+  for (int i = 0; i < 100; ++i) {
+    rest.push_back({1e-6 * (i / 2), 1e-6 * (i % 2), 0});
+    scalar.push_back(i == 50 ? 1e6f : static_cast<float>(i < 50 ? i : i - 1));
+    if (i >= 2) triangles.push_back({i - 2, i - 1, i});
+  }
+  RenderFrame f;
+  f.rest = rest;
+  f.triangles = triangles;
+  f.scalar = scalar;
+  SurfaceGeometry s;
+  ASSERT_TRUE(update_surface(f, RenderSpace{}, &s).ok());
+  EXPECT_EQ(s.scalar_max, 1e6);
+  EXPECT_GE(s.scalar_p98, 96.0);
+  EXPECT_LE(s.scalar_p98, 98.0);
+}
+
 TEST(RenderGeometry, RejectsInconsistentInput) {
   Octahedron o(1e-6);
   RenderFrame f;
