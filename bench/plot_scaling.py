@@ -94,6 +94,34 @@ def budget_size(fit, budget_ms):
     return (budget_ms / a) ** (1.0 / b)
 
 
+def print_table2(rows, series):
+    """Markdown: the seed's twelve rows beside each series' rows of the same target size."""
+    seed = {r[0]: r for r in SEED_TABLE2}
+    keys = [k for k in series if any(r["target_vertices"] in seed for r in series[k])]
+    if not keys:
+        return
+    print()
+    head = "| seed vertices / tets | seed precompute ms | seed step ms |"
+    rule = "|---|---|---|"
+    for k in keys:
+        head += f" {label_of(k)}: vertices / tets, precompute ms, step ms |"
+        rule += "---|"
+    print(head)
+    print(rule)
+    for n, (sv, st, sp, ss) in seed.items():
+        line = f"| {sv} / {st} | {sp:g} | {ss:g} |"
+        for k in keys:
+            match = [r for r in rows if r["target_vertices"] == n and
+                     (r["backend"], r["model"], r["formulation"], r["threads"]) == k]
+            if match:
+                r = match[-1]
+                line += (f" {r['vertices']} / {r['tets']}, {r['precompute_ms']:.3g}, "
+                         f"{r['step_ms_median']:.3g} |")
+            else:
+                line += " - |"
+        print(line)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("csv", nargs="+", help="zona bench CSV file(s)")
@@ -102,10 +130,15 @@ def main():
     p.add_argument("--formulation", action="append", help="only this formulation (repeatable)")
     p.add_argument("--backend", action="append", help="only this backend (repeatable)")
     p.add_argument("--threads", action="append", type=int, help="only this CPU thread count")
+    p.add_argument("--series", action="append",
+                   help="only this series, by its label, e.g. 'cpu svk gradient 2t' (repeatable)")
     p.add_argument("--fit-min", type=float, default=1000,
                    help="fit step times from this many vertices on (default 1000)")
     p.add_argument("--fit-max", type=float, default=float("inf"), help="... up to this many")
     p.add_argument("--title", default="zona: time versus mesh size")
+    p.add_argument("--table2", action="store_true",
+                   help="also print, as Markdown, each series at the seed's Table II sizes "
+                        "beside the seed's numbers")
     args = p.parse_args()
 
     try:
@@ -120,6 +153,8 @@ def main():
     filters = {"model": args.model, "formulation": args.formulation, "backend": args.backend,
                "threads": args.threads}
     series = series_of(rows, filters)
+    if args.series:
+        series = OrderedDict((k, v) for k, v in series.items() if label_of(k) in args.series)
     if not series:
         sys.exit("plot_scaling.py: no rows to plot")
 
@@ -173,18 +208,31 @@ def main():
     ax_pre.plot(sx, s_pre, "k^", ms=6, mfc="none", label=f"seed 000 Table II (n^{f_pre[1]:.2f})")
     print(f"{'seed 000 Table II':36s} {f_step[1]:14.3f} {'115..1093':>20s} {f_pre[1]:16.3f}")
 
-    # GPU-over-CPU crossover per model and formulation (from the fits).
-    for key, fit in fits.items():
-        if key[0] != "cuda" or not fit:
+    # GPU-over-CPU crossover per model and formulation, from the sizes both measured.
+    for key, pts in series.items():
+        if key[0] != "cuda":
             continue
-        for ckey, cfit in fits.items():
-            if ckey[0] != "cpu" or ckey[1:3] != key[1:3] or not cfit:
+        for ckey, cpts in series.items():
+            if ckey[0] != "cpu" or ckey[1:3] != key[1:3]:
                 continue
-            # a_g n^b_g = a_c n^b_c  ->  n = (a_g / a_c)^(1 / (b_c - b_g))
-            if cfit[1] != fit[1]:
-                n = (fit[0] / cfit[0]) ** (1.0 / (cfit[1] - fit[1]))
-                print(f"crossover {label_of(key)} vs {label_of(ckey)}: GPU faster above "
-                      f"~{n:.3g} vertices (from the fits)")
+            cpu_at = {r["target_vertices"]: r["step_ms_median"] for r in cpts}
+            both = sorted((r["target_vertices"], r["step_ms_median"], cpu_at[r["target_vertices"]])
+                          for r in pts if r["target_vertices"] in cpu_at)
+            if not both:
+                continue
+            faster = [n for n, g, c in both if g < c]
+            if not faster:
+                verdict = f"the CPU is faster at every common size ({both[0][0]}..{both[-1][0]})"
+            elif len(faster) == len(both):
+                verdict = (f"the GPU is faster at every common size, from the smallest "
+                           f"({both[0][0]}, {both[0][2] / both[0][1]:.1f}x) to the largest "
+                           f"({both[-1][0]}, {both[-1][2] / both[-1][1]:.1f}x)")
+            else:
+                verdict = f"the GPU is faster from about {faster[0]} vertices on"
+            print(f"crossover {label_of(key)} vs {label_of(ckey)}: {verdict}")
+
+    if args.table2:
+        print_table2(rows, series)
 
     for ax, what in ((ax_step, "step time [ms]"), (ax_pre, "precompute time [ms]")):
         ax.set_xscale("log")
@@ -192,12 +240,11 @@ def main():
         ax.set_xlabel("vertices")
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
+    right = ax_step.get_xlim()[1] / 1.15
     ax_step.axhline(HAPTIC_MS, color="grey", ls="--", lw=0.8)
-    ax_step.text(ax_step.get_xlim()[0] * 1.1, HAPTIC_MS * 1.1, "haptic 1 kHz", color="grey",
-                 fontsize=8)
+    ax_step.text(right, HAPTIC_MS * 1.1, "haptic 1 kHz", color="grey", fontsize=8, ha="right")
     ax_step.axhline(VISUAL_MS, color="grey", ls=":", lw=0.8)
-    ax_step.text(ax_step.get_xlim()[0] * 1.1, VISUAL_MS * 1.1, "visual 30 Hz", color="grey",
-                 fontsize=8)
+    ax_step.text(right, VISUAL_MS * 1.1, "visual 30 Hz", color="grey", fontsize=8, ha="right")
     ax_step.set_title("one explicit step (median; bar: p90)")
     ax_pre.set_title("precompute (build_model)")
     ax_step.legend(fontsize=7, loc="upper left")
