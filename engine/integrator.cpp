@@ -189,10 +189,14 @@ std::string describe_step_status(StepStatus status, const Model& model, const St
     add(part);
   }
   if (status & kStepNonFinite) {
-    std::snprintf(part, sizeof part,
-                  "non-finite displacement at vertex %lld: state not advanced (step %lld)",
-                  static_cast<long long>(d.first_nonfinite),
-                  static_cast<long long>(state.step_count));
+    if (d.first_nonfinite >= 0)
+      std::snprintf(part, sizeof part,
+                    "non-finite displacement at vertex %lld: state not advanced (step %lld)",
+                    static_cast<long long>(d.first_nonfinite),
+                    static_cast<long long>(state.step_count));
+    else
+      std::snprintf(part, sizeof part, "non-finite energy: state not advanced (step %lld)",
+                    static_cast<long long>(state.step_count));
     add(part);
   }
   if (status & kStepEnergyBlowUp) {
