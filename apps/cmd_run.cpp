@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 
@@ -31,6 +32,8 @@ struct RunArgs {
   double stop_after_puncture = -1;
   bool no_frames = false;
   bool quiet = false;
+  std::vector<std::string> compare;     // "FILE.csv[:label]": curves drawn beside this run's
+  std::vector<std::string> references;  // "DEF_UM,FORCE_UN[:label]": reference points
 };
 
 // One progress line on stderr: rewritten in place on a terminal, else a line every few seconds.
@@ -68,8 +71,63 @@ Status write_text(const std::string& path, const std::string& text) {
   return Status::ok_status();
 }
 
-// The force-deformation plot: the curve up to puncture, the rest lighter, the puncture marked.
-Status write_force_plot(const std::string& path, const Simulation& sim, const RunResult& run) {
+// Splits "text[:label]" at the last ':' that is not part of a Windows drive or a path.
+std::pair<std::string, std::string> split_label(const std::string& text) {
+  const size_t colon = text.rfind(':');
+  if (colon == std::string::npos || colon == 0) return {text, ""};
+  return {text.substr(0, colon), text.substr(colon + 1)};
+}
+
+// The loading part (punctured == 0) of another run's force.csv: deformation [um], force [uN].
+Result<PlotSeries> read_curve(const std::string& spec, uint32_t rgb) {
+  const auto [path, label] = split_label(spec);
+  std::ifstream in(path);
+  if (!in) return make_error("--compare: cannot open %s", path.c_str());
+  std::string line;
+  std::getline(in, line);
+  std::vector<std::string> columns;
+  for (size_t start = 0; start <= line.size();) {
+    const size_t comma = std::min(line.find(',', start), line.size());
+    columns.push_back(line.substr(start, comma - start));
+    start = comma + 1;
+  }
+  auto index_of = [&](const char* name) {
+    for (size_t i = 0; i < columns.size(); ++i)
+      if (columns[i] == name) return static_cast<int>(i);
+    return -1;
+  };
+  const int id = index_of("deformation_m"), iforce = index_of("force_N"), ip = index_of("punctured");
+  if (id < 0 || iforce < 0)
+    return make_error("--compare: %s has no deformation_m and force_N columns", path.c_str());
+  PlotSeries s{label.empty() ? path : label, {}, {}, rgb, 1.5, 0};
+  while (std::getline(in, line)) {
+    std::vector<double> v;
+    for (size_t start = 0; start <= line.size();) {
+      const size_t comma = std::min(line.find(',', start), line.size());
+      v.push_back(std::strtod(line.substr(start, comma - start).c_str(), nullptr));
+      start = comma + 1;
+    }
+    if (static_cast<int>(v.size()) <= std::max({id, iforce, ip})) continue;
+    if (ip >= 0 && v[static_cast<size_t>(ip)] != 0) break;
+    s.x.push_back(v[static_cast<size_t>(id)] * 1e6);
+    s.y.push_back(v[static_cast<size_t>(iforce)] * 1e6);
+  }
+  return s;
+}
+
+// "DEF_UM,FORCE_UN[:label]" as a marker.
+Result<PlotSeries> read_reference(const std::string& spec, uint32_t rgb) {
+  const auto [values, label] = split_label(spec);
+  double d = 0, f = 0;
+  if (std::sscanf(values.c_str(), "%lf,%lf", &d, &f) != 2)
+    return make_error("--reference: expected DEFORMATION_UM,FORCE_UN[:label], got '%s'", spec.c_str());
+  return PlotSeries{label.empty() ? values : label, {d}, {f}, rgb, 0, 7};
+}
+
+// The force-deformation plot: the curve up to puncture, the rest lighter, the puncture marked,
+// then any compared curves and reference points.
+Status write_force_plot(const std::string& path, const Simulation& sim, const RunResult& run,
+                        const RunArgs& args) {
   PlotSpec spec;
   spec.title = sim.scene().name + ": needle force vs membrane deformation (" +
                model_name(sim.scene().model) + ")";
@@ -90,6 +148,18 @@ Status write_force_plot(const std::string& path, const Simulation& sim, const Ru
                   run.puncture.force * 1e6);
     spec.series.push_back(PlotSeries{label, {run.puncture.deformation * 1e6},
                                      {run.puncture.force * 1e6}, 0xd62728, 0, 6});
+  }
+  static constexpr uint32_t kColours[] = {0x2ca02c, 0x9467bd, 0xff7f0e, 0x8c564b, 0x17becf};
+  size_t colour = 0;
+  for (const std::string& c : args.compare) {
+    Result<PlotSeries> curve = read_curve(c, kColours[colour++ % 5]);
+    if (!curve.ok()) return curve.error();
+    spec.series.push_back(*curve);
+  }
+  for (const std::string& r : args.references) {
+    Result<PlotSeries> point = read_reference(r, 0x000000);
+    if (!point.ok()) return point.error();
+    spec.series.push_back(*point);
   }
   spec.y_min = 0;
   return write_plot_png(path, spec);
@@ -168,7 +238,7 @@ void run_command(const RunArgs& args) {
   const std::string plot = (fs::path(out) / "force_deformation.png").string();
   if (!plot_png_available()) {
     std::fprintf(stderr, "zona run: notice: this build has no PNG writer; plot skipped\n");
-  } else if (Status s = write_force_plot(plot, sim, run); !s) {
+  } else if (Status s = write_force_plot(plot, sim, run, args); !s) {
     std::fprintf(stderr, "zona run: warning: plot: %s\n", s.error().message.c_str());
   }
 
@@ -183,8 +253,11 @@ void run_command(const RunArgs& args) {
   std::printf("peak force %.3f uN; %lld steps of %.3g s (mass scaling %.4g); wall %.1f s\n",
               run.peak_force * 1e6, static_cast<long long>(run.steps), sim.model().dt,
               sim.model().mass_scaling, run.wall_seconds);
-  if (run.status != kStepOk)
-    std::printf("step flags: %s\n", describe_step_status(run.status, sim.model(), sim.state()).c_str());
+  if (run.status != kStepOk) {
+    std::string flags;
+    for (const std::string& name : step_flag_names(run.status)) flags += (flags.empty() ? "" : ", ") + name;
+    std::printf("step flags seen: %s\n", flags.c_str());
+  }
   std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
               frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
   if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
@@ -207,6 +280,10 @@ void add_run_command(CLI::App& app) {
                   "Stop this many simulated seconds after puncture (default: run to the end)");
   cmd->add_flag("--no-frames", args->no_frames, "Write no VTU frames");
   cmd->add_flag("--quiet", args->quiet, "No progress line");
+  cmd->add_option("--compare", args->compare,
+                  "Draw another run's force.csv (loading part) in the plot: FILE[:label]");
+  cmd->add_option("--reference", args->references,
+                  "Mark a reference point in the plot: DEFORMATION_UM,FORCE_UN[:label]");
   cmd->callback([args] { run_command(*args); });
 }
 

@@ -169,6 +169,7 @@ ContactSet::ContactSet(const ContactTool& tool, const ContactSurface& surface,
       surface_(&surface),
       contacts_(capacity),
       in_set_(vertex_count, 0),
+      released_at_(vertex_count, -1),
       visit_stamp_(vertex_count, 0),
       queue_(vertex_count, 0) {}
 
@@ -222,6 +223,7 @@ ContactUpdate ContactSet::update(const Model& model, std::span<const Vec3d> u, V
   ContactUpdate result;
   const std::span<const Vec3d> rest(model.rest_positions);
   const double mu = tool_.friction;
+  ++update_count_;
 
   // 1. Release contacts that pull; slide the ones whose friction cone is exceeded.
   for (size_t i = 0; i < count_;) {
@@ -229,6 +231,9 @@ ContactUpdate ContactSet::update(const Model& model, std::span<const Vec3d> u, V
     const double rn = dot(c.static_reaction, c.normal);
     if (!(rn > 0)) {
       in_set_[static_cast<size_t>(c.vertex)] = 0;
+      // A released vertex sits on the tool surface, within rounding of inside it: it must not
+      // be taken back in the same update, only if it moves into the tool again.
+      released_at_[static_cast<size_t>(c.vertex)] = update_count_;
       contacts_[i] = contacts_[--count_];
       ++result.released;
       continue;
@@ -256,7 +261,8 @@ ContactUpdate ContactSet::update(const Model& model, std::span<const Vec3d> u, V
   auto visit = [&](int32_t v, bool expand_always) -> bool {
     const Vec3d x = position(rest, u, v);
     const ToolDistance d = tool_distance(tool_, origin, x);
-    if (d.distance < 0 && !in_set_[static_cast<size_t>(v)] && !taken[static_cast<size_t>(v)]) {
+    if (d.distance < 0 && !in_set_[static_cast<size_t>(v)] && !taken[static_cast<size_t>(v)] &&
+        released_at_[static_cast<size_t>(v)] != update_count_) {
       if (count_ == contacts_.size()) {
         result.overflow = true;
       } else {

@@ -175,6 +175,8 @@ class ContactSet {
   std::vector<Contact> contacts_;     // storage, (capacity)
   size_t count_ = 0;
   std::vector<uint8_t> in_set_;       // per vertex: 1 if a contact
+  std::vector<int32_t> released_at_;  // per vertex: the update that released it
+  int32_t update_count_ = 0;
   std::vector<int32_t> visit_stamp_;  // per vertex: last search that visited it
   std::vector<int32_t> queue_;        // breadth-first search queue, (vertex_count)
   int32_t stamp_ = 0;

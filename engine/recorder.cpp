@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 
@@ -54,11 +55,25 @@ TrainingMetrics compute_training_metrics(const RunResult& run, double cell_diame
   return m;
 }
 
+std::vector<std::string> step_flag_names(StepStatus status) {
+  static constexpr std::pair<StepStatusBits, const char*> kNames[] = {
+      {kStepNonFinite, "non-finite values"},
+      {kStepEnergyBlowUp, "energy blow-up"},
+      {kStepInvertedElement, "inverted elements"},
+      {kStepCollapsingElement, "collapsing elements"},
+      {kStepClampedElement, "clamped elements"},
+      {kStepDtAboveCritical, "dt above critical"}};
+  std::vector<std::string> names;
+  for (const auto& [bit, name] : kNames)
+    if (status & bit) names.emplace_back(name);
+  return names;
+}
+
 const std::vector<std::string>& force_csv_columns() {
   static const std::vector<std::string> columns = {
       "time_s",     "needle_travel_m", "deformation_m",    "force_N",
       "force_x_N",  "force_y_N",       "force_z_N",        "holding_force_N",
-      "contacts",   "elastic_energy_J", "kinetic_energy_J", "punctured"};
+      "contacts",   "elastic_energy_J", "kinetic_energy_J", "punctured", "raw_force_N"};
   return columns;
 }
 
@@ -69,10 +84,10 @@ Status write_force_csv(const std::string& path, std::span<const ForceSample> sam
   for (size_t i = 0; i < columns.size(); ++i)
     std::fprintf(f, "%s%s", columns[i].c_str(), i + 1 < columns.size() ? "," : "\n");
   for (const ForceSample& s : samples)
-    std::fprintf(f, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d\n", s.time,
-                 s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y,
+    std::fprintf(f, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g\n",
+                 s.time, s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y,
                  s.force_vector.z, s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy,
-                 s.punctured ? 1 : 0);
+                 s.punctured ? 1 : 0, s.raw_force);
   const bool ok = std::ferror(f) == 0;
   if (std::fclose(f) != 0 || !ok) return make_error("%s: write failed", path.c_str());
   return Status::ok_status();
@@ -121,7 +136,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
       {"inversion", model.inversion == InversionHandling::kClampStretch ? "clamp_stretch" : "report"},
       {"simulated_time_s", run.simulated_time},
       {"wall_time_s", run.wall_seconds},
-      {"status", describe_step_status(run.status, model, sim.state())},
+      {"flags_seen", step_flag_names(run.status)},
       {"stopped_early", run.stopped_early},
       {"sample_buffer_full", run.sample_buffer_full},
       {"samples", run.samples.size()}};
@@ -142,8 +157,13 @@ double von_mises(const Mat3d& s) {
 
 void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data) {
-  const Model& model = sim.model();
-  const State& state = sim.state();
+  frame_fields(sim.model(), sim.state(), sim.needle_contacts(), sim.holding_contacts(), point_data,
+               cell_data);
+}
+
+void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
+                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
+                  std::vector<VtkField>* cell_data) {
   const size_t nv = model.vertex_count(), nt = model.tet_count();
   point_data->resize(2);
   VtkField& disp = (*point_data)[0];
@@ -156,11 +176,11 @@ void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
     disp.values[3 * v + 2] = state.u[v].z;
   }
   VtkField& contact = (*point_data)[1];
-  contact.name = "needle_contact";
+  contact.name = "contact";
   contact.components = 1;
   contact.values.assign(nv, 0.0);
-  for (const Contact& c : sim.needle_contacts()) contact.values[static_cast<size_t>(c.vertex)] = 1.0;
-  for (const Contact& c : sim.holding_contacts()) contact.values[static_cast<size_t>(c.vertex)] = 2.0;
+  for (const Contact& c : needle) contact.values[static_cast<size_t>(c.vertex)] = 1.0;
+  for (const Contact& c : holding) contact.values[static_cast<size_t>(c.vertex)] = 2.0;
 
   cell_data->resize(2);
   VtkField& strain = (*cell_data)[0];

@@ -29,13 +29,18 @@ struct TrainingMetrics {
   double fluctuation_window = 0.05;  ///< [-]
 };
 
+/// Names of the step flags set in `status` ("inverted elements", "clamped elements", ...), for
+/// a run's whole history (describe_step_status describes one step with its counts).
+std::vector<std::string> step_flag_names(StepStatus status);
+
 /// Computes the metrics from a run's samples (cell_diameter [m] along the needle axis).
 TrainingMetrics compute_training_metrics(const RunResult& run, double cell_diameter,
                                          double fluctuation_window = 0.05);
 
 /// The force.csv header, one name per column (time_s, needle_travel_m, deformation_m, force_N,
 /// force_x_N, force_y_N, force_z_N, holding_force_N, contacts, elastic_energy_J,
-/// kinetic_energy_J, punctured).
+/// kinetic_energy_J, punctured, raw_force_N). force_N is the filtered axial force
+/// (needle.force_filter), raw_force_N the same before the filter.
 const std::vector<std::string>& force_csv_columns();
 
 /// Writes the samples as CSV with force_csv_columns(), full double precision.
@@ -46,8 +51,14 @@ Status write_force_csv(const std::string& path, std::span<const ForceSample> sam
 nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& run,
                                 const TrainingMetrics& metrics);
 
-/// Per-frame fields: point "displacement" [m] (3), "needle_contact" (1); cell "green_strain"
-/// [-] (6: xx yy zz xy yz xz), "von_mises_stress" [Pa] (1, Cauchy stress of the model's law).
+/// Per-frame fields: point "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
+/// free); cell "green_strain" [-] (6: xx yy zz xy yz xz), "von_mises_stress" [Pa] (1, of the
+/// Cauchy stress of the model's law: F S F^T / J for SVK, the small-strain stress for linear).
+void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
+                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
+                  std::vector<VtkField>* cell_data);
+
+/// frame_fields of a simulation's current state.
 void frame_fields(const Simulation& simulation, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data);
 

@@ -324,7 +324,8 @@ bool read_auto_point(Reader& r, std::string_view key, std::optional<Vec3d>* out)
 
 void read_needle(Reader& root, Scene& scene) {
   Reader r = root.object("needle", {"enabled", "shape", "tip_radius", "direction", "start",
-                                    "standoff", "speed", "max_travel", "friction", "trajectory"});
+                                    "standoff", "speed", "max_travel", "friction", "force_filter",
+                                    "trajectory"});
   if (!r.present()) return;
   NeedleDef& n = scene.needle;
   n.enabled = true;
@@ -340,6 +341,7 @@ void read_needle(Reader& root, Scene& scene) {
   r.quantity("speed", dim::kSpeed, &n.speed, Range::positive());
   r.quantity("max_travel", dim::kLength, &n.max_travel, Range::non_negative());
   r.number("friction", &n.friction, Range::non_negative());
+  r.quantity("force_filter", dim::kTime, &n.force_filter, Range::non_negative());
   r.file_path("trajectory", &n.trajectory);
 }
 

@@ -159,6 +159,9 @@ struct NeedleDef {
   double speed = 1e-4;        ///< insertion speed [m/s]
   double max_travel = 0.0;    ///< travel after which the needle stops [m]; 0: no limit
   double friction = 0.3;      ///< Coulomb coefficient needle-cell [-] (seed 002's contacts: 0.3)
+  /// Time constant of the first-order low-pass on the published needle force (a load cell's
+  /// finite bandwidth; the puncture criterion reads the filtered force) [s]; 0: none.
+  double force_filter = 0.0;
   std::string trajectory;     ///< CSV of tip positions over time (path resolved); empty: straight
 };
 

@@ -146,6 +146,7 @@ json scene_to_json(const Scene& scene) {
     needle["speed"] = quantity_json(n.speed, kSpeed);
     needle["max_travel"] = quantity_json(n.max_travel, kLength);
     needle["friction"] = n.friction;
+    needle["force_filter"] = quantity_json(n.force_filter, kTime);
     if (!n.trajectory.empty()) needle["trajectory"] = n.trajectory;
   }
   j["needle"] = needle;

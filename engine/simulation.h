@@ -68,7 +68,9 @@ struct NeedleReport {
   Vec3d tip{0, 0, 0};           ///< needle tip [m]
   double travel = 0;            ///< tip travel from its start along the axis [m]
   double deformation = 0;       ///< membrane indentation at the tip along the axis [m]
-  double force = 0;             ///< axial reaction on the needle, resistance positive [N]
+  /// Axial reaction on the needle, resistance positive [N]; low-passed by needle.force_filter.
+  double force = 0;
+  double raw_force = 0;         ///< the same before the filter [N]
   /// Force the needle applies to the cell [N]: the quasi-static contact reaction (minus the
   /// elastic and applied forces on the contact vertices; engine/contact.h says why).
   Vec3d force_vector{0, 0, 0};
@@ -155,6 +157,7 @@ class Simulation {
   StepStatus integrate();
   void measure();
   void publish();
+  StepStatus mask_budget_flag(StepStatus status) const;
 
   Scene scene_;
   SimulationOptions options_;
@@ -208,6 +211,8 @@ class Simulation {
   SurfaceSnapshot snapshot_;
   double stiffness_force_ = 0, stiffness_travel_ = 0;
   bool stiffness_anchor_set_ = false;
+  bool filter_started_ = false;
+  double filter_time_ = 0;
   StepStatus last_status_ = kStepOk;
 };
 
@@ -216,7 +221,8 @@ struct ForceSample {
   double time = 0;          ///< [s]
   double travel = 0;        ///< needle travel [m]
   double deformation = 0;   ///< membrane indentation at the tip [m]
-  double force = 0;         ///< axial needle force [N]
+  double force = 0;         ///< axial needle force (filtered) [N]
+  double raw_force = 0;     ///< axial needle force before the filter [N]
   Vec3d force_vector{0, 0, 0};  ///< force the needle applies to the cell [N]
   double holding_force = 0; ///< holding pipette force along the needle axis [N]
   int32_t contacts = 0;     ///< needle contact vertices

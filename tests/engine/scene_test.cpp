@@ -118,7 +118,10 @@ TEST(Scene, MouseOocyteHasSeed000TableOne) {
   expect_vec(g.refine_at, {-28e-6, 0.0, 0.0});
   const MaterialDef* m = find_material(s, "zona");
   ASSERT_NE(m, nullptr);
-  expect_rel(m->young, 17.9e3);
+  // Table I's 17.9 kPa, calibrated for zona's SVK to Fig. 8's puncture point (the scene's note
+  // and docs/validation.md say why): within a factor of 2.5 of the table.
+  EXPECT_GE(m->young, 17.9e3);
+  EXPECT_LE(m->young, 2.5 * 17.9e3);
   EXPECT_EQ(m->poisson, 0.49);
   EXPECT_EQ(m->mass_spec, MassSpec::kTotalMass);
   expect_rel(m->total_mass, 9.1952e-11);  // 9.1952e-5 mg in kg
@@ -130,8 +133,10 @@ TEST(Scene, MouseOocyteHasSeed000TableOne) {
   expect_rel(s.needle.speed, 1e-4);
   expect_vec(s.needle.direction, {1.0, 0.0, 0.0});
   EXPECT_FALSE(s.needle.start.has_value());
-  EXPECT_EQ(s.puncture.criterion, PunctureCriterion::kForce);
-  expect_rel(s.puncture.threshold, 7.5e-6);
+  // Seed 000's puncture point (45 um, 7.5 uN) through the stored-energy criterion (the
+  // scene's note says why not a force threshold).
+  EXPECT_EQ(s.puncture.criterion, PunctureCriterion::kEnergy);
+  EXPECT_GT(s.puncture.threshold, 0.0);
   EXPECT_TRUE(s.holding_pipette.enabled);
   EXPECT_LT(s.holding_pipette.inner_radius, g.diameter / 2);
   expect_rel(s.haptics.workspace_scale, 5e-3);
@@ -498,6 +503,45 @@ TEST(Scene, MalformedOverridesAreRefused) {
   ASSERT_TRUE(apply_override(doc, "a.n=2000").ok());
   EXPECT_EQ(doc["a"]["n"], 2000);
   EXPECT_FALSE(apply_override(doc, "a.n.x=1").ok());
+}
+
+
+TEST(Scene, InjectionKeysHaveDefaultsRangesAndRoundTrip) {
+  // Defaults: uniform mass scaling, no stiffness damping, friction 0.3, no force filter.
+  json j = minimal();
+  j["needle"] = {{"max_travel", "10 um"}};
+  Scene s = *parse_scene(j, "test.json");
+  EXPECT_EQ(s.integrator.mass_scaling_mode, MassScalingMode::kUniform);
+  EXPECT_EQ(s.integrator.stiffness_damping, 0.0);
+  EXPECT_EQ(s.needle.friction, 0.3);
+  EXPECT_EQ(s.needle.force_filter, 0.0);
+  // Given values, in units.
+  j["integrator"]["mass_scaling_mode"] = "selective";
+  j["integrator"]["stiffness_damping"] = "100 us";
+  j["needle"]["friction"] = 0.1;
+  j["needle"]["force_filter"] = "2 ms";
+  s = *parse_scene(j, "test.json");
+  EXPECT_EQ(s.integrator.mass_scaling_mode, MassScalingMode::kSelective);
+  expect_rel(s.integrator.stiffness_damping, 1e-4);
+  EXPECT_EQ(s.needle.friction, 0.1);
+  expect_rel(s.needle.force_filter, 2e-3);
+  // They survive scene_to_json.
+  const Scene back = *parse_scene(scene_to_json(s), "back.json");
+  EXPECT_EQ(back.integrator.mass_scaling_mode, MassScalingMode::kSelective);
+  EXPECT_EQ(back.integrator.stiffness_damping, s.integrator.stiffness_damping);
+  EXPECT_EQ(back.needle.friction, 0.1);
+  EXPECT_EQ(back.needle.force_filter, s.needle.force_filter);
+  // Bad values name the key.
+  j["integrator"]["mass_scaling_mode"] = "sometimes";
+  expect_error(j, "integrator.mass_scaling_mode", "uniform");
+  j["integrator"]["mass_scaling_mode"] = "uniform";
+  j["needle"]["friction"] = -0.1;
+  expect_error(j, "needle.friction", "must be >= 0");
+  j["needle"]["friction"] = 0.3;
+  j["integrator"]["stiffness_damping"] = "-1 us";
+  expect_error(j, "integrator.stiffness_damping", "must be >= 0");
+  j["integrator"]["stiffness_damping"] = 5;
+  expect_error(j, "integrator.stiffness_damping", "unit");
 }
 
 }  // namespace

@@ -1,0 +1,133 @@
+// End-to-end tests of `zona run`: the files it writes, their columns and keys, and its errors.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct RunOutput {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+RunOutput run_zona(const std::string& args, const fs::path& dir) {
+  const std::string out_path = (dir / "stdout.txt").string(), err_path = (dir / "stderr.txt").string();
+  const std::string cmd = std::string(ZONA_CLI_PATH) + " " + args + " >" + out_path + " 2>" + err_path;
+  const int status = std::system(cmd.c_str());
+  RunOutput r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  auto slurp = [](const std::string& p) {
+    std::ifstream f(p);
+    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  };
+  r.out = slurp(out_path);
+  r.err = slurp(err_path);
+  return r;
+}
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    path = fs::temp_directory_path() /
+           ("zona_cmd_run_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(path);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+// A small held cell punctured early: runs in a fraction of a second.
+const char* kScene = R"({
+  "name": "tiny_injection",
+  "mesh": {"generate": {"diameter": "20 um", "vertices": 150}},
+  "model": "svk",
+  "materials": {"default": {"young": "10 kPa", "poisson": 0.45, "damping": "50 1/s"}},
+  "integrator": {"target_dt": "20 us", "mass_scaling_mode": "selective", "dt_safety": 0.25,
+                 "stiffness_damping": "100 us"},
+  "needle": {"tip_radius": "2 um", "standoff": "0.5 um", "speed": "0.5 mm/s", "max_travel": "5 um"},
+  "puncture": {"criterion": "force", "threshold": "0.05 uN", "force_drop": 0.9, "drop_time": "0.1 ms"},
+  "holding_pipette": {"mode": "fixed", "inner_radius": "5 um"},
+  "output": {"frames": 4, "sample_interval": "0.1 ms"}
+})";
+
+TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const RunOutput r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("puncture: t "), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("zona run: t "), std::string::npos) << r.err;  // progress line
+  // force.csv: the documented leading columns and one row per sample.
+  std::ifstream csv(out / "force.csv");
+  std::string header, line;
+  std::getline(csv, header);
+  EXPECT_EQ(header.rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << header;
+  int rows = 0;
+  while (std::getline(csv, line)) ++rows;
+  EXPECT_GT(rows, 50);
+  // summary.json: model, puncture, peak force, training metrics, numerics.
+  std::ifstream js(out / "summary.json");
+  const nlohmann::json j = nlohmann::json::parse(js);
+  EXPECT_EQ(j["model"], "svk");
+  ASSERT_TRUE(j["puncture"]["punctured"].get<bool>());
+  for (const char* key : {"time_s", "deformation_m", "force_N"})
+    EXPECT_TRUE(j["puncture"].contains(key)) << key;
+  EXPECT_GE(j["puncture"]["force_N"].get<double>(), 0.05e-6);
+  EXPECT_GT(j["peak_force_N"].get<double>(), 0.0);
+  for (const char* key : {"mean_insertion_speed_m_per_s", "deformation_at_puncture_percent_of_diameter",
+                          "force_fluctuation_mfar_percent"})
+    EXPECT_TRUE(j["training"].contains(key)) << key;
+  for (const char* key : {"steps", "dt_s", "mass_scaling", "wall_time_s"})
+    EXPECT_TRUE(j["numerics"].contains(key)) << key;
+  EXPECT_TRUE(fs::exists(out / "frames.pvd"));
+  EXPECT_TRUE(fs::exists(out / "frames_000003.vtu"));
+  EXPECT_TRUE(fs::exists(out / "scene.json"));
+  EXPECT_TRUE(fs::exists(out / "force_deformation.png"));
+}
+
+TEST(CmdRun, SetOverridesAndModelChoice) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "linear";
+  const RunOutput r = run_zona("run " + scene.string() + " --out " + out.string() +
+                                   " --set model=linear --set puncture.criterion=none --no-frames --quiet",
+                               dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("zona run: t "), std::string::npos);  // --quiet
+  std::ifstream js(out / "summary.json");
+  const nlohmann::json j = nlohmann::json::parse(js);
+  EXPECT_EQ(j["model"], "linear");
+  EXPECT_FALSE(j["puncture"]["punctured"].get<bool>());
+  EXPECT_FALSE(fs::exists(out / "frames.pvd"));
+}
+
+TEST(CmdRun, ErrorsAreOneLine) {
+  TempDir dir;
+  RunOutput r = run_zona("run no_such_scene --out " + (dir.path / "x").string(), dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(r.err.rfind("zona: error: ", 0), 0u) << r.err;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  r = run_zona("run " + scene.string() + " --set needle.speed=fast --out " + (dir.path / "y").string(),
+               dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("needle.speed"), std::string::npos) << r.err;
+  r = run_zona("run " + scene.string() + " --backend gpu --out " + (dir.path / "z").string(), dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("auto, cpu or cuda"), std::string::npos) << r.err;
+}
+
+}  // namespace

@@ -1,0 +1,393 @@
+// Tests for engine/simulation: the injection experiment end to end on small geometry with known
+// answers (reaction = static elastic force, Coulomb stick / slip, suction balance), mesh
+// refinement and mass scaling independence, puncture and force drop, the split step, the
+// Backend path, and the mouse scene's puncture band at a reduced size.
+#include "engine/simulation.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "engine/backend_cpu.h"
+#include "engine/mesh_generate.h"
+#include "engine/mesh_io.h"
+#include "engine/scene_mesh.h"
+
+namespace zona {
+namespace {
+
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+// A folder for this test binary's files, removed at the end of each test.
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    path = fs::temp_directory_path() /
+           ("zona_sim_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(path);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+// Writes a box mesh [0, sx] x [0, sy] x [0, sz] um with n cubes per side as a Gmsh file.
+std::string write_box(const TempDir& dir, double sx, double sy, double sz, int nx, int ny, int nz) {
+  const Mesh box = generate_box_mesh(Vec3d{0, 0, 0}, Vec3d{sx, sy, sz}, nx, ny, nz);
+  const std::string path = (dir.path / "box.msh").string();
+  EXPECT_TRUE(write_gmsh41(path, box).ok());
+  return path;
+}
+
+Scene parse(const json& j, const std::vector<std::string>& overrides = {}) {
+  Result<Scene> s = parse_scene(j, "test.json", overrides);
+  EXPECT_TRUE(s.ok()) << (s.ok() ? "" : s.error().message);
+  return s.ok() ? *s : Scene{};
+}
+
+std::unique_ptr<Simulation> create(const Scene& scene, const SimulationOptions& options = {}) {
+  SimulationOptions o = options;
+  o.threads = 1;
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene, o);
+  EXPECT_TRUE(sim.ok()) << (sim.ok() ? "" : sim.error().message);
+  return sim.ok() ? std::move(*sim) : nullptr;
+}
+
+// A 12 x 12 x 6 um box on a fixed bottom, pressed from above by a flat tool wider than the box
+// (its whole top face), linear material.
+json pressed_box(const std::string& mesh_file, double friction) {
+  return json{
+      {"mesh", {{"file", mesh_file}, {"unit", "um"}}},
+      {"model", "linear"},
+      {"materials", {{"default", {{"young", "10 kPa"}, {"poisson", 0.3}, {"damping", "300 1/s"}}}}},
+      {"integrator",
+       {{"target_dt", "5 us"}, {"mass_scaling_mode", "selective"}, {"duration", "25 ms"}}},
+      {"boundary", json::array({{{"type", "fixed"}, {"where", {{"below", "0.1 um"}}}}})},
+      {"needle",
+       {{"shape", "flat"},
+        {"tip_radius", "20 um"},
+        {"direction", "-z"},
+        {"standoff", "0.5 um"},
+        {"speed", "0.1 mm/s"},
+        {"max_travel", "1.1 um"},
+        {"friction", friction}}},
+      {"output", {{"frames", 0}, {"sample_interval", "0.1 ms"}}}};
+}
+
+TEST(Simulation, FlatToolReactionEqualsTheStaticElasticForce) {
+  TempDir dir;
+  const std::string file = write_box(dir, 12, 12, 6, 4, 4, 2);
+  auto sim = create(parse(pressed_box(file, 100.0)));
+  ASSERT_TRUE(sim);
+  while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+  const NeedleReport& r = sim->report();
+  // Every top vertex sticks to the tool, pushed 0.6 um down.
+  EXPECT_EQ(r.contacts, 25);
+  EXPECT_NEAR(r.deformation, 0.6e-6, 1e-9);
+  // The reference: the same body with the top face prescribed 0.6 um down, relaxed statically.
+  const Model& m = sim->model();
+  State s = make_state(m, 1);
+  std::vector<int32_t> top;
+  for (size_t v = 0; v < m.vertex_count(); ++v)
+    if (m.rest_positions[v].z > 6e-6 - 1e-12) top.push_back(static_cast<int32_t>(v));
+  ASSERT_EQ(top.size(), 25u);
+  ASSERT_TRUE(set_prescribed_vertices(m, s, top).ok());
+  for (Vec3d& t : s.prescribed_displacement) t = Vec3d{0, 0, -0.6e-6};
+  RelaxOptions o;
+  o.relative_tolerance = 1e-10;
+  ASSERT_TRUE(relax_to_equilibrium(m, s, o).converged);
+  const double reference = -s.diag.constraint_force.z;  // the tool pushes down (-z)
+  ASSERT_GT(reference, 0.0);
+  EXPECT_NEAR(r.force, reference, 0.01 * reference);
+  // Equilibrium: the fixed bottom carries the same force.
+  Vec3d bottom{0, 0, 0};
+  for (int32_t v : m.fixed_vertices) bottom += sim->state().force[static_cast<size_t>(v)];
+  EXPECT_NEAR(bottom.z, -reference, 0.02 * reference);
+}
+
+TEST(Simulation, FrictionSticksInsideTheConeAndSlidesOnIt) {
+  TempDir dir;
+  const std::string file = write_box(dir, 12, 12, 6, 4, 4, 2);
+  // Press 0.6 um down (the tool starts 0.5 um above), then slide 1.5 um along +x.
+  const std::string traj = (dir.path / "slide.csv").string();
+  {
+    std::ofstream f(traj);
+    f << "time_s,x_m,y_m,z_m\n0,6e-6,6e-6,6.5e-6\n0.011,6e-6,6e-6,5.4e-6\n0.016,6e-6,6e-6,5.4e-6\n"
+         "0.031,7.5e-6,6e-6,5.4e-6\n";
+  }
+  for (const double mu : {0.1, 5.0}) {
+    json j = pressed_box(file, mu);
+    j["needle"]["trajectory"] = traj;
+    j["needle"]["start"] = "auto";
+    j["integrator"]["duration"] = "31 ms";
+    auto sim = create(parse(j));
+    ASSERT_TRUE(sim);
+    while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+    const NeedleReport& r = sim->report();
+    const double normal = -r.force_vector.z, tangential = std::fabs(r.force_vector.x);
+    ASSERT_GT(normal, 0.0);
+    double top_dx = 0;
+    int top = 0;
+    for (const Contact& c : sim->needle_contacts()) {
+      top_dx += sim->state().u[static_cast<size_t>(c.vertex)].x;
+      ++top;
+    }
+    ASSERT_GT(top, 0);
+    top_dx /= top;
+    if (mu < 1) {
+      // Sliding: the tangential force sits on the cone (up to the return mapping's one-step
+      // lag), the top lags the tool.
+      EXPECT_NEAR(tangential, mu * normal, 0.15 * mu * normal) << "mu " << mu;
+      EXPECT_LT(top_dx, 1.0e-6);
+    } else {
+      // Sticking: inside the cone, the top moved with the tool.
+      EXPECT_LT(tangential, mu * normal);
+      EXPECT_GT(tangential, 0.1 * normal);
+      EXPECT_NEAR(top_dx, 1.5e-6, 0.02e-6);
+    }
+  }
+}
+
+TEST(Simulation, NeedleForceIsConsistentUnderMeshRefinement) {
+  // A sphere tip (R 6 um) 3 um into a box: contact radius sqrt(2 R d) = 6 um, held by 17
+  // vertices on the 2 um mesh and 27 on the 1.5 um mesh. Measured: 0.313, 0.264, 0.256, 0.256 uN
+  // on 3, 2, 1.5, 1.2 um meshes (docs/injection.md).
+  TempDir dir;
+  double force[2];
+  const int cubes[2] = {12, 16};
+  for (int k = 0; k < 2; ++k) {
+    const std::string file = write_box(dir, 24, 24, 12, cubes[k], cubes[k], cubes[k] / 2);
+    json j = pressed_box(file, 0.3);
+    j["needle"] = {{"shape", "sphere"}, {"tip_radius", "6 um"}, {"direction", "-z"},
+                   {"standoff", "0.5 um"}, {"speed", "0.2 mm/s"}, {"max_travel", "3.5 um"}};
+    j["integrator"] = {{"target_dt", "10 us"}, {"mass_scaling_mode", "selective"},
+                       {"dt_safety", 0.25}, {"stiffness_damping", "50 us"}, {"duration", "25 ms"}};
+    auto sim = create(parse(j));
+    ASSERT_TRUE(sim);
+    while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+    force[k] = sim->report().force;
+    EXPECT_NEAR(sim->report().deformation, 3e-6, 0.1e-6);
+    EXPECT_GT(sim->report().contacts, 12);
+  }
+  ASSERT_GT(force[0], 0.0);
+  EXPECT_NEAR(force[1], force[0], 0.05 * force[0]);
+}
+
+// A 24 um ball held on its far side, indented by a point needle: the quasi-static SVK setup of
+// the mouse scene at a size a test can afford.
+json small_cell() {
+  return json{
+      {"mesh", {{"generate", {{"diameter", "24 um"}, {"vertices", 250}}}}},
+      {"model", "svk"},
+      {"materials",
+       {{"default", {{"young", "17.9 kPa"}, {"poisson", 0.45}, {"damping", "50 1/s"}}}}},
+      {"integrator",
+       {{"target_dt", "10 us"}, {"mass_scaling_mode", "selective"}, {"dt_safety", 0.25},
+        {"stiffness_damping", "50 us"}}},
+      {"needle",
+       {{"tip_radius", "3 um"}, {"standoff", "0.5 um"}, {"speed", "0.2 mm/s"},
+        {"max_travel", "6.5 um"}}},
+      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "6 um"}}},
+      {"output", {{"frames", 0}, {"sample_interval", "0.1 ms"}}}};
+}
+
+// Force at deformation `at` [m] by linear interpolation of the recorded curve.
+double force_at(const RunResult& run, double at) {
+  for (size_t i = 1; i < run.samples.size(); ++i) {
+    const ForceSample &a = run.samples[i - 1], &b = run.samples[i];
+    if (a.deformation <= at && b.deformation >= at && b.deformation > a.deformation)
+      return a.force + (at - a.deformation) / (b.deformation - a.deformation) * (b.force - a.force);
+  }
+  return NAN;
+}
+
+TEST(Simulation, QuasiStaticForceDoesNotDependOnTheMassScaling) {
+  RunResult runs[2];
+  const char* steps[2][2] = {{"20 us", "100 us"}, {"10 us", "50 us"}};
+  for (int k = 0; k < 2; ++k) {
+    json j = small_cell();
+    j["integrator"]["target_dt"] = steps[k][0];
+    j["integrator"]["stiffness_damping"] = steps[k][1];
+    Result<RunResult> r = run_scene(parse(j));
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    runs[k] = *r;
+    ASSERT_FALSE(runs[k].stopped_early) << runs[k].stop_reason;
+  }
+  // Halving the step quarters the added mass: the curve must not move.
+  for (double at : {2e-6, 4e-6, 5.5e-6}) {
+    const double coarse = force_at(runs[0], at), fine = force_at(runs[1], at);
+    ASSERT_TRUE(std::isfinite(coarse) && std::isfinite(fine)) << at;
+    EXPECT_NEAR(coarse, fine, 0.05 * fine) << "at " << at;
+  }
+}
+
+TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
+  json j = small_cell();
+  j["puncture"] = {{"criterion", "force"}, {"threshold", "0.2 uN"}, {"force_drop", 0.8},
+                   {"drop_time", "0.5 ms"}, {"shaft_friction", "0.01 N/m"}};
+  j["needle"]["max_travel"] = "7 um";
+  auto sim = create(parse(j));
+  ASSERT_TRUE(sim);
+  double at_puncture_plus_drop = NAN, drag_travel = 0;
+  while (!sim->finished()) {
+    ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+    const PunctureRecord& p = sim->puncture();
+    if (p.punctured && std::isnan(at_puncture_plus_drop) && sim->report().time >= p.time + 0.5e-3) {
+      at_puncture_plus_drop = sim->report().raw_force;
+      drag_travel = sim->report().travel - p.needle_travel;
+    }
+  }
+  const PunctureRecord& p = sim->puncture();
+  ASSERT_TRUE(p.punctured);
+  EXPECT_GE(p.force, 0.2e-6);
+  EXPECT_LT(p.force, 0.22e-6);
+  // Deformation: the tip's advance into the cell, travel minus the standoff.
+  EXPECT_NEAR(p.deformation, p.needle_travel - 0.5e-6, 0.15e-6);
+  EXPECT_NEAR(p.time, p.needle_travel / 0.2e-3, 1e-9);
+  // After drop_time: 20 % of the force at puncture plus the shaft drag.
+  EXPECT_NEAR(at_puncture_plus_drop, 0.2 * dot(p.force_vector, Vec3d{1, 0, 0}) + 0.01 * drag_travel,
+              1e-12);
+  EXPECT_TRUE(sim->needle_contacts().empty());
+  EXPECT_TRUE(sim->report().punctured);
+}
+
+TEST(Simulation, SuctionOnTheAspiratedPatchIsBalancedByTheRim) {
+  json j{{"mesh", {{"generate", {{"diameter", "24 um"}, {"vertices", 300}}}}},
+         {"model", "svk"},
+         {"materials",
+          {{"default", {{"young", "10 kPa"}, {"poisson", 0.4}, {"damping", "400 1/s"}}}}},
+         {"integrator",
+          {{"target_dt", "10 us"}, {"mass_scaling_mode", "selective"}, {"duration", "20 ms"},
+           {"dt_safety", 0.25}, {"stiffness_damping", "40 us"}}},
+         {"needle", {{"enabled", false}, {"direction", "+x"}}},
+         {"holding_pipette",
+          {{"mode", "suction"}, {"inner_radius", "5 um"}, {"outer_radius", "10 um"},
+           {"suction", "2.5 kPa"}, {"friction", 0.3}}},
+         {"output", {{"frames", 0}}}};
+  auto sim = create(parse(j));
+  ASSERT_TRUE(sim);
+  while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+  const HoldingSetup& h = *sim->holding();
+  // The pull is p times the aspirated area, pi a^2 up to faceting...
+  EXPECT_NEAR(h.suction_total.x, 2.5e3 * M_PI * 25e-12, 0.25 * 2.5e3 * M_PI * 25e-12);
+  // ... and the rim holds the cell against it: rim reaction + suction = 0.
+  const Vec3d rim = sim->report().holding_force;
+  EXPECT_GT(sim->report().holding_contacts, 3);
+  EXPECT_NEAR(rim.x, -h.suction_total.x, 0.03 * h.suction_total.x);
+  EXPECT_NEAR(rim.y, 0.0, 0.03 * h.suction_total.x);
+  EXPECT_NEAR(rim.z, 0.0, 0.03 * h.suction_total.x);
+}
+
+TEST(Simulation, SplitStepTakesTheHandedInPose) {
+  auto sim = create(parse(small_cell()));
+  ASSERT_TRUE(sim);
+  sim->step1();
+  const Vec3d handed = sim->needle_script().start + Vec3d{0.3e-6, 0.1e-6, 0};
+  sim->set_needle_tip(handed);
+  sim->step2();
+  EXPECT_EQ(sim->report().tip.x, handed.x);
+  EXPECT_EQ(sim->report().tip.y, handed.y);
+  EXPECT_NEAR(sim->report().travel, 0.3e-6, 1e-15);
+  EXPECT_EQ(sim->report().step, 1);
+}
+
+// The CPU backend under another name, so that the simulation drives it through the Backend
+// interface (upload on contact changes, download every step).
+class RenamedBackend final : public Backend {
+ public:
+  RenamedBackend() : inner_(make_cpu_backend(BackendOptions{})) {}
+  const char* name() const override { return "renamed"; }
+  std::string description() const override { return "renamed cpu"; }
+  Status upload(const Model& m, const State& s) override { return inner_->upload(m, s); }
+  Status set_prescribed_targets(std::span<const Vec3d> t) override {
+    return inner_->set_prescribed_targets(t);
+  }
+  StepReport step(int n) override { return inner_->step(n); }
+  Status download(State& s) override { return inner_->download(s); }
+  Status elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) override {
+    return inner_->elastic_forces(u, f);
+  }
+  Result<StateSummary> summarize() override { return inner_->summarize(); }
+
+ private:
+  std::unique_ptr<Backend> inner_;
+};
+
+TEST(Simulation, BackendPathMatchesTheInPlacePath) {
+  json j = small_cell();
+  j["integrator"]["stiffness_damping"] = "0 s";  // not applied on the Backend path
+  j["needle"]["max_travel"] = "2 um";
+  const Scene scene = parse(j);
+  SimulationOptions via_backend;
+  via_backend.backend_factory = [](std::string*) -> Result<std::unique_ptr<Backend>> {
+    return std::unique_ptr<Backend>(new RenamedBackend());
+  };
+  auto a = create(scene);
+  auto b = create(scene, via_backend);
+  ASSERT_TRUE(a && b);
+  EXPECT_EQ(b->backend_description(), "renamed cpu");
+  for (int i = 0; i < 400; ++i) {
+    a->step();
+    b->step();
+  }
+  EXPECT_GT(a->report().contacts, 0);
+  EXPECT_EQ(a->report().contacts, b->report().contacts);
+  EXPECT_NEAR(a->report().force, b->report().force, 1e-9 * std::fabs(a->report().force));
+  EXPECT_EQ(a->report().deformation, b->report().deformation);
+}
+
+TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
+  // Seed 000's 115-vertex resolution: a 1 um point tip fits between the vertices, and the
+  // triangle it pierces is carried along (the force rises as soon as the tip meets the surface).
+  json j = small_cell();
+  j["mesh"]["generate"]["vertices"] = 60;
+  j["needle"]["tip_radius"] = "0.5 um";
+  j["needle"]["max_travel"] = "2 um";
+  auto sim = create(parse(j));
+  ASSERT_TRUE(sim);
+  while (!sim->finished()) sim->step();
+  EXPECT_GE(sim->report().contacts, 3);
+  EXPECT_GT(sim->report().force, 0.0);
+  EXPECT_NEAR(sim->report().deformation, 1.5e-6, 0.2e-6);
+}
+
+TEST(Simulation, ScenesItCannotRunAreRefused) {
+  json j = small_cell();
+  j["model"] = "particles";
+  Result<std::unique_ptr<Simulation>> s = Simulation::create(parse(j));
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("particles"), std::string::npos);
+  j = small_cell();
+  j["holding_pipette"]["inner_radius"] = "0.01 um";
+  s = Simulation::create(parse(j));
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("holding_pipette"), std::string::npos);
+}
+
+TEST(Simulation, MouseOocytePunctureLandsInSeed000Band) {
+  // The main job on a 300-vertex mesh instead of 800 (CI time; `zona run` runs the full scene,
+  // docs/validation.md). Seed 000: puncture at about 45 um and 7.5 uN; the band is 35-55 um and
+  // 5-10 uN.
+  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json",
+                                   {"mesh.generate.vertices=300", "output.frames=0"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  RunOptions options;
+  options.simulation.threads = 0;
+  options.stop_after_puncture = 0;
+  Result<RunResult> run = run_scene(*scene, options);
+  ASSERT_TRUE(run.ok()) << run.error().message;
+  ASSERT_TRUE(run->puncture.punctured);
+  EXPECT_GE(run->puncture.deformation, 35e-6);
+  EXPECT_LE(run->puncture.deformation, 55e-6);
+  EXPECT_GE(run->puncture.force, 5e-6);
+  EXPECT_LE(run->puncture.force, 10e-6);
+}
+
+}  // namespace
+}  // namespace zona
