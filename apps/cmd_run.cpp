@@ -129,12 +129,12 @@ Result<PlotSeries> read_reference(const std::string& spec, uint32_t rgb) {
 Status write_force_plot(const std::string& path, const Simulation& sim, const RunResult& run,
                         const RunArgs& args) {
   PlotSpec spec;
-  spec.title = sim.scene().name + ": needle force vs membrane deformation (" +
-               model_name(sim.scene().model) + ")";
+  spec.title = sim.scene().name + ": needle force vs membrane deformation";
   spec.x_label = "deformation at the tip [um]";
   spec.y_label = "axial needle force [uN]";
-  PlotSeries before{"loading", {}, {}, 0x1f77b4, 2.0, 0};
-  PlotSeries after{"after puncture", {}, {}, 0xaec7e8, 1.5, 0};
+  const std::string model = model_name(sim.scene().model);
+  PlotSeries before{"this run (" + model + ")", {}, {}, 0x1f77b4, 2.0, 0};
+  PlotSeries after{"this run, after puncture", {}, {}, 0xaec7e8, 1.5, 0};
   for (const ForceSample& s : run.samples) {
     PlotSeries& series = s.punctured ? after : before;
     series.x.push_back(s.deformation * 1e6);
