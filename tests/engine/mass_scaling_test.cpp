@@ -71,7 +71,9 @@ TEST(MassScaling, StaticAnswerDoesNotDependOnIt) {
   for (int k = 0; k < 2; ++k) {
     Result<Model> m = build_model(mesh, desc);
     ASSERT_TRUE(m.ok());
-    if (k == 1) ASSERT_TRUE(apply_selective_mass_scaling(*m, 1e-6, 0.9).ok());
+    if (k == 1) {
+      ASSERT_TRUE(apply_selective_mass_scaling(*m, 1e-6, 0.9).ok());
+    }
     State s = make_state(*m, 1);
     std::vector<int32_t> pulled;
     for (size_t v = 0; v < m->vertex_count(); ++v)
