@@ -81,10 +81,11 @@ class ProgressPrinter {
   void row(const ScalingRow& r) {
     clear();
     std::fprintf(stderr,
-                 "zona bench: [%d/%d] %s %s %s %dt %lld: %lld vertices, %.4g ms/step, "
+                 "zona bench: [%d/%d] %s %s %s %dt%s %lld: %lld vertices, %.4g ms/step, "
                  "precompute %.4g ms, %s\n",
                  row_, row_count_, r.backend.c_str(), r.model.c_str(), r.formulation.c_str(),
-                 r.threads, static_cast<long long>(r.target_vertices),
+                 r.threads, r.threads_requested == 0 ? " (auto)" : "",
+                 static_cast<long long>(r.target_vertices),
                  static_cast<long long>(r.vertices), r.step_ms_median, r.precompute_ms,
                  r.status.c_str());
     draw();
@@ -208,7 +209,8 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--repeats", args->repeats, "Timed blocks per row (median and p90 over them)")
       ->capture_default_str();
   cmd->add_option("--threads", args->threads,
-                  "CPU threads, or a comma list (1,2); 0: one per hardware thread")
+                  "CPU threads, or a comma list (1,2); 0: the backend's automatic choice "
+                  "(one per ~2000 tetrahedra up to the hardware's count)")
       ->capture_default_str();
   cmd->add_option("--assembly", args->assembly,
                   std::string("GPU assembly (default ") + assembly_name(BackendOptions{}.assembly) +

@@ -41,6 +41,9 @@ def read_rows(paths):
         for r in csv.DictReader(lines):
             for key in ("vertices", "tets", "threads", "target_vertices"):
                 r[key] = int(r[key])
+            # threads_requested 0: the backend's automatic count (one series, "auto").
+            r["thread_key"] = (int(r["threads"]) if int(r.get("threads_requested", 1) or 1) > 0
+                               else "auto")
             for key in ("precompute_ms", "step_ms_median", "step_ms_p90", "floor_ms"):
                 r[key] = float(r[key])
             rows.append(r)
@@ -70,7 +73,7 @@ def series_of(rows, filters):
             continue
         if r["step_ms_median"] <= 0:
             continue
-        key = (r["backend"], r["model"], r["formulation"], r["threads"])
+        key = (r["backend"], r["model"], r["formulation"], r["thread_key"])
         out.setdefault(key, []).append(r)
     for key in out:
         # One point per mesh size (a repeated size keeps its last measurement).
@@ -83,7 +86,9 @@ def series_of(rows, filters):
 
 def label_of(key):
     backend, model, form, threads = key
-    return f"{backend} {model} {form}" + (f" {threads}t" if backend == "cpu" else "")
+    if backend != "cpu":
+        return f"{backend} {model} {form}"
+    return f"{backend} {model} {form} " + (f"{threads}t" if threads != "auto" else "auto")
 
 
 def budget_size(fit, budget_ms):
@@ -112,7 +117,7 @@ def print_table2(rows, series):
         line = f"| {sv} / {st} | {sp:g} | {ss:g} |"
         for k in keys:
             match = [r for r in rows if r["target_vertices"] == n and
-                     (r["backend"], r["model"], r["formulation"], r["threads"]) == k]
+                     (r["backend"], r["model"], r["formulation"], r["thread_key"]) == k]
             if match:
                 r = match[-1]
                 line += (f" {r['vertices']} / {r['tets']}, {r['precompute_ms']:.3g}, "
@@ -129,7 +134,8 @@ def main():
     p.add_argument("--model", action="append", help="only this model (repeatable)")
     p.add_argument("--formulation", action="append", help="only this formulation (repeatable)")
     p.add_argument("--backend", action="append", help="only this backend (repeatable)")
-    p.add_argument("--threads", action="append", type=int, help="only this CPU thread count")
+    p.add_argument("--threads", action="append", type=int,
+                   help="only this CPU thread count (as run)")
     p.add_argument("--series", action="append",
                    help="only this series, by its label, e.g. 'cpu svk gradient 2t' (repeatable)")
     p.add_argument("--fit-min", type=float, default=1000,

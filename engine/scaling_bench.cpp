@@ -97,6 +97,15 @@ int resolve_threads(int threads) {
   return hw > 0 ? static_cast<int>(hw) : 1;
 }
 
+// Threads the CPU backend runs: its description starts "cpu: N thread(s)" (backend_cpu.cpp);
+// the requested count when that cannot be read.
+int backend_thread_count(const Backend& backend, int requested) {
+  const std::string d = backend.description();
+  int n = 0;
+  if (std::sscanf(d.c_str(), "cpu: %d thread", &n) == 1 && n > 0) return n;
+  return resolve_threads(requested);
+}
+
 std::string format_double(double x, const char* format = "%.6g") {
   char buf[64];
   std::snprintf(buf, sizeof buf, format, x);
@@ -213,7 +222,8 @@ Result<std::vector<int>> parse_thread_list(std::string_view text) {
   for (const std::string& t : *tokens) {
     const std::optional<int64_t> n = parse_count(t);
     if (!n || *n > 1024)
-      return make_error("--threads: '%s' is not a thread count in [0, 1024] (0: all)", t.c_str());
+      return make_error("--threads: '%s' is not a thread count in [0, 1024] (0: automatic)",
+                        t.c_str());
     out.push_back(static_cast<int>(*n));
   }
   return out;
@@ -461,12 +471,13 @@ struct Job {
   BackendKind backend;
   ConstitutiveModel model;
   Formulation formulation;
-  int threads;  // resolved
+  int threads;  // requested: > 0 fixed, 0 the CPU backend's automatic choice
 };
 
 std::string job_label(const Job& j, int64_t target) {
   return std::string(backend_kind_name(j.backend)) + " " + constitutive_name(j.model) + " " +
-         formulation_name(j.formulation) + " " + std::to_string(j.threads) + "t " +
+         formulation_name(j.formulation) + " " +
+         (j.threads > 0 ? std::to_string(j.threads) + "t " : std::string("auto ")) +
          std::to_string(target);
 }
 
@@ -523,18 +534,24 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
     result.machine.gpu_name.clear();
 
   // CPU copy bandwidth per thread count in the list.
-  std::vector<int> threads;
+  // The automatic choice (0) may pick any count from 1 to the hardware's: measure both ends.
+  std::vector<int> threads, copy_threads;
   for (int t : config.threads) {
-    const int r = resolve_threads(t);
-    if (std::find(threads.begin(), threads.end(), r) == threads.end()) threads.push_back(r);
+    if (std::find(threads.begin(), threads.end(), t) == threads.end()) threads.push_back(t);
+    for (int r : t > 0 ? std::vector<int>{t} : std::vector<int>{1, resolve_threads(0)})
+      if (std::find(copy_threads.begin(), copy_threads.end(), r) == copy_threads.end())
+        copy_threads.push_back(r);
   }
+  std::sort(copy_threads.begin(), copy_threads.end());
   if (std::find(backends.begin(), backends.end(), BackendKind::kCpu) != backends.end())
-    for (int t : threads)
+    for (int t : copy_threads)
       result.cpu_copy_gb_per_s.emplace_back(t, measure_cpu_copy_bandwidth(config.copy_bytes, t));
+  // Copy bandwidth with t threads: the measurement at the largest count not above t.
   auto cpu_gbps = [&result](int t) {
-    for (const auto& [n, g] : result.cpu_copy_gb_per_s)
-      if (n == t) return g;
-    return 0.0;
+    double g = 0;
+    for (const auto& [n, rate] : result.cpu_copy_gb_per_s)
+      if (n <= t || g == 0) g = rate;
+    return g;
   };
 
   // The plan: the GPU rows once per model and formulation (host threads: the first entry).
@@ -609,7 +626,7 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       // Half the critical step: SVK stiffens under the loaded state's stretch; the step's cost
       // does not depend on dt.
       desc.dt_safety = 0.5;
-      desc.precompute_threads = job.threads;
+      desc.precompute_threads = resolve_threads(job.threads);
       std::optional<Model> model;
       std::vector<double> precompute, tensor_precompute;
       double build_total = 0;
@@ -672,7 +689,8 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       row.backend = backend_kind_name(job.backend);
       row.model = constitutive_name(job.model);
       row.formulation = formulation_name(job.formulation);
-      row.threads = job.threads;
+      row.threads = gpu ? resolve_threads(job.threads) : backend_thread_count(backend, job.threads);
+      row.threads_requested = job.threads;
       row.target_vertices = target;
       row.vertices = nv;
       row.tets = nt;
@@ -710,7 +728,7 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
 // CSV.
 
 std::string scaling_csv_header() {
-  return "backend,model,formulation,threads,target_vertices,vertices,tets,mesh_ms,precompute_ms,"
+  return "backend,model,formulation,threads,threads_requested,target_vertices,vertices,tets,mesh_ms,precompute_ms,"
          "tensor_precompute_ms,upload_ms,steps,repeats,step_ms_median,step_ms_p10,step_ms_p90,"
          "steps_per_s,bytes_per_step,gb_per_s,copy_gb_per_s,floor_ms,floor_ratio,status,"
          "state_hash";
@@ -762,6 +780,7 @@ std::string scaling_csv_row(const ScalingRow& r) {
   char hash[20];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(r.state_hash));
   out << r.backend << ',' << r.model << ',' << r.formulation << ',' << r.threads << ','
+      << r.threads_requested << ','
       << r.target_vertices << ',' << r.vertices << ',' << r.tets << ','
       << format_double(r.mesh_ms, "%.1f") << ',' << format_double(r.precompute_ms) << ','
       << format_double(r.tensor_precompute_ms) << ',' << format_double(r.upload_ms) << ','

@@ -44,8 +44,8 @@ struct ScalingBenchConfig {
   std::vector<ConstitutiveModel> models{ConstitutiveModel::kSvk};
   std::vector<Formulation> formulations{Formulation::kGradient};
   std::vector<int64_t> vertices;  ///< target vertex counts (table2_spec), ascending or not
-  /// CPU thread counts (0: one per hardware thread); the GPU rows use the first entry for the
-  /// host-side precompute.
+  /// CPU thread counts (0: the CPU backend's automatic choice, make_state); the GPU rows use the
+  /// first entry (0: all hardware threads) for the host-side precompute.
   std::vector<int> threads{0};
   /// Steps per timed block (one Backend::step call); 0 chooses by size (auto_steps).
   int steps = 0;
@@ -81,7 +81,8 @@ struct ScalingRow {
   std::string backend;      ///< "cpu" or "cuda"
   std::string model;        ///< "svk" or "linear"
   std::string formulation;  ///< "gradient", "tensor_rebuilt" or "tensor_stored"
-  int threads = 0;          ///< CPU threads of the step (and the precompute)
+  int threads = 0;          ///< CPU threads the step ran on (and the precompute)
+  int threads_requested = 0;  ///< as asked: > 0 fixed, 0 the backend's automatic choice
   int64_t target_vertices = 0;  ///< the count asked of table2_spec
   int64_t vertices = 0;     ///< the mesh's count
   int64_t tets = 0;
@@ -157,7 +158,7 @@ Result<std::vector<BackendKind>> parse_bench_backends(std::string_view text);
 Result<std::vector<ConstitutiveModel>> parse_bench_models(std::string_view text);
 /// "gradient", "tensor_rebuilt", "tensor_stored", "all", or a comma list.
 Result<std::vector<Formulation>> parse_bench_formulations(std::string_view text);
-/// Comma list of thread counts >= 0 (0: one per hardware thread).
+/// Comma list of thread counts >= 0 (0: the CPU backend's automatic choice).
 Result<std::vector<int>> parse_thread_list(std::string_view text);
 
 /// "svk" / "linear".

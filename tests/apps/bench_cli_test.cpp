@@ -94,7 +94,7 @@ TEST(BenchCli, TinyRunWritesTheCsvAndOneNoticeForAMissingGpu) {
   if (zona::cuda_devices(&notice).empty()) {
     // No GPU: the CPU row only, and exactly one notice naming cuda.
     ASSERT_EQ(rows.size(), 1u);
-    EXPECT_EQ(rows[0].rfind("cpu,svk,gradient,1,150,", 0), 0u) << rows[0];
+    EXPECT_EQ(rows[0].rfind("cpu,svk,gradient,1,1,150,", 0), 0u) << rows[0];
     int notices = 0;
     std::istringstream err(r.err);
     while (std::getline(err, line))

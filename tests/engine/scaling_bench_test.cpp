@@ -273,6 +273,8 @@ TEST(ScalingBench, HashIsDeterministicAcrossRunsAndThreadCounts) {
   ASSERT_TRUE(a.ok() && b.ok());
   ASSERT_EQ(a->rows.size(), 2u);
   ASSERT_EQ(b->rows.size(), 2u);
+  EXPECT_EQ(a->rows[0].threads, 1);
+  EXPECT_EQ(a->rows[1].threads, 2);
   // The CPU reference gives the same bits on every run and thread count.
   EXPECT_EQ(a->rows[0].state_hash, b->rows[0].state_hash);
   EXPECT_EQ(a->rows[0].state_hash, a->rows[1].state_hash);
@@ -281,6 +283,13 @@ TEST(ScalingBench, HashIsDeterministicAcrossRunsAndThreadCounts) {
   Result<Mesh> mesh = generate_cell_mesh(table2_spec(150));
   ASSERT_TRUE(mesh.ok());
   EXPECT_NE(a->rows[0].state_hash, displacement_hash(bench_displacement(*mesh)));
+  // The backend's automatic thread count (one per ~2000 tetrahedra): 1 on this tiny mesh.
+  c.threads = {0};
+  Result<ScalingBenchResult> e = run_scaling_bench(c, cpu_hooks(), local_machine_info());
+  ASSERT_TRUE(e.ok());
+  EXPECT_EQ(e->rows[0].threads_requested, 0);
+  EXPECT_EQ(e->rows[0].threads, 1);
+  EXPECT_EQ(e->rows[0].state_hash, a->rows[0].state_hash);
   // More steps, another state.
   c.threads = {1};
   c.steps = 4;
