@@ -6,6 +6,8 @@
 #include <cstring>
 #include <vector>
 
+#include "engine/simd_pack.h"
+
 namespace zona {
 namespace {
 
@@ -85,47 +87,6 @@ struct PassContext {
 // element functions (tests check it); only the instruction count drops (AVX: 4 per op).
 // GCC builds an AVX2 clone and a baseline clone and picks one at load time; FMA is left out on
 // purpose, because contracting a*b+c would change the bits between the clones.
-
-// Not under ThreadSanitizer: its runtime is not up yet when the clones' ifunc resolver runs.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_THREAD__)
-#define ZONA_SIMD_CLONES __attribute__((target_clones("avx2", "default"), flatten))
-#else
-#define ZONA_SIMD_CLONES
-#endif
-
-typedef double V4 __attribute__((vector_size(32)));
-
-/// Four doubles operated on lane by lane.
-struct P4 {
-  V4 v;
-  P4() = default;
-  P4(double x) : v{x, x, x, x} {}  // NOLINT: implicit, as T(0.5) and T x = 0 need
-  P4(double a, double b, double c, double d) : v{a, b, c, d} {}
-};
-#define ZONA_P4_OP(op)                                                                   \
-  [[gnu::always_inline]] inline P4 operator op(P4 a, P4 b) {                            \
-    P4 r;                                                                                \
-    r.v = a.v op b.v;                                                                    \
-    return r;                                                                            \
-  }
-ZONA_P4_OP(+)
-ZONA_P4_OP(-)
-ZONA_P4_OP(*)
-ZONA_P4_OP(/)
-#undef ZONA_P4_OP
-[[gnu::always_inline]] inline P4 operator-(P4 a) {
-  P4 r;
-  r.v = -a.v;
-  return r;
-}
-[[gnu::always_inline]] inline P4& operator+=(P4& a, P4 b) {
-  a.v += b.v;
-  return a;
-}
-[[gnu::always_inline]] inline P4& operator-=(P4& a, P4 b) {
-  a.v -= b.v;
-  return a;
-}
 
 // Lane l of the pack built from four scalars picked by `get(tet)`.
 template <class Get>
