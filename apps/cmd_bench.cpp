@@ -30,6 +30,7 @@ struct BenchArgs {
   int steps = 0;
   int repeats = 7;
   int copy_mib = 256;
+  std::string precision = "float64";
   std::string out;
 };
 
@@ -61,6 +62,7 @@ std::string command_line(const BenchArgs& a) {
        " --threads " + a.threads;
   if (!a.assembly.empty()) c += " --assembly " + a.assembly;
   if (a.copy_mib != 256) c += " --copy-mib " + std::to_string(a.copy_mib);
+  if (a.precision != "float64") c.append(" --precision ").append(a.precision);
   return c;
 }
 
@@ -156,6 +158,10 @@ Result<ScalingBenchConfig> make_config(const BenchArgs& a) {
   if (a.repeats < 1) return make_error("--repeats: must be >= 1, got %d", a.repeats);
   if (a.copy_mib < 1 || a.copy_mib > 65536)
     return make_error("--copy-mib: must be in [1, 65536], got %d", a.copy_mib);
+  if (a.precision == "float32")
+    c.element_precision = ElementPrecision::kFloat32;
+  else if (a.precision != "float64")
+    return make_error("--precision: '%s' is neither float64 nor float32", a.precision.c_str());
   c.steps = a.steps;
   c.repeats = a.repeats;
   c.copy_bytes = static_cast<size_t>(a.copy_mib) << 20;
@@ -217,6 +223,10 @@ void add_bench_command(CLI::App& app) {
                       ")");
   cmd->add_option("--copy-mib", args->copy_mib,
                   "Buffer of the CPU copy-bandwidth measurement [MiB] (larger than the caches)")
+      ->capture_default_str();
+  cmd->add_option("--precision", args->precision,
+                  "CPU element math, gradient form: float64 (the reference) or float32 (eight "
+                  "tetrahedra per AVX2 pack; displacements and force sums stay float64)")
       ->capture_default_str();
   cmd->add_option("--out", args->out, "Write the CSV here (else to stdout)");
   cmd->callback([args] {

@@ -88,13 +88,84 @@ struct PassContext {
 // GCC builds an AVX2 clone and a baseline clone and picks one at load time; FMA is left out on
 // purpose, because contracting a*b+c would change the bits between the clones.
 
-// Lane l of the pack built from four scalars picked by `get(tet)`.
-template <class Get>
-[[gnu::always_inline]] inline P4 gather4(const size_t t[4], Get get) {
-  return P4(get(t[0]), get(t[1]), get(t[2]), get(t[3]));
+// Element math of one batch, as the scalar functions compose it (SvkGradient... above, and
+// kernels/element_eval.h): corner forces f, energy w [J], and the health quantities det F and,
+// for SVK, the three leading minors of C - s^2 I (tet_health_from_strain).
+template <bool kSvk, class P>
+[[gnu::always_inline]] inline void batch_element_math(const TetShape<P>& shape, P lambda, P mu,
+                                                      const Vec3<P> du[3], Vec3<P> f[4], P* w,
+                                                      P* det_f, P* m1, P* m2, P* det_a) {
+  const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
+  P psi;
+  Mat3<P> p;
+  if constexpr (kSvk) {
+    const Mat3<P> e = green_strain(h);
+    Mat3<P> fm = h;
+    for (int i = 0; i < 3; ++i) fm.m[i][i] += P(1);
+    *det_f = determinant(fm);
+    Mat3<P> a = P(2) * e;
+    const P shift = P(1) - P(kSvkCollapseStretch) * P(kSvkCollapseStretch);
+    for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
+    *m1 = a.m[0][0];
+    *m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
+    *det_a = determinant(a);
+    const Mat3<P> stress = isotropic_stress(e, lambda, mu, &psi);
+    p = stress + h * stress;
+  } else {
+    (void)m1, (void)m2, (void)det_a;
+    *det_f = determinant(Mat3<P>::identity() + h);
+    p = isotropic_stress(small_strain(h), lambda, mu, &psi);
+  }
+  tet_forces_from_stress(shape, p, f);
+  *w = shape.volume * psi;
 }
 
-// The element pass over chunks with the batched SVK or linear kernel.
+// x/y/z packs of corner c of tetrahedra tb[0..3] (16-byte loads and unpacks, no per-lane scalar
+// gathers), then the edge differences u_{e+1} - u_0 lane by lane in double, as
+// tet_displacement_gradient forms them.
+[[gnu::always_inline]] inline void batch_edges(const Vec3d* ug, const Tet* tb, Vec3<P4> du[3]) {
+  Vec3<P4> uc[4];
+  for (int c = 0; c < 4; ++c)
+    load_xyz_transposed(ug[tb[0][c]], ug[tb[1][c]], ug[tb[2][c]], ug[tb[3][c]], uc[c].x, uc[c].y,
+                        uc[c].z);
+  for (int e = 0; e < 3; ++e) du[e] = uc[e + 1] - uc[0];
+}
+
+// Stores the corner forces of four consecutive tetrahedra starting at `dst` (48 doubles,
+// lane-major: tetrahedron, corner, xyz): three 4 x 4 transposes of the 12 component packs give
+// them as 12 four-double stores.
+[[gnu::always_inline]] inline void store_corner_forces4(const Vec3<P4> f[4], double* dst) {
+  P4 col[12];
+  for (int c = 0; c < 4; ++c) {
+    col[3 * c] = f[c].x;
+    col[3 * c + 1] = f[c].y;
+    col[3 * c + 2] = f[c].z;
+  }
+  for (int b = 0; b < 3; ++b) {
+    transpose4(col + 4 * b);
+    for (int l = 0; l < 4; ++l) store4(col[4 * b + l], dst + 12 * l + 4 * b);
+  }
+}
+
+// Health of the lanes [0, lanes) when some lane failed the packed check (rare path): the bits
+// of tet_health_from_strain per lane, counts and the first offenders.
+template <bool kSvk, class P>
+void batch_health_slow(const P& det_f, const P& m1, const P& m2, const P& det_a, int64_t t0,
+                       int lanes, TetChunkResult& r) {
+  for (int l = 0; l < lanes; ++l) {
+    uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
+    if (kSvk && !(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
+    if (bits) {
+      r.health |= bits;
+      if ((bits & kElementInverted) && r.inverted_count++ == 0)
+        r.first_inverted = t0 + l;
+      if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
+        r.first_collapsing = t0 + l;
+    }
+  }
+}
+
+// The element pass over chunks with the batched SVK or linear kernel, float64 element math.
 template <bool kSvk>
 ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
@@ -106,73 +177,114 @@ ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin
   const Tet* tets = m.tets.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
+    double energy = 0;  // r.elastic_energy, in a register
     const int64_t begin = chunk * kTetChunk;
     const int64_t end = std::min(nt, begin + kTetChunk);
     for (int64_t t0 = begin; t0 < end; t0 += 4) {
       // Lanes past the end repeat the last tetrahedron; their results are dropped.
       const int lanes = static_cast<int>(std::min<int64_t>(4, end - t0));
-      size_t t[4];
-      for (int l = 0; l < 4; ++l) t[l] = static_cast<size_t>(t0 + std::min(l, lanes - 1));
+      const Tet* tb = tets + t0;
+      Tet tail[4];
+      if (lanes < 4) {
+        for (int l = 0; l < 4; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
+        tb = tail;
+      }
       // Shape and material: 15 four-lane loads from the model's batch layout.
       const double* batch = m.cpu_tet_batches.data() + (t0 / 4) * kCpuTetBatchStride;
-      auto load = [batch](int k) {
-        P4 lanes4;
-        std::memcpy(&lanes4.v, batch + 4 * k, sizeof lanes4.v);
-        return lanes4;
-      };
       TetShape<P4> shape;
       for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load(3 * j + i);
-      shape.volume = load(12);
-      const P4 lambda = load(13);
-      const P4 mu = load(14);
-      // Edge displacements formed in double per lane, exactly as tet_displacement_gradient.
+        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(batch + 4 * (3 * j + i));
+      shape.volume = load4(batch + 4 * 12);
+      const P4 lambda = load4(batch + 4 * 13);
+      const P4 mu = load4(batch + 4 * 14);
       Vec3<P4> du[3];
-      for (int e = 0; e < 3; ++e)
-        for (int i = 0; i < 3; ++i)
-          du[e][i] = gather4(t, [&](size_t q) {
-            return ug[tets[q][e + 1]][i] - ug[tets[q][0]][i];
-          });
-      const Mat3<P4> h = tet_displacement_gradient_from_edges(shape, du);
-      P4 psi;
-      Mat3<P4> p;
-      P4 det_f, m1, m2, det_a;
-      if constexpr (kSvk) {
-        const Mat3<P4> e = green_strain(h);
-        // Health, as tet_health_from_strain computes it.
-        Mat3<P4> f = h;
-        for (int i = 0; i < 3; ++i) f.m[i][i] += P4(1.0);
-        det_f = determinant(f);
-        Mat3<P4> a = P4(2.0) * e;
-        const P4 shift = P4(1.0) - P4(kSvkCollapseStretch) * P4(kSvkCollapseStretch);
-        for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
-        m1 = a.m[0][0];
-        m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
-        det_a = determinant(a);
-        const Mat3<P4> stress = isotropic_stress(e, lambda, mu, &psi);
-        p = stress + h * stress;
-      } else {
-        det_f = determinant(Mat3<P4>::identity() + h);
-        p = isotropic_stress(small_strain(h), lambda, mu, &psi);
-      }
+      batch_edges(ug, tb, du);
       Vec3<P4> f[4];
-      tet_forces_from_stress(shape, p, f);
-      const P4 w = shape.volume * psi;
-      for (int l = 0; l < lanes; ++l) {
-        const size_t tl = t[l];
-        for (int c = 0; c < 4; ++c) out[4 * tl + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
-        r.elastic_energy += w.v[l];
-        uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
-        if (kSvk && !(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
-        if (bits) {
-          r.health |= bits;
-          if ((bits & kElementInverted) && r.inverted_count++ == 0)
-            r.first_inverted = static_cast<int64_t>(tl);
-          if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
-            r.first_collapsing = static_cast<int64_t>(tl);
+      P4 w, det_f, m1(0.0), m2(0.0), det_a(0.0);
+      batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
+      if (lanes == 4) {
+        store_corner_forces4(f, &out[4 * t0].x);
+        for (int l = 0; l < 4; ++l) energy += w.v[l];
+      } else {
+        for (int l = 0; l < lanes; ++l) {
+          for (int c = 0; c < 4; ++c)
+            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
+          energy += w.v[l];
         }
       }
+      // Health by lane masks (repeated lanes past the end copy a valid lane).
+      M4 ok = det_f.v > 0.0;
+      if constexpr (kSvk) ok &= (m1.v > 0.0) & (m2.v > 0.0) & (det_a.v > 0.0);
+      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
     }
+    r.elastic_energy = energy;
+    s.tet_chunks[static_cast<size_t>(chunk)] = r;
+  }
+}
+
+// The same with float32 element math (ElementPrecision::kFloat32), eight tetrahedra per pack:
+// edge differences formed in float64 and rounded, shapes and Lame coefficients rounded at build,
+// corner forces widened back to float64 (the CUDA kernels' mixed precision). Lane by lane the
+// fem_element.h functions at T = float, so bit-identical to them.
+template <bool kSvk>
+ZONA_SIMD_CLONES void tet_pass_chunks_batched_f32(void* context, int64_t chunk_begin,
+                                                  int64_t chunk_end) {
+  const Model& m = *static_cast<PassContext*>(context)->model;
+  State& s = *static_cast<PassContext*>(context)->state;
+  const int64_t nt = static_cast<int64_t>(m.tet_count());
+  const Vec3d* ug = s.u.data();
+  Vec3d* out = s.tet_force.data();
+  const Tet* tets = m.tets.data();
+  for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
+    TetChunkResult r;
+    double energy = 0;
+    const int64_t begin = chunk * kTetChunk;
+    const int64_t end = std::min(nt, begin + kTetChunk);
+    for (int64_t t0 = begin; t0 < end; t0 += 8) {
+      const int lanes = static_cast<int>(std::min<int64_t>(8, end - t0));
+      const Tet* tb = tets + t0;
+      Tet tail[8];
+      if (lanes < 8) {
+        for (int l = 0; l < 8; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
+        tb = tail;
+      }
+      const float* batch = m.cpu_tet_batches_f32.data() + (t0 / 8) * kCpuTetBatchStrideF32;
+      TetShape<P8f> shape;
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(batch + 8 * (3 * j + i));
+      shape.volume = load8f(batch + 8 * 12);
+      const P8f lambda = load8f(batch + 8 * 13);
+      const P8f mu = load8f(batch + 8 * 14);
+      Vec3<P4> lo[3], hi[3];
+      batch_edges(ug, tb, lo);
+      batch_edges(ug, tb + 4, hi);
+      Vec3<P8f> du[3];
+      for (int e = 0; e < 3; ++e)
+        du[e] = Vec3<P8f>{narrow(lo[e].x, hi[e].x), narrow(lo[e].y, hi[e].y),
+                          narrow(lo[e].z, hi[e].z)};
+      Vec3<P8f> f[4];
+      P8f w, det_f, m1(0.0f), m2(0.0f), det_a(0.0f);
+      batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
+      if (lanes == 8) {
+        for (int half = 0; half < 2; ++half) {
+          Vec3<P4> fd[4];
+          for (int c = 0; c < 4; ++c)
+            fd[c] = Vec3<P4>{widen(f[c].x, half), widen(f[c].y, half), widen(f[c].z, half)};
+          store_corner_forces4(fd, &out[4 * (t0 + 4 * half)].x);
+        }
+        for (int l = 0; l < 8; ++l) energy += static_cast<double>(w.v[l]);
+      } else {
+        for (int l = 0; l < lanes; ++l) {
+          for (int c = 0; c < 4; ++c)
+            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
+          energy += static_cast<double>(w.v[l]);
+        }
+      }
+      M8 ok = det_f.v > 0.0f;
+      if constexpr (kSvk) ok &= (m1.v > 0.0f) & (m2.v > 0.0f) & (det_a.v > 0.0f);
+      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
+    }
+    r.elastic_energy = energy;
     s.tet_chunks[static_cast<size_t>(chunk)] = r;
   }
 }
@@ -216,6 +328,8 @@ ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
     case Formulation::kGradient:
+      if (m.element_precision == ElementPrecision::kFloat32)  // build_model: no clamp then
+        return svk ? &tet_pass_chunks_batched_f32<true> : &tet_pass_chunks_batched_f32<false>;
       if (!svk) return &tet_pass_chunks_batched<false>;
       return m.inversion == InversionHandling::kClampStretch
                  ? &tet_pass_chunks<SvkGradientClamped>

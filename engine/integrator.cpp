@@ -18,48 +18,71 @@ struct PassContext {
 
 inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z); }
 
+// (a0 b0 + a1 b1) + a2 b2: dot() of the x, y, z lanes, in dot()'s order (the same bits).
+[[gnu::always_inline]] inline double dot3(P4 a, P4 b) {
+  const P4 p = a * b;
+  return (p.v[0] + p.v[1]) + p.v[2];
+}
+
 // Stage 2, per chunk of vertices: gather the elastic force, then the centred-difference update
 // u+ = a u - b u- + c (f_el + f_ext) of free vertices (DESIGN.md section 3); fixed vertices go to
-// zero; prescribed ones are written by apply_prescribed_vertices.
+// zero; prescribed ones are written by apply_prescribed_vertices. Vectors are (x, y, z, 0) packs:
+// lane by lane the Vec3d operations in their order, so the same bits.
 ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
-  const double half_inv_dt = 0.5 / m.dt;
-  const Vec3d* slots = s.tet_force.data();
+  const P4 half_inv_dt(0.5 / m.dt);
+  const double* slots = &s.tet_force.data()->x;
   const int32_t* slot = m.adjacency_slot.data();
   const int32_t* offsets = m.adjacency.offsets.data();
+  const P4 zero = zero4();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     VertexChunkResult r;
-    const int64_t end = std::min(nv, (chunk + 1) * kVertexChunk);
-    for (int64_t vi = chunk * kVertexChunk; vi < end; ++vi) {
+    const int64_t begin = chunk * kVertexChunk;
+    const int64_t end = std::min(nv, begin + kVertexChunk);
+    // next - next is 0 for finite lanes and NaN otherwise; summed over the chunk, one test at
+    // the end finds out whether to look for the first non-finite vertex.
+    P4 probe = zero4();
+    for (int64_t vi = begin; vi < end; ++vi) {
       const size_t v = static_cast<size_t>(vi);
       // gather_vertex_force with x, y, z in the lanes of one pack: the same additions in the
-      // same order, so the same bits, in a third of the instructions.
-      P4 acc(0.0);
-      for (int32_t i = offsets[v]; i < offsets[v + 1]; ++i) acc += load_xyz0(slots[slot[i]]);
-      Vec3d f;
-      store_xyz(acc, f);
-      const Vec3d f_ext = s.external_force[v];
-      s.force[v] = f;
-      Vec3d next = s.u[v];  // prescribed: overwritten by the next stage
+      // same order, so the same bits. One 32-byte load per corner (x, y, z and the next slot's
+      // x): State::tet_force has a padding slot.
+      P4 acc = zero4();
+#pragma GCC unroll 4
+      for (int32_t i = offsets[v]; i < offsets[v + 1]; ++i)
+        acc += load4(slots + 3 * size_t{static_cast<uint32_t>(slot[i])});
+      // Lane 3 of f (that x) and of everything formed from it is never stored or summed:
+      // dot3, store_xyz and the probe read lanes 0-2.
+      const P4 f = acc;
+      const P4 f_ext = load_xyzz(s.external_force[v]);
+      store_xyz(f, s.force[v]);
+      P4 next = load_xyzz(s.u[v]);  // prescribed: overwritten by the next stage
       if (s.vertex_constraint[v] == kVertexFree) {
         const VertexCoefficients& k = m.vertex_coefficients[v];
-        const Vec3d f_total = f + f_ext;
-        const Vec3d up = s.u_prev[v];
-        next = k.a * s.u[v] - k.b * up + k.c * f_total;
-        const Vec3d du = next - up;  // = 2 dt v_n
-        const Vec3d vel = half_inv_dt * du;
-        r.kinetic_energy += 0.5 * m.vertex_mass[v] * dot(vel, vel);
-        r.input_work += 0.5 * dot(f_ext, du);
-        r.residual_sq += dot(f_total, f_total);
+        const P4 f_total = f + f_ext;
+        const P4 up = load_xyzz(s.u_prev[v]);
+        next = P4(k.a) * next - P4(k.b) * up + P4(k.c) * f_total;
+        const P4 du = next - up;  // = 2 dt v_n
+        const P4 vel = half_inv_dt * du;
+        r.kinetic_energy += 0.5 * m.vertex_mass[v] * dot3(vel, vel);
+        r.input_work += 0.5 * dot3(f_ext, du);
+        r.residual_sq += dot3(f_total, f_total);
       } else {
-        if (s.vertex_constraint[v] == kVertexFixed) next = Vec3d{0, 0, 0};
-        r.reference_sq += dot(f, f);
+        if (s.vertex_constraint[v] == kVertexFixed) next = zero;
+        r.reference_sq += dot3(f, f);
       }
-      r.reference_sq += dot(f_ext, f_ext);
-      if (!finite3(next) && r.first_nonfinite < 0) r.first_nonfinite = vi;
-      s.u_next[v] = next;
+      r.reference_sq += dot3(f_ext, f_ext);
+      probe += next - next;
+      store_xyz(next, s.u_next[v]);
+    }
+    if (!(probe.v[0] == 0 && probe.v[1] == 0 && probe.v[2] == 0)) {
+      for (int64_t vi = begin; vi < end; ++vi)
+        if (!finite3(s.u_next[static_cast<size_t>(vi)])) {
+          r.first_nonfinite = vi;
+          break;
+        }
     }
     s.vertex_chunks[static_cast<size_t>(chunk)] = r;
   }

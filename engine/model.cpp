@@ -47,6 +47,15 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
     return make_error(
         "model: inversion-safe SVK (clamped stretches) needs the svk model in the gradient "
         "formulation");
+  if (d.element_precision != ElementPrecision::kFloat64 &&
+      d.element_precision != ElementPrecision::kFloat32)
+    return make_error("model: element_precision %d is neither float64 (0) nor float32 (1)",
+                      static_cast<int>(d.element_precision));
+  if (d.element_precision == ElementPrecision::kFloat32 &&
+      (d.formulation != Formulation::kGradient || d.inversion != InversionHandling::kReport))
+    return make_error(
+        "model: float32 element math is implemented for the gradient formulation without the "
+        "stretch clamp only");
   for (int32_t v : d.fixed_vertices)
     if (v < 0 || static_cast<size_t>(v) >= mesh.vertex_count())
       return make_error("model: fixed vertex %d out of range [0, %zu)", v, mesh.vertex_count());
@@ -80,6 +89,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.constitutive = desc.constitutive;
   model.formulation = desc.formulation;
   model.inversion = desc.inversion;
+  model.element_precision = desc.element_precision;
   model.clamp_stretch = desc.clamp_stretch;
   model.energy_blowup_factor = desc.energy_blowup_factor;
   model.unsafe_allow_dt_above_critical = desc.unsafe_allow_dt_above_critical;
@@ -232,6 +242,23 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
       out[4 * 14] = model.tet_lame(t).mu;
     }
 
+  if (desc.element_precision == ElementPrecision::kFloat32) {
+    // The same layout in batches of eight, rounded to float (what the float32 pass loads).
+    const size_t batches8 = (nt + 7) / 8;
+    model.cpu_tet_batches_f32.assign(batches8 * kCpuTetBatchStrideF32, 0.0f);
+    for (size_t b = 0; b < batches8; ++b)
+      for (size_t l = 0; l < 8; ++l) {
+        const size_t t = std::min(8 * b + l, nt - 1);
+        float* out = model.cpu_tet_batches_f32.data() + b * kCpuTetBatchStrideF32 + l;
+        const TetShape<double>& shape = model.tet_shape[t];
+        for (int j = 0; j < 4; ++j)
+          for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = static_cast<float>(shape.grad[j][i]);
+        out[8 * 12] = static_cast<float>(shape.volume);
+        out[8 * 13] = static_cast<float>(model.tet_lame(t).lambda);
+        out[8 * 14] = static_cast<float>(model.tet_lame(t).mu);
+      }
+  }
+
   if (desc.formulation == Formulation::kTensorStored) {
     const auto tensor_start = std::chrono::steady_clock::now();
     compute_mass_tensors(model.tet_shape, model.tet_material, model.material_lame,
@@ -251,10 +278,12 @@ std::string describe_model(const Model& model) {
                                                                      : "tensor_rebuilt";
   char line[512];
   std::snprintf(line, sizeof line,
-                "%zu vertices, %zu tets, %s (%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
+                "%zu vertices, %zu tets, %s (%s%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
                 "c_d %.4g m/s), mass scaling %g, precompute %.3f ms",
                 model.vertex_count(), model.tet_count(), cm, fm,
-                model.inversion == InversionHandling::kClampStretch ? ", clamped" : "", model.dt,
+                model.inversion == InversionHandling::kClampStretch ? ", clamped" : "",
+                model.element_precision == ElementPrecision::kFloat32 ? ", float32 elements" : "",
+                model.dt,
                 model.dt_critical, model.omega_max > 0 ? "2/omega_max" : "element bound",
                 model.min_altitude, model.max_wave_speed, model.mass_scaling,
                 model.precompute_seconds * 1e3);

@@ -20,6 +20,14 @@ enum class InversionHandling : int32_t {
   kClampStretch = 1,  ///< inversion-safe SVK: principal stretches clamped (fem_element.h)
 };
 
+/// Precision of the CPU element math (the gradient form). Displacements, their edge differences,
+/// corner forces, their sums and the update stay float64 either way (as on the GPU); docs/physics.md
+/// and docs/performance.md give the error and the speed of each.
+enum class ElementPrecision : int32_t {
+  kFloat64 = 0,  ///< the reference: four tetrahedra per AVX2 pack
+  kFloat32 = 1,  ///< strain, stress and forces in float32: eight tetrahedra per AVX2 pack
+};
+
 /// How the critical (largest stable) time step is computed; docs/physics.md compares them.
 enum class CriticalStep : int32_t {
   /// Element eigenvalue bound (default, rigorous for the linearised model): omega_max^2 is at
@@ -76,10 +84,15 @@ struct ModelDesc {
   bool unsafe_allow_dt_above_critical = false;
   /// Threads used by the precompute (1: serial). Does not change the result.
   int precompute_threads = 1;
+  /// CPU element math precision; kFloat32 needs the gradient form without the stretch clamp.
+  /// The CUDA backend always evaluates elements in float32 and ignores this.
+  ElementPrecision element_precision = ElementPrecision::kFloat64;
 };
 
 /// Doubles per batch of four tetrahedra in Model::cpu_tet_batches.
 inline constexpr int kCpuTetBatchStride = 60;
+/// Floats per batch of eight tetrahedra in Model::cpu_tet_batches_f32.
+inline constexpr int kCpuTetBatchStrideF32 = 120;
 
 /// Integration coefficients of one vertex for the centred-difference update
 /// u+ = a u - b u- + c f (DESIGN.md section 3), with gamma = alpha M:
@@ -118,6 +131,11 @@ struct Model {
   /// lambda, mu; lane l = tetrahedron 4 b + l, the last one repeated past the end),
   /// (ceil(tet_count / 4) x 60). Same numbers as tet_shape and tet_lame.
   std::vector<double> cpu_tet_batches;
+  /// CPU element math precision (ModelDesc::element_precision).
+  ElementPrecision element_precision = ElementPrecision::kFloat64;
+  /// kFloat32 only: the same numbers rounded to float in batches of eight (lane l = tetrahedron
+  /// 8 b + l, the last one repeated past the end), (ceil(tet_count / 8) x 120); empty otherwise.
+  std::vector<float> cpu_tet_batches_f32;
 
   // Masses and boundary conditions.
   std::vector<double> vertex_mass;          ///< lumped mass, scaled [kg], (vertex_count)

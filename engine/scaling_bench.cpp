@@ -627,6 +627,8 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       // does not depend on dt.
       desc.dt_safety = 0.5;
       desc.precompute_threads = resolve_threads(job.threads);
+      if (!gpu && job.formulation == Formulation::kGradient)
+        desc.element_precision = config.element_precision;
       std::optional<Model> model;
       std::vector<double> precompute, tensor_precompute;
       double build_total = 0;
@@ -715,6 +717,8 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       row.status = step_flag_names(status, flags);
       if (stopped) row.status += "|stopped";
       row.state_hash = displacement_hash(state.u);
+      row.precision =
+          gpu || model->element_precision == ElementPrecision::kFloat32 ? "float32" : "float64";
       ++progress.row;
       report(label, "done");
       if (hooks.row) hooks.row(row);
@@ -731,7 +735,7 @@ std::string scaling_csv_header() {
   return "backend,model,formulation,threads,threads_requested,target_vertices,vertices,tets,mesh_ms,precompute_ms,"
          "tensor_precompute_ms,upload_ms,steps,repeats,step_ms_median,step_ms_p10,step_ms_p90,"
          "steps_per_s,bytes_per_step,gb_per_s,copy_gb_per_s,floor_ms,floor_ratio,status,"
-         "state_hash";
+         "state_hash,precision";
 }
 
 std::string scaling_csv_comments(const ScalingBenchResult& result,
@@ -789,7 +793,7 @@ std::string scaling_csv_row(const ScalingRow& r) {
       << format_double(r.steps_per_s) << ',' << format_double(r.bytes_per_step, "%.0f") << ','
       << format_double(r.gb_per_s, "%.4g") << ',' << format_double(r.copy_gb_per_s, "%.4g") << ','
       << format_double(r.floor_ms) << ',' << format_double(r.floor_ratio, "%.4g") << ','
-      << r.status << ',' << hash;
+      << r.status << ',' << hash << ',' << r.precision;
   return out.str();
 }
 

@@ -62,6 +62,9 @@ struct ScalingBenchConfig {
   /// A backend that cannot be created (no CUDA, no device) is skipped with one notice instead
   /// of failing the run (`--backend all`).
   bool skip_unavailable_backends = false;
+  /// Element math precision of the CPU rows (ModelDesc::element_precision); the GPU rows are
+  /// float32 elements always.
+  ElementPrecision element_precision = ElementPrecision::kFloat64;
 };
 
 /// The machine the numbers were taken on; written as the CSV's header comment lines.
@@ -107,6 +110,7 @@ struct ScalingRow {
   double floor_ratio = 0;   ///< step_ms_median / floor_ms [-]
   std::string status;       ///< "ok" or the step flags seen (describe_step_status)
   uint64_t state_hash = 0;  ///< FNV-1a of the final float64 displacements (displacement_hash)
+  std::string precision = "float64";  ///< element math: "float64" or "float32"
 };
 
 /// What the run is doing, for a progress bar.

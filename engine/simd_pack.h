@@ -1,9 +1,11 @@
-// Four-lane double packs (GCC vector extensions) for the CPU backend's batched loops, and the
-// attribute that builds an AVX2 clone beside the baseline one. Each lane performs exactly the
-// scalar operations in the scalar order, so packed results are bit-identical to scalar code.
+// Four-lane double and eight-lane float packs (GCC vector extensions) for the CPU backend's
+// batched loops, and the attribute that builds an AVX2 clone beside the baseline one. Each lane
+// performs exactly the scalar operations in the scalar order, so packed results are
+// bit-identical to scalar code of the same precision.
 #pragma once
 
 #include <cstring>
+#include <type_traits>
 
 #include "engine/vec.h"
 
@@ -51,10 +53,161 @@ ZONA_P4_OP(/)
   return a;
 }
 
+/// All four lanes 0 (a plain vxorpd; P4(0.0) can compile to lane-by-lane inserts).
+[[gnu::always_inline]] inline P4 zero4() {
+  P4 r;
+  r.v = V4{};
+  return r;
+}
+
+/// Lane masks of a P4 comparison: -1 where it holds, 0 where not.
+typedef decltype(V4{} > V4{}) M4;
+/// Two doubles (half a pack).
+typedef double V2 __attribute__((vector_size(16)));
+
+/// Four doubles from p (any alignment; all four must be readable).
+[[gnu::always_inline]] inline P4 load4(const double* p) {
+  P4 r;
+  std::memcpy(&r.v, p, sizeof r.v);
+  return r;
+}
+
+/// Stores the four lanes of `a` at p (any alignment).
+[[gnu::always_inline]] inline void store4(P4 a, double* p) { std::memcpy(p, &a.v, sizeof a.v); }
+
+/// True when every lane of the mask holds (no lane is 0).
+[[gnu::always_inline]] inline bool all_lanes(M4 m) {
+  m &= __builtin_shufflevector(m, m, 2, 3, 0, 1);
+  m &= __builtin_shufflevector(m, m, 1, 0, 3, 2);
+  return m[0] != 0;
+}
+
+/// The x, y and z packs of four Vec3d (lane l from a_l): a 16-byte load of (x, y) per vector,
+/// two unpacks, and the four z gathered. Loads nothing past any vector's end.
+[[gnu::always_inline]] inline void load_xyz_transposed(const Vec3d& a0, const Vec3d& a1,
+                                                       const Vec3d& a2, const Vec3d& a3, P4& x,
+                                                       P4& y, P4& z) {
+  V2 l0, l1, l2, l3;
+  std::memcpy(&l0, &a0, sizeof l0);
+  std::memcpy(&l1, &a1, sizeof l1);
+  std::memcpy(&l2, &a2, sizeof l2);
+  std::memcpy(&l3, &a3, sizeof l3);
+  const V4 a = __builtin_shufflevector(l0, l2, 0, 1, 2, 3);  // x0 y0 x2 y2
+  const V4 b = __builtin_shufflevector(l1, l3, 0, 1, 2, 3);  // x1 y1 x3 y3
+  x.v = __builtin_shufflevector(a, b, 0, 4, 2, 6);
+  y.v = __builtin_shufflevector(a, b, 1, 5, 3, 7);
+  z = P4(a0.z, a1.z, a2.z, a3.z);
+}
+
+/// 4 x 4 transpose in place: afterwards r[i] holds lane i of the packs r[0..3] as given.
+[[gnu::always_inline]] inline void transpose4(P4 r[4]) {
+  const V4 t0 = __builtin_shufflevector(r[0].v, r[1].v, 0, 4, 2, 6);
+  const V4 t1 = __builtin_shufflevector(r[0].v, r[1].v, 1, 5, 3, 7);
+  const V4 t2 = __builtin_shufflevector(r[2].v, r[3].v, 0, 4, 2, 6);
+  const V4 t3 = __builtin_shufflevector(r[2].v, r[3].v, 1, 5, 3, 7);
+  r[0].v = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);
+  r[1].v = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);
+  r[2].v = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);
+  r[3].v = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Eight-lane float packs for the float32 element math (ElementPrecision::kFloat32): each lane
+// performs the scalar float operations of fem_element.h<float> in their order.
+
+/// Eight floats in one 256-bit register (AVX) or two 128-bit ones (baseline).
+typedef float F8 __attribute__((vector_size(32)));
+/// Four floats (half an F8).
+typedef float F4 __attribute__((vector_size(16)));
+/// Lane masks of an F8 comparison.
+typedef decltype(F8{} > F8{}) M8;
+
+/// Eight floats operated on lane by lane.
+struct P8f {
+  F8 v;
+  P8f() = default;
+  /// Every lane static_cast<float>(x), as T(x) is for T = float.
+  template <class S>
+    requires std::is_arithmetic_v<S>
+  P8f(S x) {  // NOLINT: implicit, as T(0.5) and T x = 0 need
+    const float f = static_cast<float>(x);
+    v = F8{f, f, f, f, f, f, f, f};
+  }
+};
+#define ZONA_P8_OP(op)                                                                   \
+  [[gnu::always_inline]] inline P8f operator op(P8f a, P8f b) {                         \
+    P8f r;                                                                               \
+    r.v = a.v op b.v;                                                                    \
+    return r;                                                                            \
+  }
+ZONA_P8_OP(+)
+ZONA_P8_OP(-)
+ZONA_P8_OP(*)
+ZONA_P8_OP(/)
+#undef ZONA_P8_OP
+[[gnu::always_inline]] inline P8f operator-(P8f a) {
+  P8f r;
+  r.v = -a.v;
+  return r;
+}
+[[gnu::always_inline]] inline P8f& operator+=(P8f& a, P8f b) {
+  a.v += b.v;
+  return a;
+}
+[[gnu::always_inline]] inline P8f& operator-=(P8f& a, P8f b) {
+  a.v -= b.v;
+  return a;
+}
+
+/// Eight floats from p (any alignment).
+[[gnu::always_inline]] inline P8f load8f(const float* p) {
+  P8f r;
+  std::memcpy(&r.v, p, sizeof r.v);
+  return r;
+}
+
+/// Two double packs rounded to float (round to nearest, as static_cast<float>): lanes 0-3 from
+/// lo, 4-7 from hi.
+[[gnu::always_inline]] inline P8f narrow(P4 lo, P4 hi) {
+  const F4 a = __builtin_convertvector(lo.v, F4);
+  const F4 b = __builtin_convertvector(hi.v, F4);
+  P8f r;
+  r.v = __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7);
+  return r;
+}
+
+/// Lanes 0-3 (half 0) or 4-7 (half 1) of a float pack widened to double (exact).
+[[gnu::always_inline]] inline P4 widen(P8f a, int half) {
+  const F4 q = half == 0 ? __builtin_shufflevector(a.v, a.v, 0, 1, 2, 3)
+                         : __builtin_shufflevector(a.v, a.v, 4, 5, 6, 7);
+  P4 r;
+  r.v = __builtin_convertvector(q, V4);
+  return r;
+}
+
+/// True when every lane of the mask holds.
+[[gnu::always_inline]] inline bool all_lanes(M8 m) {
+  m &= __builtin_shufflevector(m, m, 4, 5, 6, 7, 0, 1, 2, 3);
+  m &= __builtin_shufflevector(m, m, 2, 3, 0, 1, 6, 7, 4, 5);
+  m &= __builtin_shufflevector(m, m, 1, 0, 3, 2, 5, 4, 7, 6);
+  return m[0] != 0;
+}
+
 /// (x, y, z, 0) of a Vec3d: a 16-byte and an 8-byte load, never past the vector's end.
 [[gnu::always_inline]] inline P4 load_xyz0(const Vec3d& a) { return P4(a.x, a.y, a.z, 0.0); }
 
+/// (x, y, z, z) of a Vec3d, for code that ignores lane 3: no zeroing instruction (valgrind 3.19,
+/// which the instruction counts in docs/performance.md come from, cannot decode the register
+/// form of vmovq that zeroing compiles to).
+[[gnu::always_inline]] inline P4 load_xyzz(const Vec3d& a) { return P4(a.x, a.y, a.z, a.z); }
+
 /// Stores lanes 0-2 of `a` into a Vec3d (24 bytes, never past its end).
-[[gnu::always_inline]] inline void store_xyz(P4 a, Vec3d& out) { std::memcpy(&out, &a.v, 24); }
+/// From registers (a 16-byte store and an 8-byte one): a memcpy from the pack's own bytes makes
+/// GCC keep the pack, and the loop that accumulates it, in memory.
+[[gnu::always_inline]] inline void store_xyz(P4 a, Vec3d& out) {
+  const V2 lo = __builtin_shufflevector(a.v, a.v, 0, 1);
+  std::memcpy(&out, &lo, sizeof lo);
+  out.z = a.v[2];
+}
 
 }  // namespace zona

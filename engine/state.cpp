@@ -20,7 +20,8 @@ State make_state(const Model& model, int thread_count) {
   s.prescribed_displacement.reserve(nv);
   s.vertex_constraint.assign(nv, kVertexFree);
   for (int32_t v : model.fixed_vertices) s.vertex_constraint[v] = kVertexFixed;
-  s.tet_force.assign(4 * nt, zero);
+  // One slot more than the corners: the vertex pass loads 32 bytes from each 24-byte slot.
+  s.tet_force.assign(4 * nt + 1, zero);
   s.tet_chunks.resize(static_cast<size_t>((static_cast<int64_t>(nt) + kTetChunk - 1) / kTetChunk));
   s.vertex_chunks.resize(
       static_cast<size_t>((static_cast<int64_t>(nv) + kVertexChunk - 1) / kVertexChunk));

@@ -93,7 +93,8 @@ struct State {
 
   // Scratch, sized once by make_state.
   std::vector<Vec3d> u_next;     ///< u_{n+1} before it is accepted [m], (vertex_count)
-  /// Per-element corner forces [N], (4 tet_count): corner c of tetrahedron t at 4 t + c.
+  /// Per-element corner forces [N], (4 tet_count + 1): corner c of tetrahedron t at 4 t + c;
+  /// the last slot is padding (zero) so that a 32-byte load from any corner slot stays inside.
   std::vector<Vec3d> tet_force;
   std::vector<TetChunkResult> tet_chunks;        ///< (ceil(tet_count / kTetChunk))
   std::vector<VertexChunkResult> vertex_chunks;  ///< (ceil(vertex_count / kVertexChunk))

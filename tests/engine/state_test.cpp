@@ -20,7 +20,7 @@ TEST(State, MakeStateSizesEverything) {
   EXPECT_EQ(s.u.size(), m.vertex_count());
   EXPECT_EQ(s.u_prev.size(), m.vertex_count());
   EXPECT_EQ(s.u_next.size(), m.vertex_count());
-  EXPECT_EQ(s.tet_force.size(), 4 * m.tet_count());
+  EXPECT_EQ(s.tet_force.size(), 4 * m.tet_count() + 1);  // + the padding slot
   EXPECT_EQ(s.tet_chunks.size(), (m.tet_count() + kTetChunk - 1) / kTetChunk);
   EXPECT_EQ(s.vertex_constraint[0], kVertexFixed);
   EXPECT_EQ(s.vertex_constraint[2], kVertexFree);

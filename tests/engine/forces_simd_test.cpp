@@ -1,0 +1,226 @@
+// The CPU element pass's packed kernels against the scalar element functions: float64 (four
+// tetrahedra per pack) bit for bit, float32 (eight per pack, ElementPrecision::kFloat32) bit for
+// bit against fem_element.h at T = float and within a stated tolerance of float64, health bits
+// through the packed masks, and determinism of the float32 step for any thread count.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#include "engine/forces_cpu.h"
+#include "engine/integrator.h"
+#include "tests/engine/physics_test_meshes.h"
+
+namespace zona {
+namespace {
+
+using testing::box_mesh;
+using testing::vertices_where;
+
+constexpr double kL = 10e-6;  // box edge [m]
+
+// 3 x 3 x 3 cubes: 162 tetrahedra, two chunks, the last batch of four and of eight partial.
+Mesh test_box() { return box_mesh({0, 0, 0}, {kL, kL, kL}, 3, 3, 3); }
+
+Model build(const Mesh& mesh, ConstitutiveModel law, ElementPrecision precision) {
+  ModelDesc d;
+  d.constitutive = law;
+  d.element_precision = precision;
+  Result<Model> m = build_model(mesh, d);
+  EXPECT_TRUE(m.ok()) << (m.ok() ? "" : m.error().message);
+  return std::move(m).value();
+}
+
+// A smooth non-affine displacement with strains of order `strain`, plus a rigid offset much
+// larger than the strain displacements (the float32 path forms edge differences in float64).
+std::vector<Vec3d> wavy(const Mesh& mesh, double strain) {
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) {
+    const Vec3d x = mesh.rest_positions[v] / kL;
+    u[v] = strain * kL *
+               Vec3d{std::sin(2.0 * x.y + 0.3) * x.x, 0.5 * std::cos(1.5 * x.z) * x.y + x.x * x.x,
+                     -0.4 * x.z * x.x + 0.3 * std::sin(x.y)} +
+           Vec3d{3 * kL, -2 * kL, kL};
+  }
+  return u;
+}
+
+State loaded_state(const Model& model, const std::vector<Vec3d>& u, int threads) {
+  State s = make_state(model, threads);
+  set_displacement(s, u);
+  return s;
+}
+
+// Scalar reference of one element in the pass's precision: forces [N], energy [J], health bits.
+template <class T>
+double scalar_element(const Model& m, size_t t, const std::vector<Vec3d>& u, Vec3d f[4],
+                      uint32_t* bits) {
+  const Tet& e = m.tets[t];
+  Vec3<T> du[3];
+  for (int k = 0; k < 3; ++k) du[k] = vec_cast<T>(u[e[k + 1]] - u[e[0]]);  // double, then round
+  const TetShape<T> s = tet_shape_cast<T>(m.tet_shape[t]);
+  const T lambda = static_cast<T>(m.tet_lame(t).lambda), mu = static_cast<T>(m.tet_lame(t).mu);
+  const Mat3<T> h = tet_displacement_gradient_from_edges(s, du);
+  Mat3<T> p;
+  T psi;
+  if (m.constitutive == ConstitutiveModel::kSvk) {
+    const Mat3<T> strain = green_strain(h);
+    *bits = tet_health_from_strain(h, strain);
+    const Mat3<T> stress = isotropic_stress(strain, lambda, mu, &psi);
+    p = stress + h * stress;
+  } else {
+    *bits = determinant(Mat3<T>::identity() + h) > T(0) ? 0u : uint32_t{kElementInverted};
+    p = isotropic_stress(small_strain(h), lambda, mu, &psi);
+  }
+  Vec3<T> ft[4];
+  tet_forces_from_stress(s, p, ft);
+  for (int c = 0; c < 4; ++c) f[c] = vec_cast<double>(ft[c]);
+  return static_cast<double>(s.volume * psi);
+}
+
+// Every corner force of the pass equals the scalar element function's, bit for bit, and the
+// energy the scalar energies' sum.
+template <class T>
+void expect_pass_equals_scalar(ConstitutiveModel law, ElementPrecision precision) {
+  const Mesh mesh = test_box();
+  const Model model = build(mesh, law, precision);
+  const std::vector<Vec3d> u = wavy(mesh, 0.2);
+  State s = loaded_state(model, u, 2);
+  compute_tet_forces(model, s);
+  StepDiagnostics d;
+  reduce_tet_chunks(s, d);
+  double energy = 0;
+  for (size_t t = 0; t < model.tet_count(); ++t) {
+    Vec3d f[4];
+    uint32_t bits = 0;
+    energy += scalar_element<T>(model, t, u, f, &bits);
+    for (int c = 0; c < 4; ++c)
+      EXPECT_EQ(std::memcmp(&s.tet_force[4 * t + c], &f[c], sizeof(Vec3d)), 0)
+          << "tet " << t << " corner " << c;
+  }
+  EXPECT_NEAR(d.elastic_energy, energy, 1e-13 * energy);
+  EXPECT_GT(energy, 0);
+  EXPECT_EQ(d.element_health, 0u);
+}
+
+TEST(SimdElementPass, Float64CornerForcesEqualTheScalarFunctionsBitForBit) {
+  expect_pass_equals_scalar<double>(ConstitutiveModel::kSvk, ElementPrecision::kFloat64);
+  expect_pass_equals_scalar<double>(ConstitutiveModel::kLinear, ElementPrecision::kFloat64);
+}
+
+TEST(SimdElementPass, Float32CornerForcesEqualTheScalarFloatFunctionsBitForBit) {
+  expect_pass_equals_scalar<float>(ConstitutiveModel::kSvk, ElementPrecision::kFloat32);
+  expect_pass_equals_scalar<float>(ConstitutiveModel::kLinear, ElementPrecision::kFloat32);
+}
+
+// The stated tolerance of float32 element math (docs/performance.md): vertex forces within
+// 2e-6 of the largest force, energy within 1e-6, at strains of 2 % and 20 %.
+TEST(SimdElementPass, Float32ForcesAreWithinTheStatedToleranceOfFloat64) {
+  const Mesh mesh = test_box();
+  for (ConstitutiveModel law : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear})
+    for (double strain : {0.02, 0.2}) {
+      const std::vector<Vec3d> u = wavy(mesh, strain);
+      const Model m64 = build(mesh, law, ElementPrecision::kFloat64);
+      const Model m32 = build(mesh, law, ElementPrecision::kFloat32);
+      State s64 = loaded_state(m64, u, 1), s32 = loaded_state(m32, u, 1);
+      compute_elastic_forces(m64, s64);
+      compute_elastic_forces(m32, s32);
+      double scale = 0, err = 0;
+      for (size_t v = 0; v < u.size(); ++v) {
+        scale = std::max(scale, norm(s64.force[v]));
+        err = std::max(err, norm(s32.force[v] - s64.force[v]));
+      }
+      EXPECT_GT(err, 0) << "float32 must differ from float64 somewhere";
+      EXPECT_LE(err, 2e-6 * scale) << "strain " << strain;
+      EXPECT_NEAR(s32.diag.elastic_energy, s64.diag.elastic_energy,
+                  1e-6 * s64.diag.elastic_energy);
+    }
+}
+
+// Inverted and collapsing elements around one vertex pushed through its neighbours: the packed
+// masks give the scalar functions' counts and first offenders, in both precisions.
+TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
+  const Mesh mesh = test_box();
+  std::vector<Vec3d> u(mesh.vertex_count(), Vec3d{0, 0, 0});
+  const size_t inner = 1 + 4 * (1 + 4 * 1);  // vertex (1, 1, 1)
+  u[inner] = Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
+  u[inner + 1] = Vec3d{-0.2 * kL, 0, 0};
+  for (ElementPrecision precision : {ElementPrecision::kFloat64, ElementPrecision::kFloat32}) {
+    const Model m = build(mesh, ConstitutiveModel::kSvk, precision);
+    State s = loaded_state(m, u, 2);
+    compute_tet_forces(m, s);
+    StepDiagnostics d;
+    reduce_tet_chunks(s, d);
+    int64_t inverted = 0, collapsing = 0, first_inverted = -1, first_collapsing = -1;
+    for (size_t t = 0; t < m.tet_count(); ++t) {
+      Vec3d f[4];
+      uint32_t bits = 0;
+      if (precision == ElementPrecision::kFloat64)
+        scalar_element<double>(m, t, u, f, &bits);
+      else
+        scalar_element<float>(m, t, u, f, &bits);
+      if ((bits & kElementInverted) && inverted++ == 0) first_inverted = static_cast<int64_t>(t);
+      if ((bits & kElementCollapsing) && collapsing++ == 0)
+        first_collapsing = static_cast<int64_t>(t);
+    }
+    ASSERT_GT(inverted, 0);
+    ASSERT_GT(collapsing, 0);
+    EXPECT_EQ(d.inverted_count, inverted);
+    EXPECT_EQ(d.collapsing_count, collapsing);
+    EXPECT_EQ(d.first_inverted, first_inverted);
+    EXPECT_EQ(d.first_collapsing, first_collapsing);
+    EXPECT_EQ(d.element_health, uint32_t{kElementInverted | kElementCollapsing});
+  }
+}
+
+// The float32 step is as deterministic as the float64 one: the same bits for 1, 2 and 3 threads
+// and on a second run.
+TEST(SimdElementPass, Float32StepIsBitwiseIdenticalForAnyThreadCount) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 5, 4, 4);
+  ModelDesc d;
+  d.fixed_vertices = vertices_where(mesh, 2, 0.0, 1e-9 * kL);
+  d.material.damping = 1e5;
+  d.element_precision = ElementPrecision::kFloat32;
+  const Model m = build_model(mesh, d).value();
+  std::vector<Vec3d> u0(mesh.vertex_count(), Vec3d{0, 0, 0});
+  for (size_t v = 0; v < u0.size(); ++v)
+    if (!m.vertex_fixed[v]) u0[v] = 0.03 * mesh.rest_positions[v].z * Vec3d{1, -0.5, 0.2};
+  std::vector<std::vector<Vec3d>> finals;
+  std::vector<double> energies;
+  for (int threads : {1, 2, 3, 2}) {
+    State s = loaded_state(m, u0, threads);
+    for (int i = 0; i < 40; ++i) ASSERT_EQ(step(m, s) & kStepNotAdvanced, 0u);
+    finals.push_back(s.u);
+    energies.push_back(s.diag.elastic_energy + s.diag.kinetic_energy);
+  }
+  for (size_t i = 1; i < finals.size(); ++i) {
+    EXPECT_EQ(std::memcmp(finals[0].data(), finals[i].data(), finals[0].size() * sizeof(Vec3d)),
+              0);
+    EXPECT_EQ(std::memcmp(&energies[0], &energies[i], sizeof(double)), 0);
+  }
+}
+
+TEST(SimdElementPass, Float32IsRefusedWhereItIsNotImplemented) {
+  const Mesh mesh = test_box();
+  ModelDesc d;
+  d.element_precision = ElementPrecision::kFloat32;
+  d.formulation = Formulation::kTensorRebuilt;
+  const Result<Model> tensor = build_model(mesh, d);
+  ASSERT_FALSE(tensor.ok());
+  EXPECT_NE(tensor.error().message.find("float32"), std::string::npos);
+  d.formulation = Formulation::kGradient;
+  d.inversion = InversionHandling::kClampStretch;
+  EXPECT_FALSE(build_model(mesh, d).ok());
+  d.inversion = InversionHandling::kReport;
+  d.element_precision = static_cast<ElementPrecision>(7);
+  EXPECT_FALSE(build_model(mesh, d).ok());
+  d.element_precision = ElementPrecision::kFloat32;
+  const Result<Model> ok = build_model(mesh, d);
+  ASSERT_TRUE(ok.ok());
+  EXPECT_EQ(ok->cpu_tet_batches_f32.size(), (mesh.tet_count() + 7) / 8 * kCpuTetBatchStrideF32);
+  EXPECT_NE(describe_model(*ok).find("float32"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace zona
