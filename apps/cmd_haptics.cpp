@@ -32,14 +32,25 @@ struct HapticsArgs {
   int threads = 1;
   double hand_speed = 0;  // [m/s]; 0: the scene's needle speed mapped to the hand
   bool no_realtime = false;
+  bool lateral_force = false;     // also render the (low-passed) lateral contact force
+  double stiffness_window = 0.5e-6;  // travel over which the local stiffness is taken [m]
 };
 
 // The Simulation behind the session's port: the commanded tip goes in between step1 and step2
 // (rate-limited, see below), the needle report comes out as the haptic sample.
+//
+// The published force is the needle's load-cell reading: the axial force low-passed by
+// needle.force_filter (Simulation's report.force), along the axis. The raw contact reaction
+// jitters from step to step when the tip is moved by a hand (up to 0.5 N at the hand on the
+// mouse scene), and a force that jitters independently of the hand's motion is an active
+// source: the passivity observer sees it as energy generated (docs/haptics.md). The lateral
+// part is rendered only on request, through the same filter: it is numerical noise on the
+// axisymmetric injection, and across the axis there is no local stiffness to render it with.
 class SimulationPortAdapter final : public HapticSimulationPort {
  public:
-  SimulationPortAdapter(Simulation& sim, double max_tip_speed)
-      : sim_(sim), max_tip_speed_(max_tip_speed), tip_(sim.needle_script().start) {}
+  SimulationPortAdapter(Simulation& sim, double max_tip_speed, bool lateral_force)
+      : sim_(sim), max_tip_speed_(max_tip_speed), lateral_force_(lateral_force),
+        tip_(sim.needle_script().start) {}
 
   bool step(const ToolCommand* command, HapticSample& sample) override {
     if (sim_.finished()) return false;
@@ -58,10 +69,25 @@ class SimulationPortAdapter final : public HapticSimulationPort {
     const StepStatus status = sim_.step2();
     if (status & kStepNotAdvanced) return false;
     const NeedleReport& r = sim_.report();
+    const Vec3d axis = sim_.needle_script().direction;
     sample.sim_time = r.time;
-    sample.force = -r.force_vector;  // the cell's force on the needle
+    // The cell's force on the needle: resistance along -axis (report.force is resistance
+    // positive), plus the filtered lateral reaction when asked for.
+    sample.force = -r.force * axis;
+    if (lateral_force_) {
+      const Vec3d raw = -r.force_vector;
+      const Vec3d lateral = raw - dot(raw, axis) * axis;
+      const double tau = sim_.scene().needle.force_filter;
+      const double h = r.time - lateral_time_;
+      // The same first-order low-pass as the axial force (exact for a held input).
+      lateral_ = tau > 0 && lateral_started_ ? lateral_ + (1.0 - std::exp(-h / tau)) * (lateral - lateral_)
+                                             : lateral;
+      lateral_started_ = true;
+      lateral_time_ = r.time;
+      sample.force += lateral_;
+    }
     sample.stiffness = r.stiffness;
-    sample.axis = sim_.needle_script().direction;
+    sample.axis = axis;
     sample.tool = r.tip;
     sample.punctured = r.punctured;
     if (r.punctured && puncture_wall_ns_ < 0) puncture_wall_ns_ = haptic_clock_ns();
@@ -75,7 +101,11 @@ class SimulationPortAdapter final : public HapticSimulationPort {
  private:
   Simulation& sim_;
   double max_tip_speed_;
+  bool lateral_force_;
   Vec3d tip_;
+  Vec3d lateral_{0, 0, 0};  // low-passed lateral force [N]
+  double lateral_time_ = 0;
+  bool lateral_started_ = false;
   int64_t steps_ = 0;
   int64_t puncture_wall_ns_ = -1;
 };
@@ -99,7 +129,10 @@ Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Sc
     EmulatedHandDef d;
     d.direction = axis;
     d.speed = hand_speed;
-    d.max_travel = travel;
+    // The operator aims past the path's end by the lag at which the hand's grip spring pushes
+    // the device's full force: otherwise a soft hand stops short of a membrane that needs most
+    // of that force (the mouse cell: 2.25 N at the hand, a 0.75 cm lag at 300 N/m).
+    d.max_travel = std::min(0.06, travel + info.max_force / d.hand_stiffness);
     return make_emulated_device(info, d);
   }
   if (a.device == "replay") {
@@ -115,6 +148,11 @@ Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Sc
 
 void run_haptics(const HapticsArgs& a) {
   if (!(a.duration > 0) || a.duration > 3600) return fail("--duration: expected 0 < SECONDS <= 3600");
+  if (!(a.stiffness_window > 0) || a.stiffness_window > 1e-3)
+    return fail("--stiffness-window: expected 0 < METRES <= 1e-3");
+  if (a.hand_speed < 0 || !std::isfinite(a.hand_speed))
+    return fail("--hand-speed: expected METRES_PER_SECOND >= 0");
+  if (a.threads < 0) return fail("--threads: expected N >= 0");
   auto path = find_scene(a.scene);
   if (!path) return fail(path.error().message);
   auto loaded = load_scene(*path, a.sets);
@@ -139,6 +177,7 @@ void run_haptics(const HapticsArgs& a) {
 
   SimulationOptions so;
   so.threads = a.threads;
+  so.stiffness_window = a.stiffness_window;
   auto sim = Simulation::create(scene, so);
   if (!sim) return fail(sim.error().message);
   const NeedleScript& script = (*sim)->needle_script();
@@ -162,7 +201,7 @@ void run_haptics(const HapticsArgs& a) {
   lo.keep_log = !a.log.empty();
   HapticLoop loop(**device, renderer, channel, lo);
   // The tip may follow the hand at up to 20x the scene's insertion speed in simulated time.
-  SimulationPortAdapter port(**sim, 20 * std::max(script.speed, 1e-6));
+  SimulationPortAdapter port(**sim, 20 * std::max(script.speed, 1e-6), a.lateral_force);
   const HapticLoopStats s = run_haptic_session(port, loop, channel);
 
   if (!a.log.empty()) {
@@ -174,6 +213,11 @@ void run_haptics(const HapticsArgs& a) {
       port.puncture_wall_ns() < 0
           ? -1.0
           : static_cast<double>(port.puncture_wall_ns() - loop.epoch_ns()) * 1e-9;
+  // The operator feels the drop when the axial force sent to the device has halved; the delay
+  // counts from the simulation's first punctured sample (its publication, the moment the
+  // simulation saw it). -1: no puncture, or not felt within the run.
+  auto delay_ms = [](double from, double to) { return from >= 0 && to >= 0 ? (to - from) * 1e3 : -1.0; };
+  const double felt_delay_ms = delay_ms(s.puncture_published_s, s.puncture_felt_s);
   if (a.json) {
     nlohmann::json j;
     j["rate_hz"] = s.rate_hz;
@@ -202,16 +246,29 @@ void run_haptics(const HapticsArgs& a) {
     j["needle_travel_m"] = r.travel;
     j["punctured"] = r.punctured;
     j["puncture_wall_s"] = puncture_s;
+    j["puncture_felt_delay_ms"] = felt_delay_ms;
+    j["puncture_sim_drop_delay_ms"] = delay_ms(s.puncture_published_s, s.puncture_sim_drop_s);
+    j["puncture_received_delay_ms"] = delay_ms(s.puncture_published_s, s.puncture_received_s);
+    j["puncture_force_before_N"] = s.puncture_force_before;
+    j["passivity_axis_energy_J"] = {s.passivity_axis_energy.x, s.passivity_axis_energy.y,
+                                    s.passivity_axis_energy.z};
+    j["passivity_dissipated_J"] = s.passivity_dissipated;
+    j["passivity_clipped_J"] = s.passivity_clipped;
+    j["lateral_force"] = a.lateral_force;
+    j["stiffness_window_m"] = a.stiffness_window;
+    j["sim_real_time_ratio"] = a.duration > 0 ? r.time / a.duration : 0.0;
     std::printf("%s\n", j.dump(2).c_str());
   } else {
     std::printf("zona haptics: %s, %s (%s), %.1f s: %.1f Hz, period p50 %.0f us p99 %.0f us max "
                 "%.0f us, sample age p99 %.1f ms, max force %.3f N, passivity %.3g J, "
-                "clamped %lld, nan %lld, sim steps %lld (t %.3g s)%s\n",
+                "clamped %lld, nan %lld, sim steps %lld (t %.3g s)%s",
                 scene.name.c_str(), a.device.c_str(), (*device)->info().name.c_str(), a.duration,
                 s.rate_hz, s.period_p50_us, s.period_p99_us, s.period_max_us,
                 s.sample_age_p99_ms, s.max_force, s.passivity_energy,
                 static_cast<long long>(s.clamped_ticks), static_cast<long long>(s.nan_ticks),
                 static_cast<long long>(port.steps()), r.time, r.punctured ? ", punctured" : "");
+    if (felt_delay_ms >= 0) std::printf(", drop felt %.1f ms after the simulation", felt_delay_ms);
+    std::printf("\n");
   }
 }
 
@@ -236,6 +293,10 @@ void add_haptics_command(CLI::App& app) {
                                               "to the haptic thread)");
   cmd->add_option("--hand-speed", args->hand_speed, "Hand insertion speed [m/s]");
   cmd->add_flag("--no-realtime", args->no_realtime, "Do not ask for SCHED_FIFO");
+  cmd->add_flag("--lateral-force", args->lateral_force,
+                "Also render the lateral contact force (low-passed like the axial one)");
+  cmd->add_option("--stiffness-window", args->stiffness_window,
+                  "Needle travel over which the local stiffness is taken [m] (default 0.5e-6)");
   cmd->callback([args] { run_haptics(*args); });
 }
 

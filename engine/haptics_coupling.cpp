@@ -90,12 +90,28 @@ Vec3d PassivityGuard::control(Vec3d force, Vec3d velocity, double period) {
   bool active = false;
   for (int a = 0; a < 3; ++a) {
     const double v = velocity[a];
-    if (!(energy_[a] < 0) || !(std::abs(v) > 1e-9) || !(period > 0)) continue;
-    // Damping that dissipates the whole deficit within one period at this velocity.
-    const double alpha = std::min(-energy_[a] / (period * v * v), max_damping_);
-    force[a] -= alpha * v;
-    dissipated_ += alpha * v * v * period;
-    active = true;
+    if (!(std::abs(v) > 1e-9) || !(period > 0) || !std::isfinite(force[a])) continue;
+    // 1. Bound, before the fact: over the next period (predicted displacement v T) the force may
+    //    give the hand back at most what the axis holds. A stale sample held while the hand
+    //    yields (the simulation descheduled for 10 ms at first contact) would otherwise push
+    //    the hand out with energy the environment never stored. Scaling the force towards zero
+    //    never reverses it, so this cannot kick.
+    const double returned = force[a] * v * period;  // > 0: energy to the hand [J]
+    const double budget = std::max(energy_[a], 0.0);
+    if (returned > budget) {
+      const double scaled = budget / (v * period);
+      clipped_ += (force[a] - scaled) * v * period;
+      force[a] = scaled;
+      active = true;
+    }
+    // 2. Hannaford-Ryu: damping that dissipates an observed deficit within one period at this
+    //    velocity (the prediction above is inexact when the device accelerates).
+    if (energy_[a] < 0) {
+      const double alpha = std::min(-energy_[a] / (period * v * v), max_damping_);
+      force[a] -= alpha * v;
+      dissipated_ += alpha * v * v * period;
+      active = true;
+    }
   }
   if (active) ++active_ticks_;
   return force;

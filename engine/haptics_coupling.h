@@ -59,7 +59,9 @@ Result<CouplingGains> choose_coupling_gains(const double* stiffness_override,
 
 /// Hannaford-Ryu passivity observer and controller, one per axis (3 DOF). The observed port is
 /// the device handle: energy flowing from the hand into the controller is positive, so a
-/// passive controller keeps every axis' energy >= 0.
+/// passive controller keeps every axis' energy >= 0. The controller first bounds the energy the
+/// next period may return to what the axis holds (an energy-bounding step before the fact),
+/// then damps any deficit the observer still sees (Hannaford and Ryu's variable damper).
 class PassivityGuard {
  public:
   /// `max_damping`: the largest damping the controller may add [N*s/m].
@@ -69,8 +71,10 @@ class PassivityGuard {
   /// that period [m] (exact for a zero-order-held force).
   void observe(Vec3d held_force, Vec3d displacement);
 
-  /// Controller: adds a damping force against `velocity` [m/s] on each axis whose energy is
-  /// negative, dissipating the deficit over the next `period` [s]; returns the corrected force.
+  /// Controller, per axis: scales the force towards zero where, held for the next `period` [s]
+  /// at `velocity` [m/s], it would return more energy than the axis holds; then adds a damping
+  /// force against the velocity where the energy is negative, dissipating the deficit over the
+  /// next period (at most the damping limit). Returns the corrected force [N].
   Vec3d control(Vec3d force, Vec3d velocity, double period);
 
   /// Observed energy, summed over axes [J].
@@ -83,12 +87,15 @@ class PassivityGuard {
   int64_t active_ticks() const { return active_ticks_; }
   /// Energy the controller dissipated so far (predicted from the velocity) [J].
   double dissipated() const { return dissipated_; }
+  /// Energy the bound kept from being returned to the hand (predicted from the velocity) [J].
+  double clipped() const { return clipped_; }
 
  private:
   double max_damping_;
   Vec3d energy_{0, 0, 0};
   double min_energy_ = 0;
   double dissipated_ = 0;
+  double clipped_ = 0;
   int64_t active_ticks_ = 0;
 };
 

@@ -80,9 +80,12 @@ void HapticLoop::run() {
 
     // 1. Newest simulation sample (never waits).
     HapticSample sample;
+    const Vec3d sent_before = last_sent_;
     if (channel_.samples.read(sample) && sample.sequence > 0) {
-      renderer_.push_sample(sample, static_cast<double>(sample.wall_ns - epoch_ns_) * 1e-9);
+      const double published = static_cast<double>(sample.wall_ns - epoch_ns_) * 1e-9;
+      renderer_.push_sample(sample, published);
       ++stats_.samples_received;
+      watch_puncture_sample(sample, published, t, sent_before);
     }
     // 2. Device -> renderer -> device.
     if (estop_.load(std::memory_order_relaxed) && !renderer_.safety().stopped())
@@ -98,6 +101,10 @@ void HapticLoop::run() {
     channel_.commands.write(command);
 
     // 4. Measure and log (no allocation: capacities were reserved).
+    last_sent_ = out.force;
+    if (stats_.puncture_received_s >= 0 && stats_.puncture_felt_s < 0 &&
+        std::abs(dot(out.force, puncture_axis_)) <= 0.5 * stats_.puncture_force_before)
+      stats_.puncture_felt_s = t;
     stats_.max_force = std::max(stats_.max_force, norm(out.force));
     if (out.sample_age >= 0 && ages_ms_.size() < ages_ms_.capacity())
       ages_ms_.push_back(static_cast<float>(out.sample_age * 1e3));
@@ -129,9 +136,30 @@ void HapticLoop::run() {
   stats_.passivity_energy = renderer_.passivity().energy();
   stats_.passivity_min_energy = renderer_.passivity().min_energy();
   stats_.passivity_active_ticks = renderer_.passivity().active_ticks();
+  stats_.passivity_axis_energy = renderer_.passivity().axis_energy();
+  stats_.passivity_dissipated = renderer_.passivity().dissipated();
+  stats_.passivity_clipped = renderer_.passivity().clipped();
   stats_.clamped_ticks = renderer_.safety().clamped_ticks();
   stats_.nan_ticks = renderer_.safety().nan_ticks();
   stats_.stalled_ticks = renderer_.safety().stalled_ticks();
+}
+
+void HapticLoop::watch_puncture_sample(const HapticSample& sample, double published, double t,
+                                       Vec3d sent_before) {
+  // Axial magnitudes: the drop is along the needle; units do not matter for the ratios.
+  const double axial = std::abs(dot(sample.force, sample.axis));
+  if (!sample.punctured) {
+    unpunctured_sample_force_ = axial;
+    return;
+  }
+  if (stats_.puncture_published_s < 0) {
+    stats_.puncture_published_s = published;
+    stats_.puncture_received_s = t;
+    puncture_axis_ = sample.axis;
+    stats_.puncture_force_before = std::abs(dot(sent_before, sample.axis));
+  }
+  if (stats_.puncture_sim_drop_s < 0 && axial <= 0.5 * unpunctured_sample_force_)
+    stats_.puncture_sim_drop_s = published;
 }
 
 HapticLoopStats run_haptic_session(HapticSimulationPort& simulation, HapticLoop& loop,

@@ -44,6 +44,17 @@ struct HapticLoopStats {
   int64_t samples_received = 0;   ///< fresh simulation samples taken
   bool realtime = false;          ///< SCHED_FIFO was granted
   bool log_full = false;          ///< the log's capacity ran out (rows after it were dropped)
+  Vec3d passivity_axis_energy{0, 0, 0};  ///< observed energy per device axis at the end [J]
+  double passivity_dissipated = 0;  ///< energy the passivity controller dissipated [J]
+  double passivity_clipped = 0;     ///< energy its bound kept from the hand [J]
+  /// The puncture as the haptic thread saw it (loop clock [s]; -1: did not happen). The
+  /// simulation published its first punctured sample at `published`; its published axial force
+  /// first fell to half of the last unpunctured sample's at `sim_drop` (publication time); the
+  /// haptic thread took the first punctured sample at `received`; the axial force sent to the
+  /// device first fell to half of the force sent just before at `felt`.
+  double puncture_published_s = -1, puncture_sim_drop_s = -1;
+  double puncture_received_s = -1, puncture_felt_s = -1;
+  double puncture_force_before = 0;  ///< axial force sent on the tick before `received` [N]
 };
 
 /// Options of a haptic run.
@@ -95,6 +106,13 @@ class HapticLoop {
   std::vector<HapticLogRow> log_;
   std::vector<float> periods_us_;  // tick-to-tick intervals, sized up front
   std::vector<float> ages_ms_;
+  // Puncture watch (see HapticLoopStats): the last unpunctured sample's axial force [N], the
+  // needle axis, the force sent on the previous tick [N].
+  void watch_puncture_sample(const HapticSample& sample, double published, double t,
+                             Vec3d sent_before);
+  double unpunctured_sample_force_ = 0;
+  Vec3d puncture_axis_{1, 0, 0};
+  Vec3d last_sent_{0, 0, 0};
 };
 
 /// Runs a session: the haptic loop on a new thread, the simulation port stepped on the calling

@@ -37,9 +37,18 @@ Vec3d ForceInterpolator::first_order_hold(double time) const {
   return f;
 }
 
+double ForceInterpolator::unilateral(double f1n, double fn) {
+  // A contact pushes: a resistance (f1n <= 0 along the insertion axis) extrapolated backwards
+  // past zero would pull the hand forward, an energy source. The spring releases at zero.
+  return f1n <= 0 ? std::min(fn, 0.0) : std::max(fn, 0.0);
+}
+
 Vec3d ForceInterpolator::stiffness_model(Vec3d tool) const {
   if (count == 0) return {0, 0, 0};
-  return force1 - (stiffness * dot(axis, tool - tool1)) * axis;
+  const double f1n = dot(force1, axis);
+  double fn = f1n - stiffness * dot(axis, tool - tool1);
+  if (unilateral_contact) fn = unilateral(f1n, fn);
+  return force1 + (fn - f1n) * axis;
 }
 
 Vec3d HapticSafety::apply(Vec3d force, double sample_age, double period, double stall_timeout,
@@ -73,6 +82,7 @@ Vec3d HapticSafety::apply(Vec3d force, double sample_age, double period, double 
 HapticRenderer::HapticRenderer(const HapticRenderConfig& config)
     : config_(config), passivity_(config.max_pc_damping) {
   interp_.mode = config.interpolation;
+  interp_.unilateral_contact = config.unilateral_contact;
 }
 
 void HapticRenderer::push_sample(const HapticSample& sample, double time) {
@@ -113,7 +123,14 @@ HapticOutput HapticRenderer::tick(Vec3d device_position, Vec3d device_velocity, 
       const Vec3d r = memory - interp_.force1 +
                       (K * dot(n, device_position - interp_.tool1)) * n;
       const double rn = dot(r, n);
-      e = (1.0 / a) * (r - rn * n) + (rn / (a + K)) * n;
+      double en = rn / (a + K);
+      // The contact released (the tool behind the point where the extrapolated resistance
+      // reaches zero): the axial balance is the coupling alone, k_c e + b_c (e - e_prev)/T = 0.
+      const double f1n = dot(interp_.force1, n);
+      const double fn = f1n - K * dot(n, device_position - en * n - interp_.tool1);
+      if (interp_.unilateral_contact && ForceInterpolator::unilateral(f1n, fn) != fn)
+        en = dot(memory, n) / a;
+      e = (1.0 / a) * (r - rn * n) + en * n;
     }
     if (!finite(e)) e = {0, 0, 0};
     // The device feels the coupling's reaction, which equals f_env at the balanced tool.

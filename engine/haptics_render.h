@@ -48,6 +48,9 @@ struct HapticRenderConfig {
   double fade_time = 0.1;          ///< time for the fade from full to zero and back [s]
   double max_pc_damping = 10.0;    ///< passivity controller's damping limit [N*s/m]
   bool passivity_control = true;   ///< apply the passivity controller (the observer always runs)
+  /// The stiffness model's axial force never changes sign (a needle contact pushes, it does not
+  /// pull); off only to model a rigid, bilateral tool (the coupling criterion's worst case).
+  bool unilateral_contact = true;
   HapticScaling scaling;
 };
 
@@ -61,6 +64,7 @@ struct ForceInterpolator {
   Vec3d axis{1, 0, 0};
   Vec3d tool1{0, 0, 0};
   int count = 0;  ///< samples taken (0, 1 or 2+)
+  bool unilateral_contact = true;  ///< see HapticRenderConfig::unilateral_contact
 
   /// Takes a new sample (device units, time in seconds of the haptic clock).
   void push(Vec3d force, double stiffness_n_per_m, Vec3d axis_unit, Vec3d tool, double time);
@@ -69,8 +73,11 @@ struct ForceInterpolator {
   /// the force without bound); a component never changes sign by extrapolation [N].
   Vec3d first_order_hold(double time) const;
   /// Local stiffness model: force at tool position `tool` [m]: newest force minus stiffness
-  /// times the displacement along the axis since the sample [N].
+  /// times the displacement along the axis since the sample; with unilateral_contact the axial
+  /// component stops at zero instead of changing sign (a contact never pulls) [N].
   Vec3d stiffness_model(Vec3d tool) const;
+  /// The unilateral rule: axial force `fn` [N] limited to the sign of the sample's `f1n` [N].
+  static double unilateral(double f1n, double fn);
 };
 
 /// Safety stage: NaN guard, stall fade, force clamp, emergency stop. Counts what it did.

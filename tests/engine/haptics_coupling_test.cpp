@@ -82,6 +82,9 @@ LoopResult run_rigid_anchor(CouplingGains gains, bool passivity_control) {
   c.max_pc_damping = 5;
   c.scaling.workspace_scale = 1;
   c.scaling.force_scale = 1;
+  // The criterion's worst case is a rigid tool that holds both ways; a needle contact only
+  // pushes (and would release on every backswing), so the contact rule is off here.
+  c.unilateral_contact = false;
   HapticRenderer r(c);
   HapticSample s;
   s.sequence = 1;
@@ -146,6 +149,28 @@ TEST(HapticsCoupling, ObserverCountsWorkPerAxis) {
   const Vec3d f = g.control({0, 0, 0}, {0.1, 0.1, 0}, 1e-3);
   EXPECT_EQ(f.x, 0.0);
   EXPECT_NEAR(f.y * 0.1 * 1e-3, -1e-3, 1e-12);  // = -E_y: the force's work over T
+}
+
+TEST(HapticsCoupling, ControllerReturnsAtMostTheStoredEnergy) {
+  PassivityGuard g(1000);
+  // The hand pressed 1 mm in against 0.1 N: 0.1 mJ stored on x.
+  g.observe({-0.1, 0, 0}, {1e-3, 0, 0});
+  ASSERT_NEAR(g.energy(), 1e-4, 1e-15);
+  // A stale 2 N held while the hand yields at 0.1 m/s would return 0.2 mJ in one period: the
+  // bound scales it to what x holds (same direction, never reversed).
+  const Vec3d f = g.control({-2, 0, 0}, {-0.1, 0, 0}, 1e-3);
+  EXPECT_NEAR(f.x * -0.1 * 1e-3, 1e-4, 1e-15);
+  EXPECT_LT(f.x, 0.0);
+  EXPECT_NEAR(g.clipped(), 1e-4, 1e-15);
+  // Held over that period, the observer ends at zero, not below.
+  g.observe(f, {-1e-4, 0, 0});
+  EXPECT_NEAR(g.energy(), 0, 1e-15);
+  // A force resisting the motion is never touched; nor is one on an axis with energy to spare.
+  PassivityGuard h(1000);
+  h.observe({-1, 0, 0}, {1e-3, 0, 0});
+  EXPECT_EQ(h.control({-1, 0, 0}, {0.1, 0, 0}, 1e-3).x, -1.0);
+  EXPECT_EQ(h.control({-0.5, 0, 0}, {-0.1, 0, 0}, 1e-3).x, -0.5);  // 50 uJ of the 1 mJ
+  EXPECT_EQ(h.active_ticks(), 0);
 }
 
 }  // namespace

@@ -117,9 +117,12 @@ TEST(HapticsLoop, ClosedLoopEmulatedDeviceIsPassiveAndFeelsPuncture) {
 // The session runs a real haptic thread beside a simulation thread stepping the membrane.
 class MembranePort final : public HapticSimulationPort {
  public:
+  MembranePort(double puncture_depth = 45e-6, int step_ms = 5) : step_ms_(step_ms) {
+    membrane_.puncture_depth = puncture_depth;
+  }
   bool step(const ToolCommand* command, HapticSample& sample) override {
-    // A slow simulation: about 200 steps per second of wall time.
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    // A slow simulation: about 200 steps per second of wall time (step_ms = 5).
+    std::this_thread::sleep_for(std::chrono::milliseconds(step_ms_));
     const Vec3d tool = command ? command->tool : Vec3d{-5e-6, 0, 0};
     sample = membrane_.at(tool);
     sample.sim_time = static_cast<double>(++steps_) * 1e-4;
@@ -129,6 +132,7 @@ class MembranePort final : public HapticSimulationPort {
   int64_t stop_after_ = 1 << 30;
 
  private:
+  int step_ms_;
   ToyMembrane membrane_;
 };
 
@@ -159,6 +163,30 @@ TEST(HapticsLoop, ThreadedSessionRunsAndLogs) {
   std::getline(in, header);
   EXPECT_EQ(header, "t_s,x_m,y_m,z_m,fx_N,fy_N,fz_N,sample_age_ms");
   std::filesystem::remove(path);
+}
+
+TEST(HapticsLoop, SessionMeasuresWhenPunctureIsFelt) {
+  // A membrane that gives way 8 um in, stepped every millisecond: the loop notes when the
+  // simulation published the puncture, when the haptic thread took it and when the axial
+  // force sent to the hand had halved (ordering only: no timing assertions).
+  HapticRenderConfig c = mouse_config(HapticInterpolation::kStiffness);
+  HapticRenderer r(c);
+  auto device = make_emulated_device(device_profile("touch").value(), operator_hand());
+  HapticChannel channel;
+  HapticLoopOptions options;
+  options.duration = 0.6;
+  options.try_realtime = false;
+  options.keep_log = false;
+  HapticLoop loop(*device, r, channel, options);
+  MembranePort port(8e-6, 1);
+  const HapticLoopStats s = run_haptic_session(port, loop, channel);
+  ASSERT_GE(s.puncture_published_s, 0);
+  EXPECT_GE(s.puncture_received_s, s.puncture_published_s);
+  EXPECT_GT(s.puncture_force_before, 0.1);  // the hand was pressing (8 um of 0.167 N/m: 0.4 N)
+  ASSERT_GE(s.puncture_felt_s, s.puncture_received_s);
+  // The toy membrane drops at once: the published force halved with the first punctured sample.
+  EXPECT_EQ(s.puncture_sim_drop_s, s.puncture_published_s);
+  EXPECT_GE(s.passivity_min_energy, -1e-9);
 }
 
 TEST(HapticsLoop, StalledSimulationFadesForceOut) {

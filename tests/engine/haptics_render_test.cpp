@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -33,18 +34,30 @@ TEST(HapticsRender, FirstOrderHoldIsExactForLinearSignalWithinOneInterval) {
               1e-15);
 }
 
-TEST(HapticsRender, StiffnessModelIsExactForLinearSpringAlongAxis) {
-  // Environment: f(x) = -k (n.x) n, sampled at x1; the model must reproduce it anywhere.
+TEST(HapticsRender, StiffnessModelIsExactForUnilateralSpringAlongAxis) {
+  // Environment: a contact spring along n, f(x) = -k max(n.x, 0) n, sampled at x1; the model
+  // reproduces it on both sides of the sample, and releases (zero axial force, never a pull)
+  // where the spring would extend past its rest point.
   const double k = 250;
   const Vec3d n = Vec3d{1, 2, 2} / 3.0;
-  auto f = [&](Vec3d x) { return (-k * dot(n, x)) * n; };
+  auto f = [&](Vec3d x) { return (-k * std::max(dot(n, x), 0.0)) * n; };
   ForceInterpolator in;
-  const Vec3d x1{0.01, 0.002, -0.001};
+  const Vec3d x1{0.01, 0.002, -0.001};  // n.x1 = 4 mm into the spring
   in.push(f(x1), k, {1, 2, 2}, x1, 0.0);  // the axis is normalised on push
+  int released = 0;
   for (double s = -0.01; s <= 0.01; s += 0.0025) {
-    const Vec3d x = x1 + Vec3d{s, -0.5 * s, 2 * s};
-    EXPECT_NEAR(norm(in.stiffness_model(x) - f(x)), 0, 1e-12);
+    const Vec3d x = x1 + Vec3d{s, -0.5 * s, 2 * s};  // n.dx = 4 s / 3
+    EXPECT_NEAR(norm(in.stiffness_model(x) - f(x)), 0, 1e-12) << s;
+    released += dot(n, x) < 0;
   }
+  EXPECT_GT(released, 0);  // the sweep crossed the release point
+  // A lateral force component is kept as it is; only the axial part is a spring.
+  in.push(f(x1) + Vec3d{0, 0.5, -1}, k, {1, 2, 2}, x1, 0.1);
+  const Vec3d behind = x1 - 0.01 * n;
+  const Vec3d g = in.stiffness_model(behind);
+  EXPECT_NEAR(dot(g, n), 0, 1e-12);
+  EXPECT_NEAR(norm(g - dot(g, n) * n - (Vec3d{0, 0.5, -1} - dot(Vec3d{0, 0.5, -1}, n) * n)), 0,
+              1e-12);
 }
 
 TEST(HapticsRender, ScalingMapsHandToCellAndBack) {
@@ -180,6 +193,30 @@ TEST(HapticsRender, RendererIgnoresNanSamplesAndPositions) {
   out = r.tick({std::numeric_limits<double>::quiet_NaN(), 0, 0}, {0, 0, 0}, 0.021);
   EXPECT_TRUE(std::isfinite(out.force.x) && std::isfinite(out.force.y));
   EXPECT_TRUE(std::isfinite(out.tool_cell.x));
+}
+
+TEST(HapticsRender, CouplingReleasesWhenToolBacksOffContact) {
+  // The sample: 1 N of resistance with 200 N/m at x1 = 0 (device units). A device held 10 mm
+  // behind feels nothing: the linear extrapolation would pull it forward with 1 N.
+  HapticRenderConfig c = test_config();
+  c.scaling.workspace_scale = 1;
+  c.scaling.force_scale = 1;
+  c.stall_timeout = 1e9;
+  HapticRenderer r(c);
+  HapticSample s;
+  s.sequence = 1;
+  s.force = {-1, 0, 0};
+  s.stiffness = 200;
+  r.push_sample(s, 0.0);
+  HapticOutput out;
+  for (int i = 0; i < 100; ++i) out = r.tick({-0.01, 0, 0}, {0, 0, 0}, i * 1e-3);
+  EXPECT_NEAR(out.force.x, 0, 1e-12);
+  EXPECT_NEAR(out.tool_device.x, -0.01, 1e-12);  // the coupling is slack
+  // Pressed 10 mm in, the contact is a series spring from the sampled force on.
+  for (int i = 100; i < 300; ++i) out = r.tick({0.01, 0, 0}, {0, 0, 0}, i * 1e-3);
+  const double kc = c.coupling.stiffness, K = 200;
+  // Balance: kc e = 1 + K (0.01 - e)  ->  force = -(kc (1 + K 0.01) / (kc + K)).
+  EXPECT_NEAR(out.force.x, -kc * (1 + K * 0.01) / (kc + K), 1e-9);
 }
 
 }  // namespace
