@@ -72,7 +72,8 @@ class PassivityGuard {
   void observe(Vec3d held_force, Vec3d displacement);
 
   /// Controller, per axis: scales the force towards zero where, held for the next `period` [s]
-  /// at `velocity` [m/s], it would return more energy than the axis holds; then adds a damping
+  /// over twice the displacement `velocity` [m/s] predicts (a margin for acceleration), it
+  /// would return more energy than the axis holds; then adds a damping
   /// force against the velocity where the energy is negative, dissipating the deficit over the
   /// next period (at most the damping limit). Returns the corrected force [N].
   Vec3d control(Vec3d force, Vec3d velocity, double period);
