@@ -25,6 +25,8 @@ void add_bench_command(CLI::App& app);
 void add_forces_command(CLI::App& app);
 void add_render_commands(CLI::App& app);
 void add_haptics_command(CLI::App& app);
+void add_analytic_commands(CLI::App& app);
+void add_calibrate_command(CLI::App& app);
 
 /// Writes one PNG frame of a simulation (DIR/frame_00000.png, ...), for `zona run --frames DIR`.
 using PngFrameWriter = std::function<zona::Status(const zona::Simulation&)>;

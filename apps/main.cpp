@@ -28,6 +28,8 @@ int main(int argc, char** argv) {
   zona::cli::add_forces_command(app);
   zona::cli::add_render_commands(app);
   zona::cli::add_haptics_command(app);
+  zona::cli::add_analytic_commands(app);
+  zona::cli::add_calibrate_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
