@@ -31,6 +31,9 @@ struct RunArgs {
   int threads = 0;
   double stop_after_puncture = -1;
   bool no_frames = false;
+  std::string png_frames;   // --frames DIR: numbered PNG frames from the renderer
+  std::string frame_color = "displacement";
+  int frame_count = 0;      // 0: the scene's output.frames (or 50 when it has none)
   bool quiet = false;
   std::vector<std::string> compare;     // "FILE.csv[:label]": curves drawn beside this run's
   std::vector<std::string> references;  // "DEF_UM,FORCE_UN[:label]": reference points
@@ -191,6 +194,13 @@ void run_command(const RunArgs& args) {
   }
   options.stop_after_puncture = args.stop_after_puncture;
 
+  if (args.frame_count < 0) return fail("--frame-count must be >= 0");
+  if (args.frame_count > 0) {
+    scene->output.frames = args.frame_count;
+    scene->output.frame_interval.reset();
+  } else if (!args.png_frames.empty() && scene->output.frames <= 0 && !scene->output.frame_interval) {
+    scene->output.frames = 50;
+  }
   const auto setup_start = std::chrono::steady_clock::now();
   Result<std::unique_ptr<Simulation>> created = Simulation::create(*scene, options.simulation);
   if (!created.ok()) return fail(created.error().message);
@@ -207,14 +217,25 @@ void run_command(const RunArgs& args) {
     for (const std::string& note : sim.notes()) std::fprintf(stderr, "zona run: note: %s\n", note.c_str());
   }
 
-  // Frames as the run goes; a failed frame is reported once and the run goes on.
+  // Frames as the run goes (VTU unless --no-frames, PNG with --frames DIR); a failed frame is
+  // reported once and the run goes on.
   std::unique_ptr<FrameRecorder> frames;
   std::string frame_error;
   if (!args.no_frames && scene->output.frames > 0) frames = std::make_unique<FrameRecorder>(out);
-  if (frames)
+  PngFrameWriter png_frames;
+  if (!args.png_frames.empty()) {
+    Result<PngFrameWriter> writer =
+        make_png_frame_writer(sim, args.png_frames, args.frame_color);
+    if (!writer.ok()) return fail("--frames " + args.png_frames + ": " + writer.error().message);
+    png_frames = std::move(*writer);
+  }
+  if (frames || png_frames)
     options.frame = [&](const Simulation& s, int) {
       if (!frame_error.empty()) return;
-      if (Status st = frames->write(s); !st) frame_error = st.error().message;
+      if (frames)
+        if (Status st = frames->write(s); !st) frame_error = st.error().message;
+      if (png_frames && frame_error.empty())
+        if (Status st = png_frames(s); !st) frame_error = st.error().message;
     };
   Progress progress(args.quiet);
   options.progress = [&](const RunProgress& p) { progress.update(p); };
@@ -279,6 +300,15 @@ void add_run_command(CLI::App& app) {
   cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
                   "Stop this many simulated seconds after puncture (default: run to the end)");
   cmd->add_flag("--no-frames", args->no_frames, "Write no VTU frames");
+  cmd->add_option("--frames", args->png_frames,
+                  "Also render numbered PNG frames into this folder (Vulkan renderer, headless)");
+  cmd->add_option("--frame-color", args->frame_color,
+                  "Colour of the PNG frames: displacement, stress or none")
+      ->capture_default_str();
+  cmd->add_option("--frame-count", args->frame_count,
+                  "Frames over the run (VTU and PNG); 0: the scene's output.frames, or 50 for "
+                  "--frames when the scene has none")
+      ->capture_default_str();
   cmd->add_flag("--quiet", args->quiet, "No progress line");
   cmd->add_option("--compare", args->compare,
                   "Draw another run's force.csv (loading part) in the plot: FILE[:label]");

@@ -10,14 +10,15 @@
 # `run` executes on the GPU machine, writing to $OUT (default ./device-out): nvidia-smi,
 # `zona info --json`, the GPU tests, compute-sanitizer memcheck and racecheck over them, the
 # GPU benchmark, and a summary (printed last). Environment:
-#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench (default: all)
+#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling (default: all)
+#   SCALING_MAX          largest size of the `zona bench --vertices sweep` stage (default 1.6e7)
 #   TEST_FILTER          gtest filter of the GPU tests (default 'Cuda*')
 #   SANITIZER_FILTER     gtest filter under compute-sanitizer (default: TEST_FILTER)
 #   BENCH_SIZES          vertex counts for the benchmark (default 10000,100000,1000000)
 #   BENCH_VARIANTS       benchmark variants (default all)
 #   BENCH_ARGS           extra benchmark arguments (e.g. "--substeps 200 --repeats 9")
 #   TESTS_TIMEOUT, BENCH_TIMEOUT, SANITIZER_TIMEOUT  seconds per stage (240, 300, 150)
-# Stages run in the order smi, tests, bench, memcheck, racecheck; each writes its log as it goes,
+# Stages run in the order smi, tests, bench, scaling, memcheck, racecheck; each writes its log as it goes,
 # so a call cut short still brings back what finished.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -46,7 +47,7 @@ pack() {
 run() {
   local carry=${1:-build-device}
   local out=${OUT:-device-out}
-  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench}
+  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench,scaling}
   local filter=${TEST_FILTER:-Cuda*}
   mkdir -p "$out"
   export LD_LIBRARY_PATH="$PWD/$carry${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
@@ -76,6 +77,19 @@ run() {
       --out "$out/bench.csv" ${BENCH_ARGS:-} >"$out/bench.log" 2>&1
     note "bench: rc $?"
     sed -n '/^# /p;/^vertices /,$p' "$out/bench.log" | tee -a "$summary"
+  fi
+  if has scaling; then
+    # The vertices-versus-time benchmark (bench/README.md): seed 000 Table II's sizes on the GPU
+    # and on this host's CPU, then the GPU sweep in powers of two.
+    local day
+    day=$(date -u +%Y-%m-%d)
+    timeout "${SCALING_TIMEOUT:-300}" "$carry/zona" bench --backend all --model svk \
+      --vertices table2 --out "$out/scaling_table2_$day.csv" >"$out/scaling.log" 2>&1
+    note "zona bench table2: rc $?"
+    timeout "${SCALING_TIMEOUT:-300}" "$carry/zona" bench --backend cuda --model svk \
+      --vertices sweep --max-vertices "${SCALING_MAX:-1.6e7}" \
+      --out "$out/scaling_sweep_$day.csv" >>"$out/scaling.log" 2>&1
+    note "zona bench sweep: rc $?"
   fi
   local sfilter=${SANITIZER_FILTER:-$filter}
   if has memcheck; then

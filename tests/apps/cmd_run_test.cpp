@@ -1,6 +1,7 @@
 // End-to-end tests of `zona run`: the files it writes, their columns and keys, and its errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -128,6 +129,40 @@ TEST(CmdRun, ErrorsAreOneLine) {
   r = run_zona("run " + scene.string() + " --backend gpu --out " + (dir.path / "z").string(), dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("auto, cpu or cuda"), std::string::npos) << r.err;
+}
+
+
+// --frames DIR renders numbered PNG frames (headless Vulkan) as the run goes; a build or machine
+// without the renderer says so in one line instead.
+TEST(CmdRun, PngFramesDuringTheRun) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path frames = dir.path / "png";
+  const RunOutput r =
+      run_zona("run " + scene.string() + " --out " + (dir.path / "out").string() + " --frames " +
+                   frames.string() + " --frame-count 3 --frame-color stress --quiet",
+               dir.path);
+#if defined(ZONA_HAVE_VULKAN)
+  if (r.exit_code != 0 && r.err.find("Vulkan") != std::string::npos) GTEST_SKIP() << r.err;
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* name : {"frame_00000.png", "frame_00001.png", "frame_00002.png"}) {
+    ASSERT_TRUE(fs::exists(frames / name)) << name;
+    EXPECT_GT(fs::file_size(frames / name), 1000u) << name;
+  }
+  EXPECT_FALSE(fs::exists(frames / "frame_00003.png"));
+  // --frame-count also sets the VTU frames.
+  EXPECT_TRUE(fs::exists(dir.path / "out" / "frames_000002.vtu"));
+#else
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_NE(r.err.find("built without the Vulkan renderer"), std::string::npos) << r.err;
+#endif
+  const RunOutput bad = run_zona("run " + scene.string() + " --out " + (dir.path / "b").string() +
+                                     " --frame-count -2 --quiet",
+                                 dir.path);
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.err.find("--frame-count"), std::string::npos) << bad.err;
 }
 
 }  // namespace
