@@ -2,7 +2,9 @@
 #include "engine/forces_cpu.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <vector>
 
@@ -222,6 +224,82 @@ ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin
   }
 }
 
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && \
+    !defined(__SANITIZE_THREAD__)
+#define ZONA_HAVE_AVX512_PASS 1
+// The float64 pass with eight tetrahedra per AVX-512 pack, chosen at run time on CPUs that have
+// AVX-512F (cpu_simd_bits() == 512): the same lane operations, so the same bits as the four-lane
+// pass and the scalar functions. Shapes come from two four-lane batches.
+template <bool kSvk>
+// AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, or a * b + c would
+// round once instead of twice and the bits would differ from the other passes.
+__attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
+tet_pass_chunks_batched8(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  const Model& m = *static_cast<PassContext*>(context)->model;
+  State& s = *static_cast<PassContext*>(context)->state;
+  const int64_t nt = static_cast<int64_t>(m.tet_count());
+  const int64_t batches4 = static_cast<int64_t>(m.cpu_tet_batches.size()) / kCpuTetBatchStride;
+  const Vec3d* ug = s.u.data();
+  Vec3d* out = s.tet_force.data();
+  const Tet* tets = m.tets.data();
+  for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
+    TetChunkResult r;
+    double energy = 0;
+    const int64_t begin = chunk * kTetChunk;
+    const int64_t end = std::min(nt, begin + kTetChunk);
+    for (int64_t t0 = begin; t0 < end; t0 += 8) {
+      const int lanes = static_cast<int>(std::min<int64_t>(8, end - t0));
+      const Tet* tb = tets + t0;
+      Tet tail[8];
+      if (lanes < 8) {
+        for (int l = 0; l < 8; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
+        tb = tail;
+      }
+      // The high half's batch may not exist at the very end: its lanes are dropped then.
+      const double* lo = m.cpu_tet_batches.data() + (t0 / 4) * kCpuTetBatchStride;
+      const double* hi = t0 / 4 + 1 < batches4 ? lo + kCpuTetBatchStride : lo;
+      auto load = [lo, hi](int k) { return concat(load4(lo + 4 * k), load4(hi + 4 * k)); };
+      TetShape<P8d> shape;
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load(3 * j + i);
+      shape.volume = load(12);
+      const P8d lambda = load(13);
+      const P8d mu = load(14);
+      Vec3<P4> dlo[3], dhi[3];
+      batch_edges(ug, tb, dlo);
+      batch_edges(ug, tb + 4, dhi);
+      Vec3<P8d> du[3];
+      for (int e = 0; e < 3; ++e)
+        du[e] = Vec3<P8d>{concat(dlo[e].x, dhi[e].x), concat(dlo[e].y, dhi[e].y),
+                          concat(dlo[e].z, dhi[e].z)};
+      Vec3<P8d> f[4];
+      P8d w, det_f, m1(0.0), m2(0.0), det_a(0.0);
+      batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
+      if (lanes == 8) {
+        for (int half = 0; half < 2; ++half) {
+          Vec3<P4> fd[4];
+          for (int c = 0; c < 4; ++c)
+            fd[c] = Vec3<P4>{half_of(f[c].x, half), half_of(f[c].y, half), half_of(f[c].z, half)};
+          store_corner_forces4(fd, &out[4 * (t0 + 4 * half)].x);
+        }
+        for (int l = 0; l < 8; ++l) energy += w.v[l];
+      } else {
+        for (int l = 0; l < lanes; ++l) {
+          for (int c = 0; c < 4; ++c)
+            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
+          energy += w.v[l];
+        }
+      }
+      M8d ok = det_f.v > 0.0;
+      if constexpr (kSvk) ok &= (m1.v > 0.0) & (m2.v > 0.0) & (det_a.v > 0.0);
+      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
+    }
+    r.elastic_energy = energy;
+    s.tet_chunks[static_cast<size_t>(chunk)] = r;
+  }
+}
+#endif
+
 // The same with float32 element math (ElementPrecision::kFloat32), eight tetrahedra per pack:
 // edge differences formed in float64 and rounded, shapes and Lame coefficients rounded at build,
 // corner forces widened back to float64 (the CUDA kernels' mixed precision). Lane by lane the
@@ -330,6 +408,10 @@ ThreadPool::ChunkFn select_tet_pass(const Model& m) {
     case Formulation::kGradient:
       if (m.element_precision == ElementPrecision::kFloat32)  // build_model: no clamp then
         return svk ? &tet_pass_chunks_batched_f32<true> : &tet_pass_chunks_batched_f32<false>;
+#ifdef ZONA_HAVE_AVX512_PASS
+      if (m.inversion != InversionHandling::kClampStretch && cpu_simd_bits() >= 512)
+        return svk ? &tet_pass_chunks_batched8<true> : &tet_pass_chunks_batched8<false>;
+#endif
       if (!svk) return &tet_pass_chunks_batched<false>;
       return m.inversion == InversionHandling::kClampStretch
                  ? &tet_pass_chunks<SvkGradientClamped>
@@ -352,6 +434,33 @@ void gather_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
 }
 
 }  // namespace
+
+namespace {
+
+// 512 when the CPU has AVX-512F and ZONA_CPU_SIMD_BITS does not say 256; read once.
+int detect_simd_bits() {
+#ifdef ZONA_HAVE_AVX512_PASS
+  if (const char* env = std::getenv("ZONA_CPU_SIMD_BITS"); env && std::atoi(env) == 256)
+    return 256;
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512f") ? 512 : 256;
+#else
+  return 256;
+#endif
+}
+
+std::atomic<int>& simd_bits_setting() {
+  static std::atomic<int> bits{detect_simd_bits()};
+  return bits;
+}
+
+}  // namespace
+
+int cpu_simd_bits() { return simd_bits_setting().load(std::memory_order_relaxed); }
+
+void set_cpu_simd_bits(int bits) {
+  simd_bits_setting().store(bits >= 512 ? detect_simd_bits() : 256, std::memory_order_relaxed);
+}
 
 void compute_tet_forces(const Model& model, State& state) {
   PassContext context{&model, &state};

@@ -15,6 +15,14 @@
 
 namespace zona {
 
+/// Widest SIMD the float64 element pass uses: 512 (eight tetrahedra per AVX-512 pack) on CPUs
+/// with AVX-512F unless the environment sets ZONA_CPU_SIMD_BITS=256, else 256 (four per AVX2
+/// pack). Both give the same bits; for benchmarks and tests.
+int cpu_simd_bits();
+/// Limits the float64 element pass to 256-bit packs (bits < 512) or allows AVX-512 where the CPU
+/// has it (bits >= 512). Not thread-safe against a running pass.
+void set_cpu_simd_bits(int bits);
+
 /// Element pass: corner forces of every tetrahedron at displacements state.u into
 /// state.tet_force, energy and health per chunk into state.tet_chunks. Runs on state.pool.
 void compute_tet_forces(const Model& model, State& state);

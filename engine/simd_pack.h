@@ -193,6 +193,69 @@ ZONA_P8_OP(/)
   return m[0] != 0;
 }
 
+// ---------------------------------------------------------------------------------------------
+// Eight-lane double packs for the AVX-512 element pass (float64, bit-identical like P4; only
+// built into a function compiled with target("avx512f"): elsewhere GCC would split each op).
+
+/// Eight doubles in one 512-bit register.
+typedef double V8 __attribute__((vector_size(64)));
+/// Lane masks of a P8d comparison.
+typedef decltype(V8{} > V8{}) M8d;
+
+/// Eight doubles operated on lane by lane.
+struct P8d {
+  V8 v;
+  P8d() = default;
+  P8d(double x) : v{x, x, x, x, x, x, x, x} {}  // NOLINT: implicit, as T(0.5) and T x = 0 need
+};
+#define ZONA_P8D_OP(op)                                                                  \
+  [[gnu::always_inline]] inline P8d operator op(P8d a, P8d b) {                         \
+    P8d r;                                                                               \
+    r.v = a.v op b.v;                                                                    \
+    return r;                                                                            \
+  }
+ZONA_P8D_OP(+)
+ZONA_P8D_OP(-)
+ZONA_P8D_OP(*)
+ZONA_P8D_OP(/)
+#undef ZONA_P8D_OP
+[[gnu::always_inline]] inline P8d operator-(P8d a) {
+  P8d r;
+  r.v = -a.v;
+  return r;
+}
+[[gnu::always_inline]] inline P8d& operator+=(P8d& a, P8d b) {
+  a.v += b.v;
+  return a;
+}
+[[gnu::always_inline]] inline P8d& operator-=(P8d& a, P8d b) {
+  a.v -= b.v;
+  return a;
+}
+
+/// Lanes 0-3 from lo, 4-7 from hi.
+[[gnu::always_inline]] inline P8d concat(P4 lo, P4 hi) {
+  P8d r;
+  r.v = __builtin_shufflevector(lo.v, hi.v, 0, 1, 2, 3, 4, 5, 6, 7);
+  return r;
+}
+
+/// Lanes 0-3 (half 0) or 4-7 (half 1).
+[[gnu::always_inline]] inline P4 half_of(P8d a, int half) {
+  P4 r;
+  r.v = half == 0 ? __builtin_shufflevector(a.v, a.v, 0, 1, 2, 3)
+                  : __builtin_shufflevector(a.v, a.v, 4, 5, 6, 7);
+  return r;
+}
+
+/// True when every lane of the mask holds.
+[[gnu::always_inline]] inline bool all_lanes(M8d m) {
+  m &= __builtin_shufflevector(m, m, 4, 5, 6, 7, 0, 1, 2, 3);
+  m &= __builtin_shufflevector(m, m, 2, 3, 0, 1, 6, 7, 4, 5);
+  m &= __builtin_shufflevector(m, m, 1, 0, 3, 2, 5, 4, 7, 6);
+  return m[0] != 0;
+}
+
 /// (x, y, z, 0) of a Vec3d: a 16-byte and an 8-byte load, never past the vector's end.
 [[gnu::always_inline]] inline P4 load_xyz0(const Vec3d& a) { return P4(a.x, a.y, a.z, 0.0); }
 

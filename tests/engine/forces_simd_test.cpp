@@ -1,11 +1,12 @@
 // The CPU element pass's packed kernels against the scalar element functions: float64 (four
-// tetrahedra per pack) bit for bit, float32 (eight per pack, ElementPrecision::kFloat32) bit for
+// tetrahedra per AVX2 pack, eight per AVX-512 pack) bit for bit, float32 (eight per pack, ElementPrecision::kFloat32) bit for
 // bit against fem_element.h at T = float and within a stated tolerance of float64, health bits
 // through the packed masks, and determinism of the float32 step for any thread count.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstring>
+#include <utility>
 #include <vector>
 
 #include "engine/forces_cpu.h"
@@ -104,9 +105,16 @@ void expect_pass_equals_scalar(ConstitutiveModel law, ElementPrecision precision
   EXPECT_EQ(d.element_health, 0u);
 }
 
+// Both float64 passes: eight tetrahedra per AVX-512 pack (where the CPU has it) and four per
+// AVX2 pack.
 TEST(SimdElementPass, Float64CornerForcesEqualTheScalarFunctionsBitForBit) {
-  expect_pass_equals_scalar<double>(ConstitutiveModel::kSvk, ElementPrecision::kFloat64);
-  expect_pass_equals_scalar<double>(ConstitutiveModel::kLinear, ElementPrecision::kFloat64);
+  for (int bits : {512, 256}) {
+    set_cpu_simd_bits(bits);
+    SCOPED_TRACE(::testing::Message() << "simd bits " << cpu_simd_bits());
+    expect_pass_equals_scalar<double>(ConstitutiveModel::kSvk, ElementPrecision::kFloat64);
+    expect_pass_equals_scalar<double>(ConstitutiveModel::kLinear, ElementPrecision::kFloat64);
+  }
+  set_cpu_simd_bits(512);
 }
 
 TEST(SimdElementPass, Float32CornerForcesEqualTheScalarFloatFunctionsBitForBit) {
@@ -146,7 +154,11 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
   const size_t inner = 1 + 4 * (1 + 4 * 1);  // vertex (1, 1, 1)
   u[inner] = Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
   u[inner + 1] = Vec3d{-0.2 * kL, 0, 0};
-  for (ElementPrecision precision : {ElementPrecision::kFloat64, ElementPrecision::kFloat32}) {
+  const std::pair<int, ElementPrecision> cases[] = {{512, ElementPrecision::kFloat64},
+                                                     {256, ElementPrecision::kFloat64},
+                                                     {256, ElementPrecision::kFloat32}};
+  for (const auto& [simd_bits, precision] : cases) {
+    set_cpu_simd_bits(simd_bits);
     const Model m = build(mesh, ConstitutiveModel::kSvk, precision);
     State s = loaded_state(m, u, 2);
     compute_tet_forces(m, s);
@@ -172,6 +184,7 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
     EXPECT_EQ(d.first_collapsing, first_collapsing);
     EXPECT_EQ(d.element_health, uint32_t{kElementInverted | kElementCollapsing});
   }
+  set_cpu_simd_bits(512);
 }
 
 // The float32 step is as deterministic as the float64 one: the same bits for 1, 2 and 3 threads
