@@ -36,10 +36,9 @@ TEST(SceneWrite, WritesSiValuesAndResolvedChoices) {
   EXPECT_EQ(j["needle"]["start"], "auto");
   EXPECT_EQ(j["mesh"]["generate"]["refine_at"], "needle");
   EXPECT_EQ(j["holding_pipette"]["suction"], "2500 Pa");
-  EXPECT_EQ(j["materials"]["cytoplasm"]["young"], "1000 Pa");
   // The speed table is written, not the modulus it gave at this speed.
-  EXPECT_FALSE(j["materials"]["zona"].contains("young"));
-  EXPECT_EQ(j["materials"]["zona"]["young_by_speed"][1]["young"], "5e+08 Pa");
+  EXPECT_FALSE(j["materials"]["default"].contains("young"));
+  EXPECT_EQ(j["materials"]["default"]["young_by_speed"][0]["young"], "61000 Pa");
   EXPECT_EQ(j["integrator"]["dt"], "auto");
 }
 
