@@ -80,8 +80,8 @@ class SimulationPortAdapter final : public HapticSimulationPort {
       const double tau = sim_.scene().needle.force_filter;
       const double h = r.time - lateral_time_;
       // The same first-order low-pass as the axial force (exact for a held input).
-      lateral_ = tau > 0 && lateral_started_ ? lateral_ + (1.0 - std::exp(-h / tau)) * (lateral - lateral_)
-                                             : lateral;
+      const double w = tau > 0 && lateral_started_ ? 1.0 - std::exp(-h / tau) : 1.0;
+      lateral_ = lateral_ + w * (lateral - lateral_);
       lateral_started_ = true;
       lateral_time_ = r.time;
       sample.force += lateral_;
@@ -216,7 +216,9 @@ void run_haptics(const HapticsArgs& a) {
   // The operator feels the drop when the axial force sent to the device has halved; the delay
   // counts from the simulation's first punctured sample (its publication, the moment the
   // simulation saw it). -1: no puncture, or not felt within the run.
-  auto delay_ms = [](double from, double to) { return from >= 0 && to >= 0 ? (to - from) * 1e3 : -1.0; };
+  auto delay_ms = [](double from, double to) {
+    return from >= 0 && to >= 0 ? (to - from) * 1e3 : -1.0;
+  };
   const double felt_delay_ms = delay_ms(s.puncture_published_s, s.puncture_felt_s);
   if (a.json) {
     nlohmann::json j;

@@ -7,11 +7,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 namespace {
 
@@ -23,7 +22,8 @@ struct RunOutput {
 };
 
 RunOutput run_zona(const std::string& args, const fs::path& dir) {
-  const std::string out_path = (dir / "stdout.txt").string(), err_path = (dir / "stderr.txt").string();
+  const std::string out_path = (dir / "stdout.txt").string(),
+                    err_path = (dir / "stderr.txt").string();
   std::string cmd = ZONA_CLI_PATH;
   cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>").append(err_path);
   const int status = std::system(cmd.c_str());
@@ -47,9 +47,10 @@ int count_lines(const std::string& s) {
 struct TempDir {
   fs::path path;
   TempDir() {
-    path = fs::temp_directory_path() /
-           ("zona_cmd_haptics_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    path =
+        fs::temp_directory_path() /
+        ("zona_cmd_haptics_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+         "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::create_directories(path);
   }
   ~TempDir() {
@@ -98,18 +99,18 @@ TEST(CmdHaptics, JsonKeysAndLogColumns) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
   const fs::path log = dir.path / "session.csv";
-  const RunOutput r = run_zona("haptics " + scene.string() +
-                                   " --device scripted --duration 0.3 --no-realtime --json --log " +
-                                   log.string(),
-                               dir.path);
+  const RunOutput r =
+      run_zona("haptics " + scene.string() +
+                   " --device scripted --duration 0.3 --no-realtime --json --log " + log.string(),
+               dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(r.out);
   // The keys the issue lists, and the puncture measurement.
-  for (const char* key : {"rate_hz", "period_p50_us", "period_p99_us", "period_max_us",
-                          "sample_age_p99_ms", "device_max_force_N", "passivity_energy_J",
-                          "clamped_ticks", "nan_ticks", "puncture_felt_delay_ms",
-                          "passivity_axis_energy_J", "coupling_stiffness_N_per_m",
-                          "llewellyn_margin_Ns_per_m", "sim_steps", "ticks"})
+  for (const char* key :
+       {"rate_hz", "period_p50_us", "period_p99_us", "period_max_us", "sample_age_p99_ms",
+        "device_max_force_N", "passivity_energy_J", "clamped_ticks", "nan_ticks",
+        "puncture_felt_delay_ms", "passivity_axis_energy_J", "coupling_stiffness_N_per_m",
+        "llewellyn_margin_Ns_per_m", "sim_steps", "ticks"})
     EXPECT_TRUE(j.contains(key)) << key;
   EXPECT_EQ(j["nan_ticks"].get<int64_t>(), 0);
   EXPECT_LE(j["device_max_force_N"].get<double>(), 3.3 + 1e-9);  // the scene's (and Touch's) limit
@@ -135,16 +136,16 @@ TEST(CmdHaptics, ReplaysRecordedSession) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
   const fs::path log = dir.path / "session.csv", replayed = dir.path / "replayed.csv";
-  const RunOutput a = run_zona("haptics " + scene.string() +
-                                   " --device scripted --duration 0.2 --no-realtime --log " +
-                                   log.string(),
-                               dir.path);
+  const RunOutput a =
+      run_zona("haptics " + scene.string() +
+                   " --device scripted --duration 0.2 --no-realtime --log " + log.string(),
+               dir.path);
   ASSERT_EQ(a.exit_code, 0) << a.err;
   EXPECT_NE(a.out.find("zona haptics:"), std::string::npos) << a.out;  // the summary line
-  const RunOutput b = run_zona("haptics " + scene.string() + " --device replay --replay " +
-                                   log.string() + " --duration 0.1 --no-realtime --json --log " +
-                                   replayed.string(),
-                               dir.path);
+  const RunOutput b =
+      run_zona("haptics " + scene.string() + " --device replay --replay " + log.string() +
+                   " --duration 0.1 --no-realtime --json --log " + replayed.string(),
+               dir.path);
   ASSERT_EQ(b.exit_code, 0) << b.err;
   // The replayed hand retraces the recording: positions at the same session time agree.
   std::string h1, h2;
@@ -158,9 +159,9 @@ TEST(CmdHaptics, ReplaysRecordedSession) {
 TEST(CmdHaptics, EmulatedHandRunIsPassive) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
-  const RunOutput r = run_zona("haptics " + scene.string() +
-                                   " --device emulated --duration 0.4 --no-realtime --json",
-                               dir.path);
+  const RunOutput r = run_zona(
+      "haptics " + scene.string() + " --device emulated --duration 0.4 --no-realtime --json",
+      dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(r.out);
   // The hand put energy in and the controller never gave it back (observer >= 0 all run).
@@ -188,8 +189,10 @@ TEST(CmdHaptics, BadArgumentsAreOneLineErrors) {
       {"haptics " + s + " --device replay --duration 0.1", "--replay"},
       {"haptics " + s + " --device replay --replay /nonexistent/log.csv --duration 0.1",
        "/nonexistent/log.csv"},
-      {"haptics /nonexistent/scene.json --device emulated --duration 0.1", "/nonexistent/scene.json"},
-      {"haptics " + s + " --device emulated --duration 0.1 --stiffness-window 0", "--stiffness-window"},
+      {"haptics /nonexistent/scene.json --device emulated --duration 0.1",
+       "/nonexistent/scene.json"},
+      {"haptics " + s + " --device emulated --duration 0.1 --stiffness-window 0",
+       "--stiffness-window"},
       {"haptics " + s + " --device emulated --duration 0.1 --set haptics.coupling_stiffness=1e5",
        "coupling_stiffness"},
   };
@@ -205,10 +208,11 @@ TEST(CmdHaptics, BadArgumentsAreOneLineErrors) {
 TEST(CmdHaptics, SceneWithoutNeedleIsRefused) {
   TempDir dir;
   const fs::path scene = dir.path / "no_needle.json";
-  std::ofstream(scene) << R"({"name": "ball", "mesh": {"generate": {"diameter": "20 um", "vertices": 150}},
+  std::ofstream(scene)
+      << R"({"name": "ball", "mesh": {"generate": {"diameter": "20 um", "vertices": 150}},
     "integrator": {"duration": "1 ms"}})";
-  const RunOutput r = run_zona("haptics " + scene.string() + " --device emulated --duration 0.1",
-                               dir.path);
+  const RunOutput r =
+      run_zona("haptics " + scene.string() + " --device emulated --duration 0.1", dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_EQ(count_lines(r.err), 1) << r.err;
   EXPECT_NE(r.err.find("needle"), std::string::npos) << r.err;
