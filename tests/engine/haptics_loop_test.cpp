@@ -186,7 +186,8 @@ TEST(HapticsLoop, SessionMeasuresWhenPunctureIsFelt) {
   ASSERT_GE(s.puncture_felt_s, s.puncture_received_s);
   // The toy membrane drops at once: the published force halved with the first punctured sample.
   EXPECT_EQ(s.puncture_sim_drop_s, s.puncture_published_s);
-  EXPECT_GE(s.passivity_min_energy, -1e-9);
+  // Passive, with the margin a descheduled haptic thread needs (cmd_haptics_test says why).
+  EXPECT_GE(s.passivity_min_energy, -1e-3 * s.passivity_energy);
 }
 
 TEST(HapticsLoop, StalledSimulationFadesForceOut) {
