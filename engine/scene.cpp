@@ -175,6 +175,8 @@ void read_material(Reader& r, MaterialDef& m) {
 }
 
 void read_materials(Reader& root, Scene& scene) {
+  // The particle model has no FEM materials (its parameters are in "particles").
+  if (scene.model == ModelKind::kParticles && !root.has("materials")) return;
   if (!root.require("materials")) return;
   const json* node = root.find("materials");
   if (!node->is_object() || node->empty()) {
@@ -222,6 +224,44 @@ void read_integrator(Reader& root, Scene& scene) {
            &in.mass_scaling_mode);
   r.quantity("stiffness_damping", dim::kTime, &in.stiffness_damping, Range::non_negative());
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
+}
+
+// The particle model (seed 001): only with "model": "particles".
+void read_particles(Reader& root, Scene& scene) {
+  Reader r = root.object("particles", {"layout", "particles", "pole_axis", "membrane_modulus",
+                                       "membrane_relaxation_time", "radial_stiffness",
+                                       "radial_damping", "damping", "compressibility",
+                                       "areal_density", "centre_mass"});
+  if (!r.present()) return;
+  if (scene.model != ModelKind::kParticles) {
+    r.fail("", "only used with \"model\": \"particles\"");
+    return;
+  }
+  constexpr Dimension kPerArea{0, -2, 0};
+  const Dimension radial_stiffness = dim::kStiffness * kPerArea;  // N/m^3
+  const Dimension radial_damping = dim::kDamping * kPerArea;      // N*s/m^3
+  const Dimension compressibility = dim::kNone / dim::kPressure;  // 1/Pa
+  const Dimension areal_density = dim::kMass * kPerArea;          // kg/m^2
+  ParticlesDef& p = scene.particles;
+  r.choice("layout", {Choice<ParticleLayout>{"icosphere", ParticleLayout::kIcosphere},
+                      Choice<ParticleLayout>{"latlong", ParticleLayout::kLatLong}},
+           &p.layout);
+  r.integer("particles", &p.particles, 12, 4'000'000);
+  r.direction("pole_axis", &p.pole_axis);
+  r.quantity("membrane_modulus", dim::kStiffness, &p.membrane_modulus, Range::positive());
+  r.quantity("membrane_relaxation_time", dim::kTime, &p.membrane_relaxation_time, Range::non_negative());
+  r.quantity("radial_stiffness", radial_stiffness, &p.radial_stiffness, Range::non_negative());
+  r.quantity("radial_damping", radial_damping, &p.radial_damping, Range::non_negative());
+  if (r.vec3("damping", radial_damping, &p.damping)) {
+    for (int a = 0; a < 3; ++a)
+      if (!(p.damping[a] >= 0.0)) {
+        r.fail("damping", "each component must be >= 0");
+        return;
+      }
+  }
+  r.quantity("compressibility", compressibility, &p.compressibility, Range::positive());
+  r.quantity("areal_density", areal_density, &p.areal_density, Range::positive());
+  r.quantity("centre_mass", dim::kMass, &p.centre_mass, Range::non_negative());
 }
 
 void read_boundary(Reader& root, Scene& scene) {
@@ -548,7 +588,7 @@ void check_scene(Context& ctx, Scene& scene) {
   if (ctx.failed()) return;
   resolve_refine_at(ctx, scene);
   resolve_speed_moduli(ctx, scene);
-  check_generated_regions(ctx, scene);
+  if (scene.model != ModelKind::kParticles) check_generated_regions(ctx, scene);
   if (ctx.failed()) return;
   const bool generated = scene.mesh.source == MeshSource::kGenerate;
   const Vec3d k = scene.mesh.generate.radii_scale;
@@ -752,7 +792,8 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   scene.name = fs::path(source_name).stem().string();
   Reader root(ctx, &doc, "",
               {"version", "name", "description", "mesh", "model", "materials", "integrator",
-               "boundary", "needle", "puncture", "holding_pipette", "haptics", "output"});
+               "boundary", "needle", "puncture", "holding_pipette", "haptics", "output",
+               "particles"});
   int64_t version = 1;
   root.integer("version", &version, 1, 1);
   root.string("name", &scene.name);
@@ -762,6 +803,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);
+  read_particles(root, scene);
   read_boundary(root, scene);
   read_puncture(root, scene);
   read_holding_pipette(root, scene);

@@ -147,6 +147,32 @@ enum class NeedleShape {
   kFlat,    ///< flat circular end of tip_radius (blunt pipette)
 };
 
+/// How the membrane particles of the particle model are placed and joined.
+enum class ParticleLayout : int32_t {
+  /// Geodesic icosphere (icosahedron subdivided at a frequency n: 10 n^2 + 2 particles), springs
+  /// along the triangulation's edges (5 or 6 neighbours). Near-uniform spacing: the default.
+  kIcosphere = 0,
+  /// Seed 001's latitude-longitude grid: rings of particles, each joined to its four neighbours
+  /// (left, right, top, bottom); one particle at each pole joined to its whole first ring.
+  kLatLong = 1,
+};
+
+/// The particle cell model (seed 001; `"model": "particles"`): the membrane of a sphere of
+/// mesh.generate.diameter. engine/particle_model.h says how each value enters.
+struct ParticlesDef {
+  ParticleLayout layout = ParticleLayout::kIcosphere;
+  int64_t particles = 2562;          ///< about this many membrane particles
+  Vec3d pole_axis{0.0, 0.0, 1.0};    ///< lat-long: unit axis through the poles [-]
+  double membrane_modulus = 1.0;     ///< membrane 2D modulus E h [N/m]
+  double membrane_relaxation_time = 0.0;  ///< membrane dashpot / spring [s]
+  double radial_stiffness = 0.0;     ///< centre springs per membrane area [N/m^3]
+  double radial_damping = 0.0;       ///< centre dashpots per membrane area [N*s/m^3]
+  Vec3d damping{0.0, 0.0, 0.0};      ///< eq. 5's diagonal damping per membrane area [N*s/m^3]
+  double compressibility = 1e-6;     ///< interior compressibility beta [1/Pa]
+  double areal_density = 3e-3;       ///< membrane mass per area [kg/m^2]
+  double centre_mass = 0.0;          ///< centre particle mass [kg]; 0: the membrane's mass
+};
+
 /// The injection micropipette: a rigid tool driven by a script or, later, the haptic coupling.
 struct NeedleDef {
   bool enabled = false;       ///< the scene has a needle
@@ -244,6 +270,7 @@ struct Scene {
   std::string source;       ///< file the scene came from ("" when parsed from memory)
   MeshDef mesh;
   ModelKind model = ModelKind::kSvk;
+  ParticlesDef particles;  ///< used when model is kParticles
   std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
   IntegratorDef integrator;
   std::vector<BoundaryDef> boundary;      ///< in file order

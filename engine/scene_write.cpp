@@ -1,4 +1,5 @@
 // Scene writer: a Scene back to JSON in SI units, readable by parse_scene.
+#include <cstdio>
 #include <nlohmann/json.hpp>
 
 #include "engine/scene.h"
@@ -88,7 +89,32 @@ json scene_to_json(const Scene& scene) {
     e["damping"] = quantity_json(m.damping, kFrequency);
     materials[entry.region] = e;
   }
-  j["materials"] = materials;
+  // A particle scene may have no materials (an empty object would not read back).
+  if (scene.model != ModelKind::kParticles || !scene.materials.empty()) j["materials"] = materials;
+  if (scene.model == ModelKind::kParticles) {
+    // Units without a name in units.cpp are written out by hand (parse_unit reads them back).
+    const ParticlesDef& p = scene.particles;
+    auto with_unit = [](double v, const char* unit) {
+      char text[64];
+      std::snprintf(text, sizeof text, "%.17g %s", v, unit);
+      return json(text);
+    };
+    json particles = json::object();
+    particles["layout"] = p.layout == ParticleLayout::kIcosphere ? "icosphere" : "latlong";
+    particles["particles"] = p.particles;
+    particles["pole_axis"] = direction_json(p.pole_axis);
+    particles["membrane_modulus"] = quantity_json(p.membrane_modulus, kStiffness);
+    particles["membrane_relaxation_time"] = quantity_json(p.membrane_relaxation_time, kTime);
+    particles["radial_stiffness"] = with_unit(p.radial_stiffness, "N/m^3");
+    particles["radial_damping"] = with_unit(p.radial_damping, "N*s/m^3");
+    particles["damping"] = json::array({with_unit(p.damping.x, "N*s/m^3"),
+                                        with_unit(p.damping.y, "N*s/m^3"),
+                                        with_unit(p.damping.z, "N*s/m^3")});
+    particles["compressibility"] = with_unit(p.compressibility, "1/Pa");
+    particles["areal_density"] = with_unit(p.areal_density, "kg/m^2");
+    particles["centre_mass"] = quantity_json(p.centre_mass, kMass);
+    j["particles"] = particles;
+  }
 
   const IntegratorDef& in = scene.integrator;
   json integrator = json::object();
