@@ -167,10 +167,21 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   if (!(options.slip_relax > 0 && options.slip_relax <= 1))
     return make_error("simulation: slip_relax must be in (0, 1], got %g", options.slip_relax);
 
-  // Mesh and surface.
-  Result<Mesh> mesh = build_scene_mesh(scene, &notes_);
-  if (!mesh.ok()) return mesh.error();
-  mesh_ = std::move(*mesh);
+  // Mesh and surface. The particle model (seed 001) builds its own body mesh: the membrane
+  // triangulation plus fan tetrahedra to the centre particle (engine/particle_model.h).
+  if (scene.model == ModelKind::kParticles) {
+    Result<ParticleModelDesc> pd = particle_desc_from_scene(scene);
+    if (!pd.ok()) return pd.error();
+    Result<ParticleModel> pm = build_particle_model(*pd);
+    if (!pm.ok()) return make_error("%s: %s", name.c_str(), pm.error().message.c_str());
+    particles_ = std::make_unique<ParticleModel>(std::move(*pm));
+    mesh_ = particle_body_mesh(*particles_);
+    notes_.push_back(describe_particle_model(*particles_));
+  } else {
+    Result<Mesh> mesh = build_scene_mesh(scene, &notes_);
+    if (!mesh.ok()) return mesh.error();
+    mesh_ = std::move(*mesh);
+  }
   Result<ContactSurface> surface = build_contact_surface(mesh_);
   if (!surface.ok()) return make_error("%s: %s", name.c_str(), surface.error().message.c_str());
   surface_ = std::move(*surface);
@@ -255,13 +266,25 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   }
 
   // Model.
-  Result<ModelDesc> desc = model_desc_from_scene(scene, mesh_, options, &notes_);
-  if (!desc.ok()) return desc.error();
-  desc->fixed_vertices = fixed;
-  Result<Model> model = build_model(mesh_, *desc);
-  if (!model.ok()) return make_error("%s: %s", name.c_str(), model.error().message.c_str());
-  model_ = std::move(*model);
-  if (scene.integrator.target_dt && scene.integrator.mass_scaling_mode == MassScalingMode::kSelective) {
+  if (particles_) {
+    Result<Model> model = particle_body_model(*particles_, mesh_, fixed);
+    if (!model.ok()) return make_error("%s: %s", name.c_str(), model.error().message.c_str());
+    model_ = std::move(*model);
+    if (scene.integrator.mass_scaling_mode == MassScalingMode::kSelective)
+      notes_.push_back("particles: mass scaling is uniform (selective scaling is FEM-only)");
+    if (scene.puncture.criterion == PunctureCriterion::kStrain)
+      return make_error("%s: puncture.criterion 'strain' needs FEM elements; use force or energy "
+                        "with model 'particles'", name.c_str());
+  } else {
+    Result<ModelDesc> desc = model_desc_from_scene(scene, mesh_, options, &notes_);
+    if (!desc.ok()) return desc.error();
+    desc->fixed_vertices = fixed;
+    Result<Model> model = build_model(mesh_, *desc);
+    if (!model.ok()) return make_error("%s: %s", name.c_str(), model.error().message.c_str());
+    model_ = std::move(*model);
+  }
+  if (!particles_ && scene.integrator.target_dt &&
+      scene.integrator.mass_scaling_mode == MassScalingMode::kSelective) {
     Result<SelectiveScalingReport> r =
         apply_selective_mass_scaling(model_, *scene.integrator.target_dt, scene.integrator.dt_safety);
     if (!r.ok()) return make_error("%s: %s", name.c_str(), r.error().message.c_str());
@@ -272,7 +295,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
                   r->mass_after / r->mass_before, r->max_vertex_factor, 100.0 * r->scaled_fraction);
     notes_.push_back(line);
   }
-  state_ = make_state(model_, options.threads);
+  state_ = make_state(model_, particles_ ? 1 : options.threads);  // particle_step is serial
 
   // Tools on the surface.
   const size_t capacity = model_.vertex_count();
@@ -333,9 +356,12 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   // Backend: the CPU reference in place, or one behind the Backend interface.
   backend_description_ = "cpu reference in place: " + std::to_string(state_.pool->thread_count()) +
                          " thread(s), float64";
-  if (options.backend_factory) {
+  if (particles_) backend_description_ = "particles: cpu reference in place, 1 thread, float64";
+  if (particles_ ? bool(options.particle_backend_factory) : bool(options.backend_factory)) {
     std::string notice;
-    Result<std::unique_ptr<Backend>> backend = options.backend_factory(&notice);
+    Result<std::unique_ptr<Backend>> backend = particles_
+                                                   ? options.particle_backend_factory(*particles_, &notice)
+                                                   : options.backend_factory(&notice);
     if (!backend.ok()) return backend.error();
     if (!notice.empty()) notes_.push_back(notice);
     if (std::string((*backend)->name()) != "cpu") {
@@ -505,6 +531,7 @@ StepStatus Simulation::integrate() {
     // In place: the set changes without allocating (capacity reserved by make_state).
     if (Status s = set_prescribed_vertices(model_, state_, prescribed_); !s) return kStepNonFinite;
     std::copy(targets.begin(), targets.end(), state_.prescribed_displacement.begin());
+    if (particles_) return mask_budget_flag(particle_step(*particles_, model_, state_, nullptr));
     return mask_budget_flag(zona::step(model_, state_));
   }
   // Backend: a new prescribed set or new loads need a fresh upload (the interface has no call
@@ -613,6 +640,11 @@ void Simulation::measure() {
   report_.holding_force = holding;
   report_.elastic_energy = state_.diag.elastic_energy;
   report_.kinetic_energy = state_.diag.kinetic_energy;
+  // Particle model: the enclosed volume against its rest value (seed 001 eq. 6's constraint).
+  if (particles_) {
+    volume_change_rel_ = particle_volume(*particles_, state_.u) / particles_->rest_volume - 1.0;
+    volume_change_max_rel_ = std::max(volume_change_max_rel_, std::fabs(volume_change_rel_));
+  }
 }
 
 void Simulation::publish() {

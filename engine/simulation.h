@@ -30,6 +30,7 @@
 #include "engine/mesh.h"
 #include "engine/model.h"
 #include "engine/needle.h"
+#include "engine/particle_model.h"
 #include "engine/puncture.h"
 #include "engine/scene.h"
 #include "engine/state.h"
@@ -45,6 +46,13 @@ struct SimulationOptions {
   /// contact set or the loads change (docs/injection.md lists the calls that would avoid it).
   /// `notice` receives a one-line note (e.g. the auto fallback to the CPU).
   std::function<Result<std::unique_ptr<Backend>>(std::string* notice)> backend_factory;
+  /// Compute backend of the particle model (scene model "particles"), called once at creation
+  /// with the built particle model (kernels/particle_backend.h's make_particle_backend): a
+  /// returned "cpu" backend is dropped for the in-place CPU reference, any other is driven
+  /// through the Backend interface. Empty: the CPU reference in place. `backend_factory` is
+  /// not used for the particle model.
+  std::function<Result<std::unique_ptr<Backend>>(const ParticleModel&, std::string* notice)>
+      particle_backend_factory;
   /// Threads of the CPU reference (0: one per hardware thread). Results do not depend on it.
   int threads = 0;
   /// Integrator sub-steps per contact update on the Backend path (>= 1).
@@ -145,6 +153,12 @@ class Simulation {
   const std::string& backend_description() const { return backend_description_; }
   /// Notes from setup (skipped materials, backend fallback), one line each.
   const std::vector<std::string>& notes() const { return notes_; }
+  /// The particle model (scene model "particles"), else null.
+  const ParticleModel* particle_model() const { return particles_.get(); }
+  /// Particle model: relative change of the enclosed volume at the last step, (V - V0) / V0 [-].
+  double volume_change_rel() const { return volume_change_rel_; }
+  /// Particle model: largest |V - V0| / V0 seen so far [-].
+  double volume_change_max_rel() const { return volume_change_max_rel_; }
 
  private:
   Simulation() = default;
@@ -166,6 +180,8 @@ class Simulation {
   State state_;
   ContactSurface surface_;
   std::unique_ptr<Backend> backend_;  // null on the in-place CPU path
+  std::unique_ptr<ParticleModel> particles_;  // scene model "particles" (engine/particle_model.h)
+  double volume_change_rel_ = 0, volume_change_max_rel_ = 0;
   std::string backend_description_;
   std::vector<std::string> notes_;
 

@@ -1,6 +1,7 @@
 // Tests for engine/particle_model (seed 001): spring and damping forces against hand values,
 // layouts, volume and pressure under uniform scaling against the analytic values, forces as the
-// energy's gradient, the stable step, bad parameters.
+// energy's gradient, the stable step, determinism, bad parameters, and the model inside the
+// injection simulation (volume conservation, split step, CPU backend, scene round trip).
 #include "engine/particle_model.h"
 
 #include <gtest/gtest.h>
@@ -9,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/particle_element.h"
+#include "engine/simulation.h"
 
 namespace zona {
 namespace {
@@ -306,6 +308,212 @@ TEST(ParticleModel, BadParametersAreRefusedInOneLine) {
   d = small_desc();
   d.dt_safety = 1.5;
   refused(d, "integrator.dt_safety");
+}
+
+// ---------------------------------------------------------------------------------------------
+// In the injection simulation.
+
+std::string speed_text(double speed) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g m/s", speed);
+  return text;
+}
+
+json particle_scene(double speed = 2e-3) {
+  return json{
+      {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
+      {"model", "particles"},
+      {"particles",
+       {{"particles", 642},
+        {"membrane_modulus", "20 N/m"},
+        {"radial_stiffness", "1000 N/m^3"},
+        {"radial_damping", "3e4 N*s/m^3"},
+        {"damping", {"1e4 N*s/m^3", "1e4 N*s/m^3", "2e4 N*s/m^3"}},
+        {"compressibility", "1e-6 1/Pa"}}},
+      {"integrator", {{"target_dt", "20 us"}}},
+      {"needle",
+       {{"shape", "sphere"},
+        {"tip_radius", "30 um"},
+        {"direction", "+x"},
+        {"standoff", "10 um"},
+        {"speed", speed_text(speed)},
+        {"max_travel", "250 um"}}},
+      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
+      {"output", {{"frames", 0}, {"sample_interval", "1 ms"}}}};
+}
+
+std::unique_ptr<Simulation> make_sim(const json& j, const SimulationOptions& options = {}) {
+  Result<Scene> scene = parse_scene(j, "particles_test.json");
+  EXPECT_TRUE(scene.ok()) << (scene.ok() ? "" : scene.error().message);
+  if (!scene.ok()) return nullptr;
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene, options);
+  EXPECT_TRUE(sim.ok()) << (sim.ok() ? "" : sim.error().message);
+  return sim.ok() ? std::move(*sim) : nullptr;
+}
+
+TEST(ParticleSimulation, InjectionConservesVolumeWithinFivePercent) {
+  std::unique_ptr<Simulation> sim = make_sim(particle_scene());
+  ASSERT_TRUE(sim);
+  ASSERT_NE(sim->particle_model(), nullptr);
+  RunResult run = run_simulation(*sim);
+  EXPECT_FALSE(run.stopped_early) << run.stop_reason;
+  // The needle went 240 um into the cell against a rising force...
+  EXPECT_GT(run.peak_deformation, 150e-6);
+  EXPECT_GT(run.peak_force, 0.0);
+  ASSERT_GT(run.samples.size(), 10u);
+  EXPECT_GT(run.samples.back().force, run.samples[run.samples.size() / 2].force);
+  // ... while eq. 6 kept the enclosed volume within 5 % (and it did change).
+  EXPECT_LT(sim->volume_change_max_rel(), 0.05);
+  EXPECT_GT(sim->volume_change_max_rel(), 0.0);
+}
+
+TEST(ParticleSimulation, SplitStepTakesTheHapticToolPose) {
+  std::unique_ptr<Simulation> sim = make_sim(particle_scene());
+  ASSERT_TRUE(sim);
+  // Drive the tip by hand 100 um into the cell through step1 / set_needle_tip / step2.
+  const Vec3d start = sim->needle_script().start;
+  const int steps = 2000;
+  for (int k = 1; k <= steps; ++k) {
+    sim->step1();
+    sim->set_needle_tip(start + (120e-6 * k / steps) * Vec3d{1, 0, 0});
+    ASSERT_EQ(sim->step2() & kStepNotAdvanced, 0u);
+  }
+  EXPECT_GT(sim->report().contacts, 0);
+  EXPECT_GT(sim->report().force, 0.0);
+  EXPECT_GT(sim->report().deformation, 50e-6);
+}
+
+TEST(ParticleSimulation, RunsAreDeterministic) {
+  json j = particle_scene();
+  j["needle"]["max_travel"] = "60 um";
+  std::unique_ptr<Simulation> a = make_sim(j), b = make_sim(j);
+  ASSERT_TRUE(a && b);
+  for (int k = 0; k < 1500; ++k) {
+    a->step();
+    b->step();
+  }
+  EXPECT_GT(a->report().contacts, 0);
+  for (size_t i = 0; i < a->state().u.size(); ++i) {
+    ASSERT_EQ(a->state().u[i].x, b->state().u[i].x) << i;
+    ASSERT_EQ(a->state().u[i].z, b->state().u[i].z) << i;
+  }
+  EXPECT_EQ(a->report().force, b->report().force);
+}
+
+// A particle body with a fixed cap, a prescribed (indented) patch and a load: the setting the
+// backends are compared in.
+struct Driven {
+  ParticleModel pm;
+  Mesh mesh;
+  Model body;
+  State state;
+  std::vector<int32_t> patch;
+};
+
+Driven make_driven() {
+  Driven d;
+  d.pm = build(small_desc(ParticleLayout::kIcosphere, 642));
+  d.mesh = particle_body_mesh(d.pm);
+  std::vector<int32_t> fixed;
+  for (int i = 0; i < d.pm.membrane_count; ++i) {
+    const Vec3d x = d.pm.rest_positions[size_t(i)];
+    if (x.x > 350e-6) fixed.push_back(i);
+    if (x.x < -370e-6) d.patch.push_back(i);
+  }
+  Result<Model> body = particle_body_model(d.pm, d.mesh, fixed);
+  EXPECT_TRUE(body.ok());
+  d.body = std::move(*body);
+  d.state = make_state(d.body, 1);
+  EXPECT_TRUE(set_prescribed_vertices(d.body, d.state, d.patch).ok());
+  d.state.external_force[5] = Vec3d{0, 1e-6, -2e-6};
+  return d;
+}
+
+// Target of the indented patch after `k` steps: pushed along +x at 1 mm/s.
+Vec3d patch_target(const Driven& d, int64_t k) { return Vec3d{1e-3 * static_cast<double>(k) * d.body.dt, 0, 0}; }
+
+TEST(ParticleSimulation, CpuBackendMatchesTheInPlaceStep) {
+  Driven ref = make_driven(), via = make_driven();
+  std::unique_ptr<Backend> backend = make_particle_cpu_backend(via.pm);
+  ASSERT_TRUE(backend->upload(via.body, via.state).ok());
+  std::vector<Vec3d> targets(via.patch.size());
+  for (int call = 1; call <= 40; ++call) {
+    // In place: five steps with the targets moving linearly; the backend: one call of five.
+    for (int k = 1; k <= 5; ++k) {
+      for (size_t i = 0; i < ref.patch.size(); ++i)
+        ref.state.prescribed_displacement[i] = patch_target(ref, 5 * (call - 1) + k);
+      ASSERT_EQ(particle_step(ref.pm, ref.body, ref.state, nullptr) & kStepNotAdvanced, 0u);
+    }
+    for (Vec3d& t : targets) t = patch_target(via, 5 * call);
+    ASSERT_TRUE(backend->set_prescribed_targets(targets).ok());
+    const StepReport r = backend->step(5);
+    ASSERT_EQ(r.steps, 5);
+    ASSERT_EQ(r.status & kStepNotAdvanced, 0u);
+  }
+  ASSERT_TRUE(backend->download(via.state).ok());
+  EXPECT_EQ(via.state.step_count, 200);
+  double max_u = 0, max_diff = 0;
+  for (size_t i = 0; i < ref.state.u.size(); ++i) {
+    max_u = std::max(max_u, norm(ref.state.u[i]));
+    max_diff = std::max(max_diff, norm(ref.state.u[i] - via.state.u[i]));
+  }
+  EXPECT_GT(max_u, 1e-6);  // the patch went 2 um in
+  EXPECT_LT(max_diff, 1e-12 * max_u);
+  // The constraint pushes the patch into the cell (+x) against the body's resistance.
+  EXPECT_GT(ref.state.diag.constraint_force.x, 0.0);
+  EXPECT_NEAR(via.state.diag.constraint_force.x, ref.state.diag.constraint_force.x,
+              1e-9 * std::fabs(ref.state.diag.constraint_force.x));
+}
+
+TEST(ParticleSimulation, SceneReaderAndWriterRoundTrip) {
+  json j = particle_scene();
+  j["particles"]["layout"] = "latlong";
+  j["particles"]["pole_axis"] = "+y";
+  j["particles"]["areal_density"] = "2e-3 kg/m^2";
+  j["particles"]["membrane_relaxation_time"] = "1 us";
+  Result<Scene> scene = parse_scene(j, "particles_test.json");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  EXPECT_EQ(scene->model, ModelKind::kParticles);
+  EXPECT_EQ(scene->particles.layout, ParticleLayout::kLatLong);
+  EXPECT_DOUBLE_EQ(scene->particles.radial_stiffness, 1000.0);
+  EXPECT_DOUBLE_EQ(scene->particles.damping.z, 2e4);
+  EXPECT_DOUBLE_EQ(scene->particles.compressibility, 1e-6);
+  EXPECT_DOUBLE_EQ(scene->particles.areal_density, 2e-3);
+  Result<Scene> back = parse_scene(scene_to_json(*scene), "round_trip.json");
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->particles.layout, ParticleLayout::kLatLong);
+  EXPECT_DOUBLE_EQ(back->particles.membrane_modulus, scene->particles.membrane_modulus);
+  EXPECT_DOUBLE_EQ(back->particles.radial_damping, scene->particles.radial_damping);
+  EXPECT_DOUBLE_EQ(back->particles.compressibility, scene->particles.compressibility);
+  EXPECT_DOUBLE_EQ(back->particles.membrane_relaxation_time, 1e-6);
+  EXPECT_DOUBLE_EQ(back->particles.pole_axis.y, 1.0);
+}
+
+TEST(ParticleSimulation, SceneErrorsAreOneLine) {
+  auto error_of = [](const json& j) {
+    Result<Scene> scene = parse_scene(j, "bad.json");
+    if (!scene.ok()) return scene.error().message;
+    Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene);
+    return sim.ok() ? std::string() : sim.error().message;
+  };
+  json j = particle_scene();
+  j["particles"]["compressibility"] = "-1 1/Pa";
+  std::string e = error_of(j);
+  EXPECT_NE(e.find("particles.compressibility"), std::string::npos) << e;
+  j = particle_scene();
+  j["particles"]["membrane_modulus"] = "20 Pa";  // wrong dimension
+  e = error_of(j);
+  EXPECT_NE(e.find("particles.membrane_modulus"), std::string::npos) << e;
+  j = particle_scene();
+  j["model"] = "svk";
+  j["materials"] = {{"default", {{"young", "1 kPa"}, {"poisson", 0.3}}}};
+  e = error_of(j);
+  EXPECT_NE(e.find("only used with"), std::string::npos) << e;
+  j = particle_scene();
+  j["puncture"] = {{"criterion", "strain"}, {"threshold", 0.2}};
+  e = error_of(j);
+  EXPECT_NE(e.find("strain"), std::string::npos) << e;
+  EXPECT_EQ(e.find('\n'), std::string::npos);
 }
 
 }  // namespace
