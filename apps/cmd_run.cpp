@@ -18,6 +18,7 @@
 #include "engine/scene.h"
 #include "engine/simulation.h"
 #include "kernels/backend_factory.h"
+#include "kernels/particle_backend.h"
 
 namespace zona::cli {
 namespace {
@@ -190,6 +191,11 @@ void run_command(const RunArgs& args) {
     const BackendKind k = *kind;
     options.simulation.backend_factory = [k, backend_options](std::string* notice) {
       return make_backend(k, backend_options, notice);
+    };
+    // The particle model (scene model "particles") has its own backends.
+    options.simulation.particle_backend_factory = [k, backend_options](const ParticleModel& pm,
+                                                                       std::string* notice) {
+      return make_particle_backend(k, pm, backend_options, notice);
     };
   }
   options.stop_after_puncture = args.stop_after_puncture;

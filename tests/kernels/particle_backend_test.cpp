@@ -1,0 +1,247 @@
+// The particle model's GPU backend against its CPU reference on the same inputs (STYLE.md habit
+// 7): static forces, a 200-step driven trajectory with fixed, prescribed and loaded particles
+// (outputs poisoned with NaN first), bitwise-reproducible runs, the not-advanced rule on a
+// non-finite load, and a whole injection through the Simulation. Every Cuda* test skips when the
+// CUDA backend cannot be created (no GPU, or built without CUDA); the factory test runs always.
+#include "kernels/particle_backend.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "engine/particle_model.h"
+#include "engine/simulation.h"
+
+namespace zona {
+namespace {
+
+/// Forces: the same float64 arithmetic per particle; only the volume's and the centre's sums
+/// are in another order (a tree instead of a serial loop), so agreement is to rounding.
+constexpr double kForceTolerance = 1e-11;
+/// Displacements after 200 steps, relative to the largest: rounding carried by the dynamics.
+constexpr double kTrajectoryTolerance = 1e-9;
+/// The needle force after a simulated injection, relative: contact decisions may flip on a
+/// rounding difference at a threshold, which moves the force by a little.
+constexpr double kInjectionForceTolerance = 1e-3;
+
+#define ZONA_PARTICLE_CUDA_OR_SKIP(var, model, options)                                    \
+  Result<std::unique_ptr<Backend>> var##_result = make_particle_cuda_backend(model, options); \
+  if (!var##_result) GTEST_SKIP() << var##_result.error().message;                          \
+  std::unique_ptr<Backend> var = std::move(var##_result).value()
+
+ParticleModel test_model() {
+  ParticleModelDesc d;
+  d.radius = 400e-6;
+  d.target_particles = 642;
+  d.membrane_modulus = 20.0;
+  d.radial_stiffness = 1e3;
+  d.radial_damping = 1e3;
+  d.membrane_relaxation_time = 1e-6;
+  d.damping = Vec3d{2e3, 2e3, 4e3};
+  d.compressibility = 1e-6;
+  d.target_dt = 10e-6;
+  Result<ParticleModel> pm = build_particle_model(d);
+  EXPECT_TRUE(pm.ok()) << (pm.ok() ? "" : pm.error().message);
+  return pm.ok() ? std::move(*pm) : ParticleModel{};
+}
+
+// A body with a fixed cap (+x), an indented patch (-x, prescribed) and one load.
+struct Driven {
+  ParticleModel pm = test_model();
+  Mesh mesh;
+  Model body;
+  State state;
+  std::vector<int32_t> patch;
+  Driven() {
+    mesh = particle_body_mesh(pm);
+    std::vector<int32_t> fixed;
+    for (int i = 0; i < pm.membrane_count; ++i) {
+      const Vec3d x = pm.rest_positions[size_t(i)];
+      if (x.x > 350e-6) fixed.push_back(i);
+      if (x.x < -370e-6) patch.push_back(i);
+    }
+    Result<Model> b = particle_body_model(pm, mesh, fixed);
+    EXPECT_TRUE(b.ok());
+    body = std::move(*b);
+    state = make_state(body, 1);
+    EXPECT_TRUE(set_prescribed_vertices(body, state, patch).ok());
+    state.external_force[5] = Vec3d{0, 1e-6, -2e-6};
+  }
+  Vec3d target(int64_t k) const { return Vec3d{1e-3 * static_cast<double>(k) * body.dt, 0, 0}; }
+};
+
+// Runs 40 calls of 5 sub-steps with the patch pushed in at 1 mm/s; returns the last report.
+StepReport drive(Backend& backend, const Driven& d) {
+  std::vector<Vec3d> targets(d.patch.size());
+  StepReport last;
+  for (int call = 1; call <= 40; ++call) {
+    for (Vec3d& t : targets) t = d.target(5 * call);
+    EXPECT_TRUE(backend.set_prescribed_targets(targets).ok());
+    last = backend.step(5);
+    EXPECT_EQ(last.steps, 5);
+  }
+  return last;
+}
+
+double max_norm(const std::vector<Vec3d>& v) {
+  double m = 0;
+  for (const Vec3d& x : v) m = std::max(m, norm(x));
+  return m;
+}
+
+double max_diff(const std::vector<Vec3d>& a, const std::vector<Vec3d>& b) {
+  double m = 0;
+  for (size_t i = 0; i < a.size(); ++i) m = std::max(m, norm(a[i] - b[i]));
+  return m;
+}
+
+TEST(CudaParticleForces, MatchCpu) {
+  Driven d;
+  BackendOptions options;
+  options.poison_outputs = true;
+  ZONA_PARTICLE_CUDA_OR_SKIP(gpu, d.pm, options);
+  ASSERT_TRUE(gpu->upload(d.body, d.state).ok());
+  std::vector<Vec3d> u(d.pm.particle_count()), f_cpu(u.size()), f_gpu(u.size(), Vec3d{NAN, NAN, NAN});
+  for (size_t i = 0; i < u.size(); ++i) {
+    const Vec3d x = d.pm.rest_positions[i];
+    u[i] = Vec3d{5e-6 * std::sin(1e4 * x.y), -3e-6 * std::cos(7e3 * x.z), 4e-6 * std::sin(5e3 * x.x)};
+  }
+  particle_forces(d.pm, u, u, 0.0, f_cpu);
+  ASSERT_TRUE(gpu->elastic_forces(u, f_gpu).ok());
+  EXPECT_LT(max_diff(f_cpu, f_gpu), kForceTolerance * max_norm(f_cpu));
+}
+
+TEST(CudaParticleTrajectory, TwoHundredStepsMatchCpu) {
+  Driven a, b;
+  BackendOptions options;
+  options.poison_outputs = true;
+  ZONA_PARTICLE_CUDA_OR_SKIP(gpu, b.pm, options);
+  std::unique_ptr<Backend> cpu = make_particle_cpu_backend(a.pm);
+  ASSERT_TRUE(cpu->upload(a.body, a.state).ok());
+  ASSERT_TRUE(gpu->upload(b.body, b.state).ok());
+  const StepReport rc = drive(*cpu, a), rg = drive(*gpu, b);
+  EXPECT_EQ(rc.status, rg.status);
+  ASSERT_TRUE(cpu->download(a.state).ok());
+  ASSERT_TRUE(gpu->download(b.state).ok());
+  EXPECT_EQ(a.state.step_count, b.state.step_count);
+  EXPECT_DOUBLE_EQ(a.state.time, b.state.time);
+  const double scale = max_norm(a.state.u);
+  EXPECT_GT(scale, 1e-6);  // the patch went 2 um in
+  EXPECT_LT(max_diff(a.state.u, b.state.u), kTrajectoryTolerance * scale);
+  EXPECT_LT(max_diff(a.state.u_prev, b.state.u_prev), kTrajectoryTolerance * scale);
+  EXPECT_LT(max_diff(a.state.force, b.state.force), kTrajectoryTolerance * max_norm(a.state.force));
+  EXPECT_LT(norm(rc.constraint_force - rg.constraint_force), kTrajectoryTolerance * norm(rc.constraint_force));
+  EXPECT_NEAR(rc.kinetic_energy, rg.kinetic_energy, kTrajectoryTolerance * rc.kinetic_energy + 1e-30);
+  EXPECT_NEAR(rc.elastic_energy, rg.elastic_energy, kTrajectoryTolerance * rc.elastic_energy);
+  // The prescribed targets reached the last call's.
+  EXPECT_LT(max_diff(a.state.prescribed_displacement, b.state.prescribed_displacement), 1e-18);
+}
+
+TEST(CudaParticleTrajectory, RunsAreBitwiseIdentical) {
+  Driven a, b;
+  ZONA_PARTICLE_CUDA_OR_SKIP(g1, a.pm, BackendOptions{});
+  ZONA_PARTICLE_CUDA_OR_SKIP(g2, b.pm, BackendOptions{});
+  ASSERT_TRUE(g1->upload(a.body, a.state).ok());
+  ASSERT_TRUE(g2->upload(b.body, b.state).ok());
+  drive(*g1, a);
+  drive(*g2, b);
+  ASSERT_TRUE(g1->download(a.state).ok());
+  ASSERT_TRUE(g2->download(b.state).ok());
+  for (size_t i = 0; i < a.state.u.size(); ++i) {
+    ASSERT_EQ(a.state.u[i].x, b.state.u[i].x) << i;
+    ASSERT_EQ(a.state.u[i].y, b.state.u[i].y) << i;
+    ASSERT_EQ(a.state.u[i].z, b.state.u[i].z) << i;
+  }
+}
+
+TEST(CudaParticleHealth, NonFiniteLoadKeepsTheLastGoodState) {
+  Driven d;
+  ZONA_PARTICLE_CUDA_OR_SKIP(gpu, d.pm, BackendOptions{});
+  ASSERT_TRUE(gpu->upload(d.body, d.state).ok());
+  drive(*gpu, d);
+  ASSERT_TRUE(gpu->download(d.state).ok());
+  const std::vector<Vec3d> u_before = d.state.u, u_prev_before = d.state.u_prev;
+  const int64_t steps_before = d.state.step_count;
+  // A NaN load: the first sub-step is not advanced and the rest of the call does nothing.
+  d.state.external_force[7] = Vec3d{std::numeric_limits<double>::quiet_NaN(), 0, 0};
+  ASSERT_TRUE(gpu->upload(d.body, d.state).ok());
+  const StepReport r = gpu->step(3);
+  EXPECT_TRUE(r.status & kStepNonFinite);
+  EXPECT_EQ(r.steps, 0);
+  ASSERT_TRUE(gpu->download(d.state).ok());
+  EXPECT_EQ(d.state.step_count, steps_before);
+  for (size_t i = 0; i < u_before.size(); ++i) {
+    ASSERT_EQ(d.state.u[i].x, u_before[i].x) << i;
+    ASSERT_EQ(d.state.u_prev[i].z, u_prev_before[i].z) << i;
+  }
+}
+
+TEST(CudaParticleSimulation, InjectionMatchesCpu) {
+  using json = nlohmann::json;
+  const json j = {
+      {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
+      {"model", "particles"},
+      {"particles",
+       {{"particles", 642},
+        {"membrane_modulus", "20 N/m"},
+        {"radial_stiffness", "1000 N/m^3"},
+        {"radial_damping", "3e4 N*s/m^3"},
+        {"damping", {"1e4 N*s/m^3", "1e4 N*s/m^3", "2e4 N*s/m^3"}},
+        {"compressibility", "1e-6 1/Pa"}}},
+      {"integrator", {{"target_dt", "20 us"}}},
+      {"needle",
+       {{"shape", "sphere"}, {"tip_radius", "30 um"}, {"standoff", "10 um"}, {"speed", "2 mm/s"},
+        {"max_travel", "120 um"}}},
+      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
+      {"output", {{"frames", 0}}}};
+  Result<Scene> scene = parse_scene(j, "cuda_particles.json");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  {
+    // Skip without a device (the probe builds a throwaway model).
+    Result<std::unique_ptr<Backend>> probe = make_particle_cuda_backend(test_model(), BackendOptions{});
+    if (!probe) GTEST_SKIP() << probe.error().message;
+  }
+  SimulationOptions gpu_options;
+  gpu_options.particle_backend_factory = [](const ParticleModel& pm, std::string* notice) {
+    return make_particle_backend(BackendKind::kCuda, pm, BackendOptions{}, notice);
+  };
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(*scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options);
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  EXPECT_NE((*gpu)->backend_description().find("cuda"), std::string::npos);
+  const RunResult rc = run_simulation(**cpu), rg = run_simulation(**gpu);
+  EXPECT_EQ(rc.steps, rg.steps);
+  EXPECT_GT(rc.peak_force, 0.0);
+  EXPECT_NEAR(rg.peak_force, rc.peak_force, kInjectionForceTolerance * rc.peak_force);
+  EXPECT_NEAR(rg.peak_deformation, rc.peak_deformation, kInjectionForceTolerance * rc.peak_deformation);
+  EXPECT_NEAR((*gpu)->volume_change_max_rel(), (*cpu)->volume_change_max_rel(),
+              kInjectionForceTolerance * (*cpu)->volume_change_max_rel());
+}
+
+TEST(ParticleBackendFactory, CpuAlwaysAndAutoFallsBackWithANotice) {
+  const ParticleModel pm = test_model();
+  std::string notice = "stale";
+  Result<std::unique_ptr<Backend>> cpu = make_particle_backend(BackendKind::kCpu, pm, {}, &notice);
+  ASSERT_TRUE(cpu.ok());
+  EXPECT_STREQ((*cpu)->name(), "cpu");
+  EXPECT_TRUE(notice.empty());
+  Result<std::unique_ptr<Backend>> cuda = make_particle_backend(BackendKind::kCuda, pm, {}, &notice);
+  Result<std::unique_ptr<Backend>> any = make_particle_backend(BackendKind::kAuto, pm, {}, &notice);
+  ASSERT_TRUE(any.ok());
+  if (cuda.ok()) {
+    EXPECT_STREQ((*any)->name(), "cuda");
+    EXPECT_TRUE(notice.empty());
+  } else {
+    EXPECT_EQ(cuda.error().message.find('\n'), std::string::npos);
+    EXPECT_STREQ((*any)->name(), "cpu");
+    EXPECT_NE(notice.find("CPU reference"), std::string::npos) << notice;
+  }
+}
+
+}  // namespace
+}  // namespace zona
