@@ -359,7 +359,8 @@ TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
 
 TEST(Simulation, ScenesItCannotRunAreRefused) {
   json j = small_cell();
-  j["model"] = "particles";
+  j["model"] = "particles";  // runs (issue 9), but not with the strain criterion: no elements
+  j["puncture"] = {{"criterion", "strain"}, {"threshold", 0.2}};
   Result<std::unique_ptr<Simulation>> s = Simulation::create(parse(j));
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("particles"), std::string::npos);
