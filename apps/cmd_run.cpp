@@ -215,7 +215,10 @@ void run_command(const RunArgs& args) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - setup_start).count();
   if (!args.quiet) {
     std::fprintf(stderr, "zona run: %s (%s)\n", scene->name.c_str(), path->c_str());
-    std::fprintf(stderr, "zona run: %s\n", describe_model(sim.model()).c_str());
+    // The particle model's body Model carries a placeholder FEM material: describe the particles.
+    const std::string model_line = sim.particle_model() ? describe_particle_model(*sim.particle_model())
+                                                        : describe_model(sim.model());
+    std::fprintf(stderr, "zona run: %s\n", model_line.c_str());
     std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
                  sim.backend_description().c_str(),
                  static_cast<long long>(std::ceil(sim.end_time() / sim.model().dt)), sim.end_time(),
