@@ -42,11 +42,15 @@ struct StepErrorLog {
 
 /// Setup paths: evaluates a CUDA call and returns zona::Error from the enclosing function
 /// (which returns Status or Result<T>) when it fails.
-#define ZONA_CUDA_TRY(call)                                                       \
-  do {                                                                            \
-    const cudaError_t zona_cuda_err_ = (call);                                    \
-    if (zona_cuda_err_ != cudaSuccess)                                            \
-      return ::zona::cuda::cuda_error(zona_cuda_err_, #call, __FILE__, __LINE__); \
+/// A failed call also leaves CUDA's per-thread "last error" set; it is read (and so cleared)
+/// here, or a later cudaGetLastError check on the step path would report this old failure.
+#define ZONA_CUDA_TRY(call)                                                         \
+  do {                                                                              \
+    const cudaError_t zona_cuda_err_ = (call);                                      \
+    if (zona_cuda_err_ != cudaSuccess) {                                            \
+      (void)cudaGetLastError();                                                     \
+      return ::zona::cuda::cuda_error(zona_cuda_err_, #call, __FILE__, __LINE__);   \
+    }                                                                               \
   } while (0)
 
 /// Setup paths: checks the kernel launch just made (a bad launch configuration surfaces through

@@ -335,7 +335,8 @@ class ParticleCudaBackend final : public Backend {
       // Every output a pass must write starts as NaN (0xFF bytes), so a forgotten entry shows.
       ZONA_CUDA_TRY(cudaMemset(u_[2].data(), 0xFF, n * sizeof(Vec3d)));
       ZONA_CUDA_TRY(cudaMemset(force_.data(), 0xFF, n * sizeof(Vec3d)));
-      ZONA_CUDA_TRY(cudaMemset(centre_part_.data(), 0xFF, n * sizeof(Vec3d)));
+      ZONA_CUDA_TRY(cudaMemset(centre_part_.data(), 0xFF,
+                               size_t(pm_.membrane_count) * sizeof(Vec3d)));  // (membrane count)
     }
     ParticleScalars sc{};
     sc.energy_budget = state.diag.energy_budget;
@@ -418,7 +419,8 @@ class ParticleCudaBackend final : public Backend {
     }
     const ParticleScalars& sc = *host_scalars_.data();
     rotation_ = (rotation_ + sc.committed) % 3;
-    time_ += sc.committed * model_->dt;
+    // One addition per sub-step, as the CPU's commit does: the same bits of simulated time.
+    for (int k = 0; k < sc.committed; ++k) time_ += model_->dt;
     step_count_ += sc.committed;
     report.status = sc.status;
     if (model_->dt > model_->dt_critical) report.status |= kStepDtAboveCritical;
