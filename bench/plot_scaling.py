@@ -32,13 +32,20 @@ VISUAL_MS = 1000.0 / 30  # 30 Hz
 def read_rows(paths):
     """Rows of every CSV (comment lines skipped), with numbers converted."""
     rows = []
-    for path in paths:
+    for spec in paths:
+        # FILE:BACKEND keeps only that backend's rows of FILE (e.g. the GPU rows of a run made on
+        # another machine, whose CPU rows belong to that machine's CPU).
+        path, only = spec, None
+        if ":" in spec and spec.rsplit(":", 1)[1] in ("cpu", "cuda"):
+            path, only = spec.rsplit(":", 1)
         with open(path, newline="") as f:
             lines = [line for line in f if not line.startswith("#") and line.strip()]
         # Several runs may be concatenated in one file: later copies of the header are skipped.
         header = lines[0] if lines else ""
         lines = lines[:1] + [line for line in lines[1:] if line != header]
         for r in csv.DictReader(lines):
+            if only and r["backend"] != only:
+                continue
             for key in ("vertices", "tets", "threads", "target_vertices"):
                 r[key] = int(r[key])
             # threads_requested 0: the backend's automatic count (one series, "auto").
@@ -129,7 +136,8 @@ def print_table2(rows, series):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("csv", nargs="+", help="zona bench CSV file(s)")
+    p.add_argument("csv", nargs="+",
+                   help="zona bench CSV file(s); FILE:cpu or FILE:cuda keeps one backend's rows")
     p.add_argument("--out", help="PNG to write (default: the first CSV with .png)")
     p.add_argument("--model", action="append", help="only this model (repeatable)")
     p.add_argument("--formulation", action="append", help="only this formulation (repeatable)")
