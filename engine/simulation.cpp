@@ -364,7 +364,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
                                                    : options.backend_factory(&notice);
     if (!backend.ok()) return backend.error();
     if (!notice.empty()) notes_.push_back(notice);
-    if (std::string((*backend)->name()) != "cpu") {
+    if (std::string((*backend)->name()) != "cpu" || options.keep_cpu_backend) {
       backend_ = std::move(*backend);
       if (Status s = backend_->upload(model_, state_); !s) return s;
       backend_description_ = backend_->description();

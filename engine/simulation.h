@@ -67,6 +67,10 @@ struct SimulationOptions {
   double stiffness_window = 20e-9;
   /// Steps between surface snapshots for a render thread; 0: none.
   int snapshot_interval = 0;
+  /// Tests: drive a CPU backend from the factory through the Backend interface (uploads,
+  /// targets, downloads) instead of dropping it for the in-place path, so that the path the GPU
+  /// backends take can be checked against the in-place reference on any machine.
+  bool keep_cpu_backend = false;
 };
 
 /// What step2 publishes for the haptic and render threads (and the recorder).

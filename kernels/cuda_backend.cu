@@ -392,7 +392,9 @@ Status CudaBackend::upload(const Model& model, const State& state) {
   step_count_ = state.step_count;
   diag_ = state.diag;
   budget_valid_ = state.energy_budget_valid;
-  ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));
+  // Whole device: the synchronous copies above ran on the legacy stream from pageable memory
+  // (cudaMemcpy may return before their DMA lands) and the step stream is non-blocking.
+  ZONA_CUDA_TRY(cudaDeviceSynchronize());
   return {};
 }
 

@@ -348,6 +348,10 @@ class ParticleCudaBackend final : public Backend {
     *host_scalars_.data() = sc;
     time_ = state.time;
     step_count_ = state.step_count;
+    // The copies above ran on the legacy stream from pageable memory: cudaMemcpy may return
+    // before their DMA lands, and the step's non-blocking stream does not wait for the legacy
+    // one. Without this the first kernels of the next step can read the old state.
+    ZONA_CUDA_TRY(cudaDeviceSynchronize());
     return {};
   }
 
