@@ -350,8 +350,13 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   contact_vertices_.reserve(nv);
   zero_u_.assign(nv, Vec3d{0, 0, 0});
   indent_before_.assign(indent_vertices_.size(), Vec3d{0, 0, 0});
-  if (options.snapshot_interval > 0)
-    for (auto& buffer : snapshot_.positions) buffer.assign(surface_.vertices.size(), Vec3d{0, 0, 0});
+  if (options.snapshot_interval > 0) {
+    SurfaceSnapshot initial;
+    initial.positions.resize(surface_.vertices.size());
+    for (size_t i = 0; i < surface_.vertices.size(); ++i)
+      initial.positions[i] = model_.rest_positions[static_cast<size_t>(surface_.vertices[i])];
+    snapshots_ = std::make_unique<TripleBuffer<SurfaceSnapshot>>(initial);
+  }
 
   // Backend: the CPU reference in place, or one behind the Backend interface.
   backend_description_ = "cpu reference in place: " + std::to_string(state_.pool->thread_count()) +
@@ -659,16 +664,16 @@ void Simulation::publish() {
     stiffness_force_ = report_.force;
     stiffness_travel_ = report_.travel;
   }
-  // Surface snapshot into the back buffer, then flip.
-  if (options_.snapshot_interval > 0 && state_.step_count % options_.snapshot_interval == 0) {
-    const int back = 1 - snapshot_.front.load(std::memory_order_relaxed);
-    std::vector<Vec3d>& out = snapshot_.positions[back];
+  // Surface snapshot into the writer's slot, then publish (no allocation: slots are sized).
+  if (snapshots_ && state_.step_count % options_.snapshot_interval == 0) {
+    SurfaceSnapshot& out = snapshots_->write_slot();
     for (size_t i = 0; i < surface_.vertices.size(); ++i) {
       const size_t v = static_cast<size_t>(surface_.vertices[i]);
-      out[i] = model_.rest_positions[v] + state_.u[v];
+      out.positions[i] = model_.rest_positions[v] + state_.u[v];
     }
-    snapshot_.time[back] = state_.time;
-    snapshot_.front.store(back, std::memory_order_release);
+    out.time = state_.time;
+    out.step = state_.step_count;
+    snapshots_->publish();
   }
 }
 

@@ -34,6 +34,7 @@
 #include "engine/puncture.h"
 #include "engine/scene.h"
 #include "engine/state.h"
+#include "engine/triple_buffer.h"
 
 namespace zona {
 
@@ -99,11 +100,12 @@ struct NeedleReport {
   StepStatus status = kStepOk;  ///< the integrator's flags of this step
 };
 
-/// Surface positions for a render thread: double-buffered, the reader takes `front`.
+/// Surface positions for a render thread, published every SimulationOptions::snapshot_interval
+/// steps through a TripleBuffer (engine/triple_buffer.h).
 struct SurfaceSnapshot {
-  std::vector<Vec3d> positions[2];  ///< deformed surface vertex positions [m], (surface count)
-  double time[2] = {0, 0};          ///< [s]
-  std::atomic<int> front{0};        ///< buffer last completed
+  std::vector<Vec3d> positions;  ///< deformed surface vertex positions [m], (surface count)
+  double time = 0;               ///< simulated time [s]
+  int64_t step = 0;              ///< steps taken
 };
 
 /// One injection experiment. Create with Simulation::create; step with step() or step1/step2.
@@ -144,7 +146,9 @@ class Simulation {
   const NeedleReport& report() const { return report_; }
   const PunctureRecord& puncture() const { return puncture_->record(); }
   const std::optional<HoldingSetup>& holding() const { return holding_; }
-  const SurfaceSnapshot& snapshot() const { return snapshot_; }
+  /// Surface snapshots for one reader thread (acquire() / read_slot()); nullptr unless
+  /// SimulationOptions::snapshot_interval > 0.
+  TripleBuffer<SurfaceSnapshot>* surface_snapshots() { return snapshots_.get(); }
   /// Needle contacts (empty without a needle or after puncture).
   std::span<const Contact> needle_contacts() const;
   /// Rim contacts of a suction holding pipette.
@@ -228,7 +232,7 @@ class Simulation {
 
   // Published.
   NeedleReport report_;
-  SurfaceSnapshot snapshot_;
+  std::unique_ptr<TripleBuffer<SurfaceSnapshot>> snapshots_;
   double stiffness_force_ = 0, stiffness_travel_ = 0;
   bool stiffness_anchor_set_ = false;
   bool filter_started_ = false;

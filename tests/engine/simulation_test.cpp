@@ -342,6 +342,44 @@ TEST(Simulation, BackendPathMatchesTheInPlacePath) {
   EXPECT_EQ(a->report().deformation, b->report().deformation);
 }
 
+// Surface snapshots for a render thread: the initial slot is the rest surface, a publication
+// every snapshot_interval steps, and the reader's slot holds the deformed surface of that step.
+TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
+  SimulationOptions o;
+  o.snapshot_interval = 10;
+  auto sim = create(parse(small_cell()), o);
+  ASSERT_TRUE(sim);
+  EXPECT_EQ(create(parse(small_cell()))->surface_snapshots(), nullptr);
+  TripleBuffer<SurfaceSnapshot>* snapshots = sim->surface_snapshots();
+  ASSERT_NE(snapshots, nullptr);
+  const std::vector<int32_t>& surface = sim->surface().vertices;
+  ASSERT_EQ(snapshots->read_slot().positions.size(), surface.size());
+  EXPECT_FALSE(snapshots->acquire());  // nothing published yet: the rest surface
+  EXPECT_EQ(norm(snapshots->read_slot().positions[0] - sim->model().rest_positions[size_t(surface[0])]),
+            0.0);
+  // Into contact, then 20 steps more, then 5 past a publication.
+  int64_t steps = 0;
+  while (sim->report().contacts == 0 && steps < 20000) sim->step(), ++steps;
+  ASSERT_GT(sim->report().contacts, 0);
+  const int64_t published = (steps / 10 + 3) * 10;
+  while (steps < published + 5) sim->step(), ++steps;
+  ASSERT_TRUE(snapshots->acquire());
+  const SurfaceSnapshot& snap = snapshots->read_slot();
+  EXPECT_EQ(snap.step, published);  // the newest publication, not an older one
+  // The state has moved on 5 steps since: recompute that step's surface from a second run.
+  auto again = create(parse(small_cell()));
+  for (int64_t k = 0; k < published; ++k) again->step();
+  double moved = 0;
+  for (size_t i = 0; i < surface.size(); ++i) {
+    const size_t v = size_t(surface[i]);
+    EXPECT_EQ(norm(snap.positions[i] - (again->model().rest_positions[v] + again->state().u[v])), 0.0)
+        << i;
+    moved = std::max(moved, norm(again->state().u[v]));
+  }
+  EXPECT_GT(moved, 0.0);
+  EXPECT_FALSE(snapshots->acquire());  // read already: nothing newer
+}
+
 TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
   // Seed 000's 115-vertex resolution: a 1 um point tip fits between the vertices, and the
   // triangle it pierces is carried along (the force rises as soon as the tip meets the surface).
