@@ -186,9 +186,9 @@ TEST(CudaParticleHealth, NonFiniteLoadKeepsTheLastGoodState) {
   }
 }
 
-TEST(CudaParticleSimulation, InjectionMatchesCpu) {
-  using json = nlohmann::json;
-  const json j = {
+// The injection both CudaParticleSimulation tests run: 642 particles, a 30 um sphere at 2 mm/s.
+nlohmann::json injection_scene() {
+  return nlohmann::json{
       {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
       {"model", "particles"},
       {"particles",
@@ -204,6 +204,10 @@ TEST(CudaParticleSimulation, InjectionMatchesCpu) {
         {"max_travel", "120 um"}}},
       {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
       {"output", {{"frames", 0}}}};
+}
+
+TEST(CudaParticleSimulation, InjectionMatchesCpu) {
+  const nlohmann::json j = injection_scene();
   Result<Scene> scene = parse_scene(j, "cuda_particles.json");
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   {
@@ -246,23 +250,7 @@ TEST(CudaParticleSimulation, InjectionMatchesCpu) {
 // calls (SimulationOptions::keep_cpu_backend): reports the first step whose state differs beyond
 // rounding, with what the simulation did around it (contacts, prescribed count).
 TEST(CudaParticleSimulation, StepByStepMatchesTheCpuBackend) {
-  using json = nlohmann::json;
-  const json j = {
-      {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
-      {"model", "particles"},
-      {"particles",
-       {{"particles", 642},
-        {"membrane_modulus", "20 N/m"},
-        {"radial_stiffness", "1000 N/m^3"},
-        {"radial_damping", "3e4 N*s/m^3"},
-        {"damping", {"1e4 N*s/m^3", "1e4 N*s/m^3", "2e4 N*s/m^3"}},
-        {"compressibility", "1e-6 1/Pa"}}},
-      {"integrator", {{"target_dt", "20 us"}}},
-      {"needle",
-       {{"shape", "sphere"}, {"tip_radius", "30 um"}, {"standoff", "10 um"}, {"speed", "2 mm/s"},
-        {"max_travel", "120 um"}}},
-      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
-      {"output", {{"frames", 0}}}};
+  const nlohmann::json j = injection_scene();
   Result<Scene> scene = parse_scene(j, "cuda_particles_steps.json");
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   {
