@@ -28,30 +28,32 @@ struct P4 {
   P4(double x) : v{x, x, x, x} {}  // NOLINT: implicit, as T(0.5) and T x = 0 need
   P4(double a, double b, double c, double d) : v{a, b, c, d} {}
 };
-#define ZONA_P4_OP(op)                                                                   \
-  [[gnu::always_inline]] inline P4 operator op(P4 a, P4 b) {                            \
-    P4 r;                                                                                \
+// The lane-by-lane operators of a pack type T (a struct with one vector member `v`).
+#define ZONA_PACK_BINARY_OP(T, op)                                                       \
+  [[gnu::always_inline]] inline T operator op(T a, T b) {                               \
+    T r;                                                                                 \
     r.v = a.v op b.v;                                                                    \
     return r;                                                                            \
   }
-ZONA_P4_OP(+)
-ZONA_P4_OP(-)
-ZONA_P4_OP(*)
-ZONA_P4_OP(/)
-#undef ZONA_P4_OP
-[[gnu::always_inline]] inline P4 operator-(P4 a) {
-  P4 r;
-  r.v = -a.v;
-  return r;
-}
-[[gnu::always_inline]] inline P4& operator+=(P4& a, P4 b) {
-  a.v += b.v;
-  return a;
-}
-[[gnu::always_inline]] inline P4& operator-=(P4& a, P4 b) {
-  a.v -= b.v;
-  return a;
-}
+#define ZONA_PACK_OPS(T)                                                                 \
+  ZONA_PACK_BINARY_OP(T, +)                                                              \
+  ZONA_PACK_BINARY_OP(T, -)                                                              \
+  ZONA_PACK_BINARY_OP(T, *)                                                              \
+  ZONA_PACK_BINARY_OP(T, /)                                                              \
+  [[gnu::always_inline]] inline T operator-(T a) {                                       \
+    T r;                                                                                 \
+    r.v = -a.v;                                                                          \
+    return r;                                                                            \
+  }                                                                                      \
+  [[gnu::always_inline]] inline T& operator+=(T& a, T b) {                               \
+    a.v += b.v;                                                                          \
+    return a;                                                                            \
+  }                                                                                      \
+  [[gnu::always_inline]] inline T& operator-=(T& a, T b) {                               \
+    a.v -= b.v;                                                                          \
+    return a;                                                                            \
+  }
+ZONA_PACK_OPS(P4)
 
 /// All four lanes 0 (a plain vxorpd; P4(0.0) can compile to lane-by-lane inserts).
 [[gnu::always_inline]] inline P4 zero4() {
@@ -134,30 +136,7 @@ struct P8f {
     v = F8{f, f, f, f, f, f, f, f};
   }
 };
-#define ZONA_P8_OP(op)                                                                   \
-  [[gnu::always_inline]] inline P8f operator op(P8f a, P8f b) {                         \
-    P8f r;                                                                               \
-    r.v = a.v op b.v;                                                                    \
-    return r;                                                                            \
-  }
-ZONA_P8_OP(+)
-ZONA_P8_OP(-)
-ZONA_P8_OP(*)
-ZONA_P8_OP(/)
-#undef ZONA_P8_OP
-[[gnu::always_inline]] inline P8f operator-(P8f a) {
-  P8f r;
-  r.v = -a.v;
-  return r;
-}
-[[gnu::always_inline]] inline P8f& operator+=(P8f& a, P8f b) {
-  a.v += b.v;
-  return a;
-}
-[[gnu::always_inline]] inline P8f& operator-=(P8f& a, P8f b) {
-  a.v -= b.v;
-  return a;
-}
+ZONA_PACK_OPS(P8f)
 
 /// Eight floats from p (any alignment).
 [[gnu::always_inline]] inline P8f load8f(const float* p) {
@@ -208,30 +187,9 @@ struct P8d {
   P8d() = default;
   P8d(double x) : v{x, x, x, x, x, x, x, x} {}  // NOLINT: implicit, as T(0.5) and T x = 0 need
 };
-#define ZONA_P8D_OP(op)                                                                  \
-  [[gnu::always_inline]] inline P8d operator op(P8d a, P8d b) {                         \
-    P8d r;                                                                               \
-    r.v = a.v op b.v;                                                                    \
-    return r;                                                                            \
-  }
-ZONA_P8D_OP(+)
-ZONA_P8D_OP(-)
-ZONA_P8D_OP(*)
-ZONA_P8D_OP(/)
-#undef ZONA_P8D_OP
-[[gnu::always_inline]] inline P8d operator-(P8d a) {
-  P8d r;
-  r.v = -a.v;
-  return r;
-}
-[[gnu::always_inline]] inline P8d& operator+=(P8d& a, P8d b) {
-  a.v += b.v;
-  return a;
-}
-[[gnu::always_inline]] inline P8d& operator-=(P8d& a, P8d b) {
-  a.v -= b.v;
-  return a;
-}
+ZONA_PACK_OPS(P8d)
+#undef ZONA_PACK_OPS
+#undef ZONA_PACK_BINARY_OP
 
 /// Lanes 0-3 from lo, 4-7 from hi.
 [[gnu::always_inline]] inline P8d concat(P4 lo, P4 hi) {
