@@ -15,6 +15,8 @@
 #include "engine/scene.h"
 #include "engine/simulation.h"
 #include "engine/units.h"
+#include "kernels/backend_factory.h"
+#include "kernels/surface_interop.h"
 
 #if defined(ZONA_HAVE_VULKAN)
 #include "render/frame_source.h"
@@ -39,6 +41,8 @@ struct RenderArgs {
   double yaw = -40, pitch = 20, zoom = 1;
   double close_after = 0;
   bool validate = false;
+  std::string backend = "cpu";
+  bool interop = false;
 };
 
 #if defined(ZONA_HAVE_VULKAN)
@@ -49,7 +53,45 @@ Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scen
   Result<Scene> scene = load_scene(*path, args.sets);
   if (!scene.ok()) return scene.error();
   *scene_out = *scene;
-  return Simulation::create(*scene);
+  Result<BackendKind> kind = parse_backend_kind(args.backend);
+  if (!kind.ok()) return make_error("--backend: %s", kind.error().message.c_str());
+  SimulationOptions options;
+  if (*kind != BackendKind::kCpu) {
+    const BackendKind k = *kind;
+    options.backend_factory = [k](std::string* notice) {
+      return make_backend(k, BackendOptions{}, notice);
+    };
+  }
+  return Simulation::create(*scene, options);
+}
+
+// --interop: the CUDA backend writes the surface into the renderer's memory. Returns the writer,
+// or null with a one-line notice on stderr when only the copy path is possible.
+std::unique_ptr<SurfaceWriter> make_interop(const Simulation& s, ColorField field,
+                                            Renderer& renderer, SharedSurface* shared) {
+  auto copy_path = [](const std::string& why) {
+    std::fprintf(stderr, "zona: --interop: %s; using the copy path\n", why.c_str());
+    return std::unique_ptr<SurfaceWriter>();
+  };
+  if (field == ColorField::kStress)
+    return copy_path("the stress field is computed on the CPU (interop colours displacement)");
+  if (!s.backend()) return copy_path("the simulation runs on the CPU (give --backend cuda)");
+  Result<SharedSurface> made = renderer.create_shared_surface(s.surface().triangles,
+                                                              s.mesh().vertex_count());
+  if (!made.ok()) return copy_path(made.error().message);
+  *shared = std::move(made).value();
+  SharedSurfaceTarget target;
+  target.memory_fd = shared->fd;
+  target.memory_bytes = shared->bytes;
+  target.positions_offset = shared->positions_offset;
+  target.normals_offset = shared->normals_offset;
+  target.device_uuid = shared->device_uuid;
+  target.mesh_vertex = shared->mesh_vertex;
+  target.indices = shared->indices;
+  Result<std::unique_ptr<SurfaceWriter>> writer =
+      make_surface_writer(*s.backend(), s.model(), target);
+  if (!writer.ok()) return copy_path(writer.error().message);
+  return std::move(writer).value();
 }
 
 // Steps until the simulated time reaches `time` [s] or the experiment ends.
@@ -93,8 +135,12 @@ void run_render(const RenderArgs& args) {
   RendererOptions options;
   options.validation = args.validate;
   options.samples = args.samples;
+  options.external_memory = args.interop;
   Result<Renderer> renderer = create_headless_renderer(args.width, args.height, options);
   if (!renderer.ok()) return fail(renderer.error().message);
+  SharedSurface shared;
+  std::unique_ptr<SurfaceWriter> writer =
+      args.interop ? make_interop(s, *field, *renderer, &shared) : nullptr;
 
   OrbitCamera camera = default_camera(s.mesh());
   camera.yaw_deg = args.yaw;
@@ -112,6 +158,18 @@ void run_render(const RenderArgs& args) {
     rates.simulation_hz =
         wall > 0 && s.report().step > 0 ? static_cast<double>(s.report().step) / wall : 0;
     frame.overlay_lines = overlay_lines(scene.name, s.report(), rates);
+    if (writer) {
+      Vec3d origin;
+      double scale = 1;
+      camera_render_space(frame.camera, &origin, &scale);
+      Result<SurfaceWriteResult> w = writer->write(
+          *s.backend(), origin, scale,
+          *field == ColorField::kDisplacement ? SurfaceScalar::kDisplacement : SurfaceScalar::kNone);
+      if (!w.ok()) return w.error();
+      frame.shared_surface = true;
+      frame.scalar_min = w->scalar_min;
+      frame.scalar_max = w->scalar_max;
+    }
     return sequence ? sequence->write(frame) : renderer->render_to_png(frame, path);
   };
 
@@ -129,9 +187,10 @@ void run_render(const RenderArgs& args) {
   if (!args.out.empty()) {
     advance(s, *time);
     if (Status st = draw(args.out, nullptr); !st.ok()) return fail(st.error().message);
-    std::printf("wrote %s (%dx%d, t = %.4g s, %lld steps, %s)\n", args.out.c_str(), args.width,
-                args.height, s.report().time, static_cast<long long>(s.report().step),
-                renderer->device_name().c_str());
+    std::printf("wrote %s (%dx%d, t = %.4g s, %lld steps, %s, %s path)\n", args.out.c_str(),
+                args.width, args.height, s.report().time,
+                static_cast<long long>(s.report().step), renderer->device_name().c_str(),
+                writer ? "interop" : "copy");
   }
   validation_clean(renderer->validation());
 }
@@ -237,6 +296,10 @@ void add_render_commands(CLI::App& app) {
     cmd->add_option("--zoom", args->zoom, "Camera zoom factor (> 1: closer)");
     cmd->add_flag("--validate", args->validate,
                   "Enable the Khronos validation layer; any message fails the command");
+    cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda");
+    cmd->add_flag("--interop", args->interop,
+                  "CUDA backend: write the surface straight into Vulkan memory (CUDA-Vulkan "
+                  "interop); falls back to the copy path with a notice");
     cmd->callback([args] { run_render(*args); });
   }
   {

@@ -100,6 +100,18 @@ struct StateSummary {
   double kinetic_energy = 0;    ///< sum M |v|^2 / 2 with v = (u_n - u_{n-1}) / dt [J]
 };
 
+/// Where a GPU backend keeps its current displacements, for device code outside it (the
+/// CUDA-Vulkan surface writer of kernels/surface_interop.h). Valid until the next step() or
+/// upload(). The CPU backends return an empty view (u == nullptr).
+struct DeviceStateView {
+  const double* u = nullptr;  ///< device memory, 3 per vertex in device order [length_unit]
+  double length_unit = 1;     ///< metres per device length unit [m]
+  /// Model vertex -> device index (host memory), (vertex_count).
+  std::span<const int32_t> vertex_old_to_new;
+  void* stream = nullptr;  ///< the cudaStream_t that step() enqueues on
+  int device = -1;         ///< CUDA device ordinal
+};
+
 /// A compute backend. Setup calls return Status; step() never allocates and never throws.
 class Backend {
  public:
@@ -134,6 +146,9 @@ class Backend {
 
   /// Max |u| and kinetic energy of the current state.
   virtual Result<StateSummary> summarize() = 0;
+
+  /// The device-side state for interop (DeviceStateView); empty on the CPU.
+  virtual DeviceStateView device_state() const { return {}; }
 };
 
 }  // namespace zona

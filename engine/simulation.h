@@ -159,6 +159,9 @@ class Simulation {
   double cell_diameter() const { return cell_diameter_; }
   /// Backend description ("cpu reference: 2 thread(s), float64", ...).
   const std::string& backend_description() const { return backend_description_; }
+  /// The backend driven through the Backend interface (the GPU), or null on the in-place CPU
+  /// path: for kernels reading its device state (kernels/surface_interop.h). Do not step it.
+  const Backend* backend() const { return backend_.get(); }
   /// Notes from setup (skipped materials, backend fallback), one line each.
   const std::vector<std::string>& notes() const { return notes_; }
   /// The particle model (scene model "particles"), else null.

@@ -120,6 +120,17 @@ class CudaBackend final : public Backend {
   Status elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) override;
   Result<StateSummary> summarize() override;
 
+  DeviceStateView device_state() const override {
+    DeviceStateView view;
+    if (!model_) return view;
+    view.u = d_u_[phase_step_ % 3].data();
+    view.length_unit = length_unit_;
+    view.vertex_old_to_new = old_to_new_;
+    view.stream = stream_.get();
+    view.device = options_.device;
+    return view;
+  }
+
  private:
   struct CachedGraph {
     int substeps = 0;

@@ -171,6 +171,10 @@ Status create_device(const ContextOptions& options, VkSurfaceKHR surface, Contex
                       surface ? " that can present to the window" : "");
   vkGetPhysicalDeviceProperties(context->physical_device, &context->properties);
   vkGetPhysicalDeviceMemoryProperties(context->physical_device, &context->memory_properties);
+  VkPhysicalDeviceIDProperties id{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ID_PROPERTIES};
+  VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &id, {}};
+  vkGetPhysicalDeviceProperties2(context->physical_device, &properties2);
+  std::memcpy(context->device_uuid, id.deviceUUID, VK_UUID_SIZE);
 
   std::vector<const char*> extensions;
   if (options.swapchain) extensions.push_back(VK_KHR_SWAPCHAIN_EXTENSION_NAME);

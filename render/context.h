@@ -50,6 +50,7 @@ struct Context {
   VkCommandPool command_pool = VK_NULL_HANDLE;  ///< resettable command buffers
   bool validation = false;
   bool external_memory = false;        ///< VK_KHR_external_memory_fd enabled
+  uint8_t device_uuid[VK_UUID_SIZE] = {};  ///< identifies the GPU to CUDA (interop)
   std::unique_ptr<ValidationLog> log;  ///< stable address for the layer's callback
 };
 

@@ -338,15 +338,26 @@ Status prepare_frame(const Context& context, OverlayState* overlay, const Render
                      VkExtent2D extent, CpuFrame* cpu, FrameResources* r) {
   const double aspect = static_cast<double>(extent.width) / std::max(1u, extent.height);
   cpu->camera = camera_matrices(frame.camera, aspect);
-  if (Status s = update_surface(frame, cpu->camera.space, &cpu->surface); !s.ok()) return s;
-  cpu->color_map = frame.field != ColorField::kNone && !frame.scalar.empty();
-  cpu->lo = frame.auto_range ? cpu->surface.scalar_min : frame.scalar_min;
+  cpu->shared = frame.shared_surface;
+  if (cpu->shared) {
+    if (!r->shared || r->shared->index_count == 0)
+      return make_error(
+          "render frame: shared_surface is set but the renderer has no shared surface "
+          "(Renderer::create_shared_surface)");
+  } else if (Status s = update_surface(frame, cpu->camera.space, &cpu->surface); !s.ok()) {
+    return s;
+  }
+  cpu->color_map =
+      frame.field != ColorField::kNone && (cpu->shared || !frame.scalar.empty());
+  // The shared surface's range comes with the frame (the CUDA writer measured it).
+  const bool auto_range = frame.auto_range && !cpu->shared;
+  cpu->lo = auto_range ? cpu->surface.scalar_min : frame.scalar_min;
   // Stress under a point-like tip is singular: a few tetrahedra would stretch the range and
   // leave the rest of the cell one colour, so its automatic top is the 98th percentile (the
   // peak saturates red). Displacement shows its true maximum, the indentation depth.
   const double auto_hi =
       frame.field == ColorField::kStress ? cpu->surface.scalar_p98 : cpu->surface.scalar_max;
-  cpu->hi = frame.auto_range ? auto_hi : frame.scalar_max;
+  cpu->hi = auto_range ? auto_hi : frame.scalar_max;
   // A constant field (the cell at rest) gets one legend unit of range: its colour is the
   // map's bottom and the labels stay readable.
   if (!(cpu->hi > cpu->lo)) cpu->hi = cpu->lo + field_unit(frame.field);
@@ -363,10 +374,12 @@ Status prepare_frame(const Context& context, OverlayState* overlay, const Render
   constexpr VkBufferUsageFlags kVertex = VK_BUFFER_USAGE_VERTEX_BUFFER_BIT;
   constexpr VkBufferUsageFlags kIndex = VK_BUFFER_USAGE_INDEX_BUFFER_BIT;
   const MeshData& m = cpu->surface.mesh;
-  for (Status s : {upload(context, &r->surface_positions, m.positions, kVertex),
-                   upload(context, &r->surface_normals, m.normals, kVertex),
-                   upload(context, &r->surface_indices, m.indices, kIndex),
-                   upload(context, &r->tool_positions, cpu->tools.positions, kVertex),
+  if (!cpu->shared)
+    for (Status s : {upload(context, &r->surface_positions, m.positions, kVertex),
+                     upload(context, &r->surface_normals, m.normals, kVertex),
+                     upload(context, &r->surface_indices, m.indices, kIndex)})
+      if (!s.ok()) return s;
+  for (Status s : {upload(context, &r->tool_positions, cpu->tools.positions, kVertex),
                    upload(context, &r->tool_normals, cpu->tools.normals, kVertex),
                    upload(context, &r->tool_indices, cpu->tools.indices, kIndex)})
     if (!s.ok()) return s;
@@ -448,17 +461,25 @@ void record_frame(VkCommandBuffer cmd, const Pipelines& p, const Attachments& a,
                          cpu.color_map ? 1.0f : 0.0f, 0.35f);
   constexpr VkShaderStageFlags kStages = VK_SHADER_STAGE_VERTEX_BIT | VK_SHADER_STAGE_FRAGMENT_BIT;
 
-  // Cell surface, opaque.
-  const auto index_count = static_cast<uint32_t>(cpu.surface.mesh.indices.size());
+  // Cell surface, opaque: from this frame's uploads, or from the memory CUDA wrote.
+  const auto index_count = cpu.shared ? r.shared->index_count
+                                      : static_cast<uint32_t>(cpu.surface.mesh.indices.size());
   if (index_count) {
     draw.color = cpu.cell_color;
     draw.eye.w = static_cast<float>(cpu.color_map ? gpu::kShadeColorMap : gpu::kShadeFlat);
     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, p.surface);
     vkCmdPushConstants(cmd, p.mesh_layout, kStages, 0, sizeof(draw), &draw);
-    const VkBuffer vb[2] = {r.surface_positions.buffer, r.surface_normals.buffer};
-    const VkDeviceSize offsets[2] = {0, 0};
-    vkCmdBindVertexBuffers(cmd, 0, 2, vb, offsets);
-    vkCmdBindIndexBuffer(cmd, r.surface_indices.buffer, 0, VK_INDEX_TYPE_UINT32);
+    if (cpu.shared) {
+      const VkBuffer vb[2] = {r.shared->vertices.buffer, r.shared->vertices.buffer};
+      const VkDeviceSize offsets[2] = {r.shared->positions_offset, r.shared->normals_offset};
+      vkCmdBindVertexBuffers(cmd, 0, 2, vb, offsets);
+      vkCmdBindIndexBuffer(cmd, r.shared->indices.buffer, 0, VK_INDEX_TYPE_UINT32);
+    } else {
+      const VkBuffer vb[2] = {r.surface_positions.buffer, r.surface_normals.buffer};
+      const VkDeviceSize offsets[2] = {0, 0};
+      vkCmdBindVertexBuffers(cmd, 0, 2, vb, offsets);
+      vkCmdBindIndexBuffer(cmd, r.surface_indices.buffer, 0, VK_INDEX_TYPE_UINT32);
+    }
     vkCmdDrawIndexed(cmd, index_count, 1, 0, 0, 0);
   }
 

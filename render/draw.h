@@ -56,6 +56,16 @@ struct CpuFrame {
   gpu::vec4 cell_color{1.0f};
   gpu::vec4 background{0.0f};   ///< linear clear colour
   uint32_t needle_indices = 0;  ///< the first tool indices are the needle's
+  bool shared = false;          ///< the cell comes from the shared surface (RenderFrame)
+};
+
+/// The cell surface in memory shared with CUDA: one exported device-local allocation holding
+/// the positions and then the normals (vec4 each), and its triangles.
+struct SharedSurfaceBuffers {
+  Buffer vertices;  ///< exportable; written by CUDA, read as two vertex streams
+  Buffer indices;   ///< host-visible, written once
+  VkDeviceSize positions_offset = 0, normals_offset = 0;
+  uint32_t index_count = 0;
 };
 
 /// Host-visible buffers and sync of one frame in flight.
@@ -66,6 +76,7 @@ struct FrameResources {
   Buffer tool_positions, tool_normals, tool_indices;
   Buffer overlay_vertices, overlay_indices;
   ImDrawData* overlay = nullptr;  ///< draw data uploaded for this frame
+  const SharedSurfaceBuffers* shared = nullptr;  ///< the renderer's shared surface, if any
 };
 Status create_frame_resources(const Context& context, FrameResources* frame);
 void destroy_frame_resources(const Context& context, FrameResources* frame);

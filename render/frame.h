@@ -70,6 +70,11 @@ struct RenderFrame {
   bool auto_range = true;  ///< colour range from the scalar's min and max
   double scalar_min = 0;   ///< colour range when !auto_range, in the field's SI unit
   double scalar_max = 1;
+  /// Draw the cell from the renderer's shared surface (Renderer::create_shared_surface), which
+  /// the CUDA backend has written for this frame's camera (kernels/surface_interop.h): `rest`,
+  /// `displacement`, `triangles` and `scalar` are not read, and the colour range is always
+  /// [scalar_min, scalar_max] (the writer returns the field's range).
+  bool shared_surface = false;
   NeedlePose needle;
   HoldingPose holding;
   std::vector<std::string> overlay_lines;  ///< text at the top left, one line each

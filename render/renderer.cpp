@@ -24,13 +24,14 @@ struct Renderer::Impl {
   CpuFrame cpu;
   Image target;     // single-sample RGBA8 sRGB, resolved into, copied out
   Buffer readback;  // host copy of the target
-  Buffer exported;  // CUDA interop seam (export_positions_memory)
+  SharedSurfaceBuffers shared;  // CUDA interop (create_shared_surface)
   int width = 0, height = 0;
   bool rendered = false;
 
   ~Impl() {
     if (context.device) vkDeviceWaitIdle(context.device);
-    destroy_buffer(context, &exported);
+    destroy_buffer(context, &shared.indices);
+    destroy_buffer(context, &shared.vertices);
     destroy_buffer(context, &readback);
     destroy_image(context, &target);
     destroy_frame_resources(context, &frame);
@@ -177,30 +178,69 @@ Status Renderer::render_to_png(const RenderFrame& frame, const std::string& path
   return write_png(path, image);
 }
 
-Result<ExternalBuffer> Renderer::export_positions_memory(uint64_t vertex_capacity) {
+void camera_render_space(const OrbitCamera& camera, Vec3d* origin, double* scale) {
+  const RenderSpace space = camera_matrices(camera, 1.0).space;
+  *origin = space.origin;
+  *scale = space.scale;
+}
+
+Result<SharedSurface> Renderer::create_shared_surface(std::span<const Triangle> triangles,
+                                                      size_t vertex_count) {
   if (!impl_) return make_error("renderer: not created");
   Impl& r = *impl_;
+  SharedSurface out;
+  // The copy path's compaction (first use order), so both paths number vertices alike.
+  std::vector<int32_t> compact(vertex_count, -1);
+  out.indices.reserve(3 * triangles.size());
+  for (size_t t = 0; t < triangles.size(); ++t)
+    for (int32_t v : triangles[t]) {
+      if (v < 0 || static_cast<size_t>(v) >= vertex_count)
+        return make_error("renderer: shared surface triangle %zu has vertex %d, vertex count %zu",
+                          t, v, vertex_count);
+      if (compact[static_cast<size_t>(v)] < 0) {
+        compact[static_cast<size_t>(v)] = static_cast<int32_t>(out.mesh_vertex.size());
+        out.mesh_vertex.push_back(v);
+      }
+      out.indices.push_back(static_cast<uint32_t>(compact[static_cast<size_t>(v)]));
+    }
+  if (out.indices.empty()) return make_error("renderer: shared surface without triangles");
   if (!r.context.external_memory)
     return make_error(
         "renderer: external memory not enabled (RendererOptions::external_memory, "
         "or the device lacks VK_KHR_external_memory_fd)");
   if (!vkGetMemoryFdKHR) return make_error("renderer: vkGetMemoryFdKHR not available");
-  destroy_buffer(r.context, &r.exported);
-  const VkDeviceSize bytes = std::max<uint64_t>(vertex_capacity, 1) * sizeof(gpu::vec4);
-  if (Status s = create_buffer(r.context, bytes,
-                               VK_BUFFER_USAGE_VERTEX_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
-                               MemoryPlace::kDevice, &r.exported, true);
+
+  if (r.frame.fence) ZONA_VK_TRY(vkWaitForFences(r.context.device, 1, &r.frame.fence, VK_TRUE,
+                                                 UINT64_MAX));
+  destroy_buffer(r.context, &r.shared.vertices);
+  destroy_buffer(r.context, &r.shared.indices);
+  r.frame.shared = nullptr;
+  const VkDeviceSize stream = out.mesh_vertex.size() * sizeof(gpu::vec4);
+  if (Status s = create_buffer(r.context, 2 * stream, VK_BUFFER_USAGE_VERTEX_BUFFER_BIT,
+                               MemoryPlace::kDevice, &r.shared.vertices, true);
       !s.ok())
     return s.error();
+  const VkDeviceSize index_bytes = out.indices.size() * sizeof(uint32_t);
+  if (Status s = create_buffer(r.context, index_bytes, VK_BUFFER_USAGE_INDEX_BUFFER_BIT,
+                               MemoryPlace::kHost, &r.shared.indices);
+      !s.ok())
+    return s.error();
+  std::memcpy(r.shared.indices.mapped, out.indices.data(), index_bytes);
+  r.shared.positions_offset = 0;
+  r.shared.normals_offset = stream;
+  r.shared.index_count = static_cast<uint32_t>(out.indices.size());
+
   VkMemoryGetFdInfoKHR info{VK_STRUCTURE_TYPE_MEMORY_GET_FD_INFO_KHR};
-  info.memory = r.exported.memory;
+  info.memory = r.shared.vertices.memory;
   info.handleType = VK_EXTERNAL_MEMORY_HANDLE_TYPE_OPAQUE_FD_BIT;
-  ExternalBuffer out;
   ZONA_VK_TRY(vkGetMemoryFdKHR(r.context.device, &info, &out.fd));
   VkMemoryRequirements req;
-  vkGetBufferMemoryRequirements(r.context.device, r.exported.buffer, &req);
-  out.size = req.size;
-  out.vertex_capacity = vertex_capacity;
+  vkGetBufferMemoryRequirements(r.context.device, r.shared.vertices.buffer, &req);
+  out.bytes = req.size;
+  out.positions_offset = r.shared.positions_offset;
+  out.normals_offset = r.shared.normals_offset;
+  std::memcpy(out.device_uuid.data(), r.context.device_uuid, out.device_uuid.size());
+  r.frame.shared = &r.shared;
   return out;
 }
 

@@ -9,7 +9,10 @@
 // One thread at a time may use a Renderer (it owns a Dear ImGui context, which is global state).
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -30,7 +33,7 @@ struct RendererOptions {
   std::string font_path;
   /// Overlay text height [px]; 0: from the image height.
   float font_pixels = 0;
-  /// Enable VK_KHR_external_memory_fd (the CUDA interop seam, export_positions_memory()).
+  /// Enable VK_KHR_external_memory_fd, for the CUDA interop (create_shared_surface()).
   bool external_memory = false;
 };
 
@@ -42,12 +45,21 @@ struct ValidationReport {
   std::vector<std::string> messages;  ///< the first few, one line each
 };
 
-/// An exported Vulkan buffer for CUDA (cudaImportExternalMemory with an opaque fd).
-struct ExternalBuffer {
-  int fd = -1;                   ///< owned by the receiver (CUDA takes ownership on import)
-  uint64_t size = 0;             ///< allocation size [bytes]
-  uint64_t vertex_capacity = 0;  ///< vec4 positions it holds
+/// The cell surface in device memory exported for CUDA (CUDA-Vulkan interop): what
+/// kernels/surface_interop.h's make_surface_writer needs to write it.
+struct SharedSurface {
+  int fd = -1;           ///< opaque fd of the memory; the receiver owns it (close it, or import it)
+  uint64_t bytes = 0;    ///< size of the allocation [bytes]
+  uint64_t positions_offset = 0;  ///< vec4 positions, xyz render space, w the scalar [bytes]
+  uint64_t normals_offset = 0;    ///< vec4 unit normals [bytes]
+  std::array<uint8_t, 16> device_uuid{};  ///< the Vulkan device (CUDA must be on the same GPU)
+  std::vector<int32_t> mesh_vertex;  ///< compact vertex -> mesh vertex, (surface vertex count)
+  std::vector<uint32_t> indices;     ///< compact triangles, 3 per triangle
 };
+
+/// The render space of a camera: the renderer draws (x - origin) * scale, x in metres (float
+/// positions keep their precision at micrometre scale). What a SurfaceWriter must be given.
+void camera_render_space(const OrbitCamera& camera, Vec3d* origin, double* scale);
 
 /// A headless renderer. Move-only; destroying it waits for the device and releases everything.
 class Renderer {
@@ -72,10 +84,14 @@ class Renderer {
   std::string device_name() const;
   ValidationReport validation() const;
 
-  /// The CUDA interop seam: a device-local buffer of `vertex_capacity` vec4 positions whose
-  /// memory is exported as an opaque fd (needs RendererOptions::external_memory and a device
-  /// with VK_KHR_external_memory_fd). The draw path does not read it yet (docs/rendering.md).
-  Result<ExternalBuffer> export_positions_memory(uint64_t vertex_capacity);
+  /// CUDA-Vulkan interop: allocates the cell surface of `triangles` (over `vertex_count` mesh
+  /// vertices, compacted as the copy path does) in one device-local buffer whose memory is
+  /// exported as an opaque fd, positions then normals, and uploads its triangles. Frames with
+  /// RenderFrame::shared_surface then draw the cell from it. Replaces an earlier one. Needs
+  /// RendererOptions::external_memory and a device with VK_KHR_external_memory_fd. Errors: no
+  /// external memory, a vertex index out of range, an empty surface, a Vulkan failure.
+  Result<SharedSurface> create_shared_surface(std::span<const Triangle> triangles,
+                                              size_t vertex_count);
 
   struct Impl;
 

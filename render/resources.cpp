@@ -25,7 +25,11 @@ Status create_buffer(const Context& context, VkDeviceSize size, VkBufferUsageFla
   if (type < 0)
     return make_error("no Vulkan memory type for a %llu-byte buffer",
                       static_cast<unsigned long long>(size));
-  VkExportMemoryAllocateInfo export_info{VK_STRUCTURE_TYPE_EXPORT_MEMORY_ALLOCATE_INFO};
+  // Exported memory is a dedicated allocation: CUDA imports it with cudaExternalMemoryDedicated,
+  // which must match how it was allocated.
+  VkMemoryDedicatedAllocateInfo dedicated{VK_STRUCTURE_TYPE_MEMORY_DEDICATED_ALLOCATE_INFO};
+  dedicated.buffer = buffer->buffer;
+  VkExportMemoryAllocateInfo export_info{VK_STRUCTURE_TYPE_EXPORT_MEMORY_ALLOCATE_INFO, &dedicated};
   export_info.handleTypes = VK_EXTERNAL_MEMORY_HANDLE_TYPE_OPAQUE_FD_BIT;
   VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO};
   alloc.pNext = exportable ? &export_info : nullptr;

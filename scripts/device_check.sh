@@ -10,7 +10,8 @@
 # `run` executes on the GPU machine, writing to $OUT (default ./device-out): nvidia-smi,
 # `zona info --json`, the GPU tests, compute-sanitizer memcheck and racecheck over them, the
 # GPU benchmark, and a summary (printed last). Environment:
-#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling (default: all)
+#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling,interop
+#                        (default: all)
 #   SCALING_MAX          largest size of the `zona bench --vertices sweep` stage (default 1.6e7)
 #   TEST_FILTER          gtest filter of the GPU tests (default 'Cuda*')
 #   SANITIZER_FILTER     gtest filter under compute-sanitizer (default: TEST_FILTER)
@@ -18,8 +19,12 @@
 #   BENCH_VARIANTS       benchmark variants (default all)
 #   BENCH_ARGS           extra benchmark arguments (e.g. "--substeps 200 --repeats 9")
 #   TESTS_TIMEOUT, BENCH_TIMEOUT, SANITIZER_TIMEOUT  seconds per stage (240, 300, 150)
-# Stages run in the order smi, tests, bench, scaling, memcheck, racecheck; each writes its log as it goes,
-# so a call cut short still brings back what finished.
+#   INTEROP_SIZES        vertex counts of the interop benchmark (default 10000,100000,1000000)
+# Stages run in the order smi, tests, bench, scaling, interop, memcheck, racecheck; each writes
+# its log as it goes, so a call cut short still brings back what finished.
+# The interop stage (CUDA-Vulkan, docs/rendering.md) needs a Vulkan loader: carry `.gl` (Debian's
+# libvulkan1 and vulkan-validationlayers .deb files, unpacked there) when the machine has none;
+# the NVIDIA ICD is taken from the driver's json.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 mode=${1:-}
@@ -29,14 +34,21 @@ pack() {
   local nvcc=nvcc
   command -v nvcc >/dev/null || nvcc=/usr/local/cuda/bin/nvcc
   set -e
-  cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DZONA_VULKAN=OFF \
+  cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DZONA_BENCH=ON \
     -DCMAKE_CUDA_COMPILER="$(command -v "$nvcc" || echo "$nvcc")" \
     -DCMAKE_CUDA_ARCHITECTURES=90 >/dev/null
-  cmake --build "$build" -j "${ZONA_JOBS:-2}" --target zona_tests gpu_step_bench zona
+  local targets=(zona_tests gpu_step_bench zona)
+  # The renderer (and so interop_bench) exists when Vulkan headers and glslc were found.
+  if cmake --build "$build" --target help 2>/dev/null | grep -q interop_bench; then
+    targets+=(interop_bench)
+  fi
+  cmake --build "$build" -j "${ZONA_JOBS:-2}" --target "${targets[@]}"
   rm -rf "$carry"
   mkdir -p "$carry"
   cp "$build/tests/zona_tests" "$build/bench/gpu_step_bench" "$build/apps/zona" "$carry/"
-  strip "$carry/zona_tests" "$carry/gpu_step_bench" "$carry/zona"
+  [ -x "$build/bench/interop_bench" ] && cp "$build/bench/interop_bench" "$carry/"
+  strip "$carry"/zona_tests "$carry"/gpu_step_bench "$carry"/zona
+  [ -x "$carry/interop_bench" ] && strip "$carry/interop_bench"
   local cudart
   cudart=$(ldd "$carry/gpu_step_bench" | awk '/libcudart/ {print $3}')
   [ -n "$cudart" ] && cp -L "$cudart" "$carry/"
@@ -47,7 +59,7 @@ pack() {
 run() {
   local carry=${1:-build-device}
   local out=${OUT:-device-out}
-  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench,scaling}
+  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench,scaling,interop}
   local filter=${TEST_FILTER:-Cuda*}
   mkdir -p "$out"
   export LD_LIBRARY_PATH="$PWD/$carry${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
@@ -90,6 +102,32 @@ run() {
       --vertices sweep --max-vertices "${SCALING_MAX:-1.6e7}" \
       --out "$out/scaling_sweep_$day.csv" >>"$out/scaling.log" 2>&1
     note "zona bench sweep: rc $?"
+  fi
+  if has interop; then
+    # CUDA-Vulkan interop: the GPU-vs-copy-path tests, the benchmark, a validated frame.
+    if [ -d .gl ] && ! ldconfig -p | grep -q libvulkan.so.1; then
+      for f in .gl/*.deb; do dpkg -x "$f" /; done
+      ldconfig
+    fi
+    local icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+    [ -e "$icd" ] && export VK_DRIVER_FILES=$icd
+    export ZONA_VK_DEVICE=NVIDIA
+    timeout "${TESTS_TIMEOUT:-240}" "$carry/zona_tests" --gtest_filter='CudaInterop*:Renderer*' \
+      >"$out/interop_tests.log" 2>&1
+    note "interop tests: rc $? ; $(grep -E '^\[  (PASSED|FAILED|SKIPPED) ' \
+      "$out/interop_tests.log" | tr '\n' ' ')"
+    grep -E '^\[  FAILED  \]' "$out/interop_tests.log" | sort -u | tee -a "$summary"
+    if [ -x "$carry/interop_bench" ]; then
+      timeout "${BENCH_TIMEOUT:-300}" "$carry/interop_bench" \
+        --vertices "${INTEROP_SIZES:-10000,100000,1000000}" \
+        --out "$out/interop_$(date -u +%Y-%m-%d).csv" >"$out/interop_bench.log" 2>&1
+      note "interop bench: rc $?"
+      tee -a "$summary" <"$out/interop_bench.log"
+    fi
+    timeout 200 "$carry/zona" render mouse_oocyte --backend cuda --interop --validate \
+      --set needle.speed=1mm/s --time 25ms --out "$out/interop_frame.png" \
+      >"$out/interop_render.log" 2>&1
+    note "zona render --interop: rc $? ; $(tail -2 "$out/interop_render.log" | tr '\n' ' ')"
   fi
   local sfilter=${SANITIZER_FILTER:-$filter}
   if has memcheck; then

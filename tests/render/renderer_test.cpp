@@ -212,20 +212,56 @@ TEST(Renderer, FrameSequenceWritesNumberedPngs) {
   std::filesystem::remove_all(dir);
 }
 
-TEST(Renderer, ExportsPositionsMemoryForCuda) {
+TEST(Renderer, SharedSurfaceExportsMemoryAndCompactsLikeTheCopyPath) {
   RendererOptions options;
   options.external_memory = true;
   ZONA_RENDERER_OR_SKIP(r, options);
-  Result<ExternalBuffer> b = r->export_positions_memory(1000);
-  if (!b.ok() && b.error().message.find("lacks VK_KHR_external_memory_fd") != std::string::npos)
-    GTEST_SKIP() << b.error().message;
-  ASSERT_TRUE(b.ok()) << b.error().message;
-  EXPECT_GE(b->fd, 0);
-  EXPECT_GE(b->size, 1000u * 16u);
-  ::close(b->fd);
-  // Without the option the seam says why.
+  const Mesh& mesh = ball();
+  Result<SharedSurface> shared =
+      r->create_shared_surface(ball_surface().triangles, mesh.vertex_count());
+  if (!shared.ok() && shared.error().message.find("lacks VK_KHR_external_memory_fd") !=
+                          std::string::npos)
+    GTEST_SKIP() << shared.error().message;
+  ASSERT_TRUE(shared.ok()) << shared.error().message;
+  EXPECT_GE(shared->fd, 0);
+  ::close(shared->fd);
+  // Every boundary vertex once, in first-use order, and the triangles re-indexed onto them.
+  EXPECT_EQ(shared->mesh_vertex.size(), ball_surface().vertices.size());
+  ASSERT_EQ(shared->indices.size(), 3 * ball_surface().triangles.size());
+  for (size_t t = 0; t < ball_surface().triangles.size(); ++t)
+    for (int c = 0; c < 3; ++c)
+      EXPECT_EQ(shared->mesh_vertex[shared->indices[3 * t + c]], ball_surface().triangles[t][c]);
+  EXPECT_EQ(shared->mesh_vertex[0], ball_surface().triangles[0][0]);
+  // Positions then normals, both inside the exported allocation.
+  EXPECT_EQ(shared->positions_offset, 0u);
+  EXPECT_EQ(shared->normals_offset, shared->mesh_vertex.size() * 16u);
+  EXPECT_GE(shared->bytes, 2 * shared->mesh_vertex.size() * 16u);
+  // The copy path still draws the same after the shared surface exists.
+  const PixelImage image = render(*r, ball_frame());
+  EXPECT_GT(image.rgba.size(), 0u);
+  EXPECT_TRUE(r->validation().errors == 0);
+}
+
+TEST(Renderer, SharedSurfaceErrors) {
+  // Without the option, and without a created surface, the errors say why.
   ZONA_RENDERER_OR_SKIP(plain, RendererOptions{});
-  EXPECT_FALSE(plain->export_positions_memory(10).ok());
+  Result<SharedSurface> none = plain->create_shared_surface(ball_surface().triangles,
+                                                            ball().vertex_count());
+  ASSERT_FALSE(none.ok());
+  EXPECT_NE(none.error().message.find("external memory not enabled"), std::string::npos);
+  RenderFrame frame = ball_frame();
+  frame.shared_surface = true;
+  Status s = plain->render(frame);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("no shared surface"), std::string::npos);
+  // A triangle naming a vertex past the end is refused, naming it.
+  RendererOptions options;
+  options.external_memory = true;
+  ZONA_RENDERER_OR_SKIP(r, options);
+  std::vector<Triangle> bad = {Triangle{0, 1, 99}};
+  Result<SharedSurface> out_of_range = r->create_shared_surface(bad, 10);
+  ASSERT_FALSE(out_of_range.ok());
+  EXPECT_NE(out_of_range.error().message.find("vertex 99"), std::string::npos);
 }
 
 }  // namespace
