@@ -20,6 +20,7 @@
 
 #if defined(ZONA_HAVE_VULKAN)
 #include "render/frame_source.h"
+#include "render/interop.h"
 #include "render/renderer.h"
 #include "render/window.h"
 #endif
@@ -80,14 +81,7 @@ std::unique_ptr<SurfaceWriter> make_interop(const Simulation& s, ColorField fiel
                                                               s.mesh().vertex_count());
   if (!made.ok()) return copy_path(made.error().message);
   *shared = std::move(made).value();
-  SharedSurfaceTarget target;
-  target.memory_fd = shared->fd;
-  target.memory_bytes = shared->bytes;
-  target.positions_offset = shared->positions_offset;
-  target.normals_offset = shared->normals_offset;
-  target.device_uuid = shared->device_uuid;
-  target.mesh_vertex = shared->mesh_vertex;
-  target.indices = shared->indices;
+  const SharedSurfaceTarget target = shared_surface_target(*shared);
   Result<std::unique_ptr<SurfaceWriter>> writer =
       make_surface_writer(*s.backend(), s.model(), target);
   if (!writer.ok()) return copy_path(writer.error().message);

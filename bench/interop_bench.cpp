@@ -26,6 +26,7 @@
 #include "kernels/cuda_backend.h"
 #include "kernels/surface_interop.h"
 #include "render/frame_source.h"
+#include "render/interop.h"
 #include "render/renderer.h"
 
 namespace zona {
@@ -109,14 +110,7 @@ int run(int argc, char** argv) {
     Result<SharedSurface> shared =
         renderer->create_shared_surface(surface.triangles, mesh->vertex_count());
     if (!shared) return fail(shared.error().message);
-    SharedSurfaceTarget target_memory;
-    target_memory.memory_fd = shared->fd;
-    target_memory.memory_bytes = shared->bytes;
-    target_memory.positions_offset = shared->positions_offset;
-    target_memory.normals_offset = shared->normals_offset;
-    target_memory.device_uuid = shared->device_uuid;
-    target_memory.mesh_vertex = shared->mesh_vertex;
-    target_memory.indices = shared->indices;
+    const SharedSurfaceTarget target_memory = shared_surface_target(*shared);
     Result<std::unique_ptr<SurfaceWriter>> writer =
         make_surface_writer(**backend, *model, target_memory);
     if (!writer) return fail(writer.error().message);

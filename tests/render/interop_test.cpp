@@ -14,6 +14,7 @@
 #include "kernels/cuda_backend.h"
 #include "render/frame_source.h"
 #include "render/geometry.h"
+#include "render/interop.h"
 #include "render/renderer.h"
 
 namespace zona {
@@ -90,14 +91,7 @@ TEST(CudaInterop, GpuSurfaceEqualsTheCopyPathsSurface) {
   Result<SharedSurface> shared =
       renderer->create_shared_surface(f.surface.triangles, f.mesh.vertex_count());
   if (!shared.ok()) GTEST_SKIP() << shared.error().message;
-  SharedSurfaceTarget target;
-  target.memory_fd = shared->fd;
-  target.memory_bytes = shared->bytes;
-  target.positions_offset = shared->positions_offset;
-  target.normals_offset = shared->normals_offset;
-  target.device_uuid = shared->device_uuid;
-  target.mesh_vertex = shared->mesh_vertex;
-  target.indices = shared->indices;
+  const SharedSurfaceTarget target = shared_surface_target(*shared);
   Result<std::unique_ptr<SurfaceWriter>> writer = make_surface_writer(**backend, f.model, target);
   ASSERT_TRUE(writer.ok()) << writer.error().message;
 
@@ -169,14 +163,7 @@ TEST(CudaInterop, WriterFollowsTheBackendAfterSteps) {
   Result<SharedSurface> shared =
       renderer->create_shared_surface(f.surface.triangles, f.mesh.vertex_count());
   if (!shared.ok()) GTEST_SKIP() << shared.error().message;
-  SharedSurfaceTarget target;
-  target.memory_fd = shared->fd;
-  target.memory_bytes = shared->bytes;
-  target.positions_offset = shared->positions_offset;
-  target.normals_offset = shared->normals_offset;
-  target.device_uuid = shared->device_uuid;
-  target.mesh_vertex = shared->mesh_vertex;
-  target.indices = shared->indices;
+  const SharedSurfaceTarget target = shared_surface_target(*shared);
   Result<std::unique_ptr<SurfaceWriter>> writer = make_surface_writer(**backend, f.model, target);
   ASSERT_TRUE(writer.ok()) << writer.error().message;
   // The released dimple springs back: after steps the written surface is the downloaded state's.
