@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 #include "engine/simd_pack.h"
@@ -83,12 +84,10 @@ struct PassContext {
 };
 
 // ---------------------------------------------------------------------------------------------
-// Batched gradient-form kernels: four tetrahedra per lane-parallel evaluation of the SAME
-// fem_element.h functions, instantiated on a four-wide double pack. Each lane performs exactly
-// the scalar operations in the scalar order, so the results are bit-identical to the scalar
-// element functions (tests check it); only the instruction count drops (AVX: 4 per op).
-// GCC builds an AVX2 clone and a baseline clone and picks one at load time; FMA is left out on
-// purpose, because contracting a*b+c would change the bits between the clones.
+// Batched gradient-form kernels: four or eight tetrahedra per lane-parallel evaluation of the
+// SAME fem_element.h functions, instantiated on a pack type (simd_pack.h). Each lane performs
+// exactly the scalar operations in the scalar order, so the results are bit-identical to the
+// scalar element functions (tests check it); only the instruction count drops.
 
 // Element math of one batch, as the scalar functions compose it (SvkGradient... above, and
 // kernels/element_eval.h): corner forces f, energy w [J], and the health quantities det F and,
@@ -120,17 +119,6 @@ template <bool kSvk, class P>
   }
   tet_forces_from_stress(shape, p, f);
   *w = shape.volume * psi;
-}
-
-// x/y/z packs of corner c of tetrahedra tb[0..3] (16-byte loads and unpacks, no per-lane scalar
-// gathers), then the edge differences u_{e+1} - u_0 lane by lane in double, as
-// tet_displacement_gradient forms them.
-[[gnu::always_inline]] inline void batch_edges(const Vec3d* ug, const Tet* tb, Vec3<P4> du[3]) {
-  Vec3<P4> uc[4];
-  for (int c = 0; c < 4; ++c)
-    load_xyz_transposed(ug[tb[0][c]], ug[tb[1][c]], ug[tb[2][c]], ug[tb[3][c]], uc[c].x, uc[c].y,
-                        uc[c].z);
-  for (int e = 0; e < 3; ++e) du[e] = uc[e + 1] - uc[0];
 }
 
 // Stores the corner forces of four consecutive tetrahedra starting at `dst` (48 doubles,
@@ -167,205 +155,224 @@ void batch_health_slow(const P& det_f, const P& m1, const P& m2, const P& det_a,
   }
 }
 
-// The element pass over chunks with the batched SVK or linear kernel, float64 element math.
-template <bool kSvk>
-ZONA_SIMD_CLONES void tet_pass_chunks_batched(void* context, int64_t chunk_begin,
+// ---------------------------------------------------------------------------------------------
+// The batched passes differ only in their pack (four float64 lanes; eight float64 lanes with
+// AVX-512; eight float32 lanes), that is in how a batch's inputs are loaded and its corner forces
+// stored. Each Lanes type below supplies those steps for one pack; batch_pass does the rest (the
+// element math, the last batch, energy, health) for all of them. Batches start at multiples of
+// their lane count; kTetChunk is a multiple of eight, so no batch straddles two chunks.
+
+// Edge differences u_{e+1} - u_0 of four lanes, lane by lane in double as
+// tet_displacement_gradient forms them; o points at lane 0 of corner 0 in
+// Model::cpu_tet_corner_offsets (corner c at o + 8 c).
+[[gnu::always_inline]] inline void load_edges4(const double* u, const int32_t* o, Vec3<P4> du[3]) {
+  Vec3<P4> uc[4];
+  for (int c = 0; c < 4; ++c) {
+    const int32_t* oc = o + 8 * c;
+    load_xyz_transposed(u + oc[0], u + oc[1], u + oc[2], u + oc[3], uc[c].x, uc[c].y, uc[c].z);
+  }
+  for (int e = 0; e < 3; ++e) du[e] = uc[e + 1] - uc[0];
+}
+
+// True when every lane passed the health checks: det F > 0 and, for SVK, the three leading
+// minors of C - s^2 I positive (tet_health_from_strain). A NaN fails, as in the scalar check.
+// For packs of at most 256 bits; the 512-bit pack has its own copy (Lanes8d).
+template <bool kSvk, class P>
+[[gnu::always_inline]] inline bool lanes_healthy(const P& det_f, const P& m1, const P& m2,
+                                                 const P& det_a) {
+  using Scalar = std::remove_cvref_t<decltype(P{}.v[0])>;
+  auto ok = det_f.v > Scalar(0);
+  if constexpr (kSvk) ok &= (m1.v > Scalar(0)) & (m2.v > Scalar(0)) & (det_a.v > Scalar(0));
+  return all_lanes(ok);
+}
+
+// Where tetrahedron t0's batch data starts (its lane within the batch of eight included).
+inline const double* batch_shape(const Model& m, int64_t t0) {
+  return m.cpu_tet_batches.data() + (t0 / 8) * kCpuTetBatchStride + t0 % 8;
+}
+inline const int32_t* batch_offsets(const Model& m, int64_t t0) {
+  return m.cpu_tet_corner_offsets.data() + (t0 / 8) * kCpuTetOffsetStride + t0 % 8;
+}
+
+// Float64, four tetrahedra per P4 (AVX2 or baseline): half a batch of eight.
+struct Lanes4d {
+  using Pack = P4;
+  static constexpr int kLanes = 4;
+  [[gnu::always_inline]] static void load(const Model& m, const double* u, int64_t t0,
+                                          TetShape<P4>& shape, P4& lambda, P4& mu,
+                                          Vec3<P4> du[3]) {
+    const double* b = batch_shape(m, t0);
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(b + 8 * (3 * j + i));
+    shape.volume = load4(b + 8 * 12);
+    lambda = load4(b + 8 * 13);
+    mu = load4(b + 8 * 14);
+    load_edges4(u, batch_offsets(m, t0), du);
+  }
+  [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* out) {
+    store_corner_forces4(f, out);
+  }
+  template <bool kSvk>
+  [[gnu::always_inline]] static bool healthy(const P4& det_f, const P4& m1, const P4& m2,
+                                             const P4& det_a) {
+    return lanes_healthy<kSvk>(det_f, m1, m2, det_a);
+  }
+};
+
+// Float32 element math, eight tetrahedra per P8f: edge differences formed in float64 and rounded,
+// shapes and Lame coefficients rounded at build (Model::cpu_tet_batches_f32), corner forces
+// widened back to float64 (the CUDA kernels' mixed precision).
+struct Lanes8f {
+  using Pack = P8f;
+  static constexpr int kLanes = 8;
+  [[gnu::always_inline]] static void load(const Model& m, const double* u, int64_t t0,
+                                          TetShape<P8f>& shape, P8f& lambda, P8f& mu,
+                                          Vec3<P8f> du[3]) {
+    const float* b = m.cpu_tet_batches_f32.data() + (t0 / 8) * kCpuTetBatchStrideF32;
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(b + 8 * (3 * j + i));
+    shape.volume = load8f(b + 8 * 12);
+    lambda = load8f(b + 8 * 13);
+    mu = load8f(b + 8 * 14);
+    const int32_t* o = batch_offsets(m, t0);
+    Vec3<P4> lo[3], hi[3];
+    load_edges4(u, o, lo);
+    load_edges4(u, o + 4, hi);
+    for (int e = 0; e < 3; ++e)
+      du[e] = Vec3<P8f>{narrow(lo[e].x, hi[e].x), narrow(lo[e].y, hi[e].y),
+                        narrow(lo[e].z, hi[e].z)};
+  }
+  [[gnu::always_inline]] static void store(const Vec3<P8f> f[4], double* out) {
+    for (int half = 0; half < 2; ++half) {
+      Vec3<P4> fd[4];
+      for (int c = 0; c < 4; ++c)
+        fd[c] = Vec3<P4>{widen(f[c].x, half), widen(f[c].y, half), widen(f[c].z, half)};
+      store_corner_forces4(fd, out + 48 * half);
+    }
+  }
+  template <bool kSvk>
+  [[gnu::always_inline]] static bool healthy(const P8f& det_f, const P8f& m1, const P8f& m2,
+                                             const P8f& det_a) {
+    return lanes_healthy<kSvk>(det_f, m1, m2, det_a);
+  }
+};
+
+// The element pass over chunks [chunk_begin, chunk_end) with batches of L::kLanes tetrahedra:
+// lane by lane the fem_element.h functions in their order, so bit-identical to them.
+template <bool kSvk, class L>
+[[gnu::always_inline]] inline void batch_pass(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
+  using P = typename L::Pack;
+  constexpr int kLanes = L::kLanes;
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nt = static_cast<int64_t>(m.tet_count());
-  const Vec3d* ug = s.u.data();
-  Vec3d* out = s.tet_force.data();
-  const Tet* tets = m.tets.data();
+  const double* ug = &s.u.data()->x;
+  double* out = &s.tet_force.data()->x;
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     double energy = 0;  // r.elastic_energy, in a register
     const int64_t begin = chunk * kTetChunk;
     const int64_t end = std::min(nt, begin + kTetChunk);
-    for (int64_t t0 = begin; t0 < end; t0 += 4) {
-      // Lanes past the end repeat the last tetrahedron; their results are dropped.
-      const int lanes = static_cast<int>(std::min<int64_t>(4, end - t0));
-      const Tet* tb = tets + t0;
-      Tet tail[4];
-      if (lanes < 4) {
-        for (int l = 0; l < 4; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
-        tb = tail;
-      }
-      // Shape and material: 15 four-lane loads from the model's batch layout.
-      const double* batch = m.cpu_tet_batches.data() + (t0 / 4) * kCpuTetBatchStride;
-      TetShape<P4> shape;
-      for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(batch + 4 * (3 * j + i));
-      shape.volume = load4(batch + 4 * 12);
-      const P4 lambda = load4(batch + 4 * 13);
-      const P4 mu = load4(batch + 4 * 14);
-      Vec3<P4> du[3];
-      batch_edges(ug, tb, du);
-      Vec3<P4> f[4];
-      P4 w, det_f, m1(0.0), m2(0.0), det_a(0.0);
+    for (int64_t t0 = begin; t0 < end; t0 += kLanes) {
+      // Lanes past the end repeat the last tetrahedron (the model's batches are padded so);
+      // their results are dropped.
+      const int lanes = static_cast<int>(std::min<int64_t>(kLanes, end - t0));
+      TetShape<P> shape;
+      P lambda, mu;
+      Vec3<P> du[3];
+      L::load(m, ug, t0, shape, lambda, mu, du);
+      Vec3<P> f[4];
+      P w, det_f, m1(0.0), m2(0.0), det_a(0.0);
       batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
-      if (lanes == 4) {
-        store_corner_forces4(f, &out[4 * t0].x);
-        for (int l = 0; l < 4; ++l) energy += w.v[l];
+      if (lanes == kLanes) {
+        L::store(f, out + 12 * t0);
+        // A fixed trip count: the energy stays in a register.
+        for (int l = 0; l < kLanes; ++l) energy += static_cast<double>(w.v[l]);
       } else {
         for (int l = 0; l < lanes; ++l) {
           for (int c = 0; c < 4; ++c)
-            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
-          energy += w.v[l];
+            for (int i = 0; i < 3; ++i)
+              out[12 * (t0 + l) + 3 * c + i] = static_cast<double>(f[c][i].v[l]);
+          energy += static_cast<double>(w.v[l]);
         }
       }
       // Health by lane masks (repeated lanes past the end copy a valid lane).
-      M4 ok = det_f.v > 0.0;
-      if constexpr (kSvk) ok &= (m1.v > 0.0) & (m2.v > 0.0) & (det_a.v > 0.0);
-      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
+      if (!L::template healthy<kSvk>(det_f, m1, m2, det_a))
+        batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
     }
     r.elastic_energy = energy;
     s.tet_chunks[static_cast<size_t>(chunk)] = r;
   }
+}
+
+// GCC builds an AVX2 clone and a baseline clone of these two and picks one at load time; FMA is
+// left out on purpose, because contracting a*b+c would change the bits between the clones.
+template <bool kSvk>
+ZONA_SIMD_CLONES void tet_pass_chunks_f64(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  batch_pass<kSvk, Lanes4d>(context, chunk_begin, chunk_end);
+}
+
+template <bool kSvk>
+ZONA_SIMD_CLONES void tet_pass_chunks_f32(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  batch_pass<kSvk, Lanes8f>(context, chunk_begin, chunk_end);
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && \
     !defined(__SANITIZE_THREAD__)
 #define ZONA_HAVE_AVX512_PASS 1
-// The float64 pass with eight tetrahedra per AVX-512 pack, chosen at run time on CPUs that have
-// AVX-512F (cpu_simd_bits() == 512): the same lane operations, so the same bits as the four-lane
-// pass and the scalar functions. Shapes come from two four-lane batches.
-template <bool kSvk>
+// Float64 with eight tetrahedra per AVX-512 pack, chosen at run time on CPUs that have AVX-512F
+// (cpu_simd_bits() == 512): the same lane operations, so the same bits as the four-lane pass.
+// Corners are loaded as by the four-lane pass, one half at a time: hardware gathers
+// (vgatherdpd, three per corner) measured 2x slower for the whole pass on the Ice Lake host of
+// docs/performance.md.
+struct Lanes8d {
+  using Pack = P8d;
+  static constexpr int kLanes = 8;
+  [[gnu::always_inline]] static void load(const Model& m, const double* u, int64_t t0,
+                                          TetShape<P8d>& shape, P8d& lambda, P8d& mu,
+                                          Vec3<P8d> du[3]) {
+    const double* b = batch_shape(m, t0);
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8d(b + 8 * (3 * j + i));
+    shape.volume = load8d(b + 8 * 12);
+    lambda = load8d(b + 8 * 13);
+    mu = load8d(b + 8 * 14);
+    const int32_t* o = batch_offsets(m, t0);
+    Vec3<P4> lo[3], hi[3];
+    load_edges4(u, o, lo);
+    load_edges4(u, o + 4, hi);
+    for (int e = 0; e < 3; ++e)
+      du[e] = Vec3<P8d>{concat(lo[e].x, hi[e].x), concat(lo[e].y, hi[e].y),
+                        concat(lo[e].z, hi[e].z)};
+  }
+  [[gnu::always_inline]] static void store(const Vec3<P8d> f[4], double* out) {
+    for (int half = 0; half < 2; ++half) {
+      Vec3<P4> fd[4];
+      for (int c = 0; c < 4; ++c)
+        fd[c] = Vec3<P4>{half_of(f[c].x, half), half_of(f[c].y, half), half_of(f[c].z, half)};
+      store_corner_forces4(fd, out + 48 * half);
+    }
+  }
+  // lanes_healthy's comparisons, written out here: in a function without the AVX-512 target GCC
+  // lowers 512-bit comparisons lane by lane before they are inlined into the pass (2x slower).
+  template <bool kSvk>
+  __attribute__((target("avx512f"))) static bool healthy(const P8d& det_f, const P8d& m1,
+                                                         const P8d& m2, const P8d& det_a) {
+    M8d ok = det_f.v > 0.0;
+    if constexpr (kSvk) ok &= (m1.v > 0.0) & (m2.v > 0.0) & (det_a.v > 0.0);
+    return all_lanes(ok);
+  }
+};
+
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, or a * b + c would
 // round once instead of twice and the bits would differ from the other passes.
+template <bool kSvk>
 __attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
-tet_pass_chunks_batched8(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  const Model& m = *static_cast<PassContext*>(context)->model;
-  State& s = *static_cast<PassContext*>(context)->state;
-  const int64_t nt = static_cast<int64_t>(m.tet_count());
-  const int64_t batches4 = static_cast<int64_t>(m.cpu_tet_batches.size()) / kCpuTetBatchStride;
-  const Vec3d* ug = s.u.data();
-  Vec3d* out = s.tet_force.data();
-  const Tet* tets = m.tets.data();
-  for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
-    TetChunkResult r;
-    double energy = 0;
-    const int64_t begin = chunk * kTetChunk;
-    const int64_t end = std::min(nt, begin + kTetChunk);
-    for (int64_t t0 = begin; t0 < end; t0 += 8) {
-      const int lanes = static_cast<int>(std::min<int64_t>(8, end - t0));
-      const Tet* tb = tets + t0;
-      Tet tail[8];
-      if (lanes < 8) {
-        for (int l = 0; l < 8; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
-        tb = tail;
-      }
-      // The high half's batch may not exist at the very end: its lanes are dropped then.
-      const double* lo = m.cpu_tet_batches.data() + (t0 / 4) * kCpuTetBatchStride;
-      const double* hi = t0 / 4 + 1 < batches4 ? lo + kCpuTetBatchStride : lo;
-      auto load = [lo, hi](int k) { return concat(load4(lo + 4 * k), load4(hi + 4 * k)); };
-      TetShape<P8d> shape;
-      for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load(3 * j + i);
-      shape.volume = load(12);
-      const P8d lambda = load(13);
-      const P8d mu = load(14);
-      Vec3<P4> dlo[3], dhi[3];
-      batch_edges(ug, tb, dlo);
-      batch_edges(ug, tb + 4, dhi);
-      Vec3<P8d> du[3];
-      for (int e = 0; e < 3; ++e)
-        du[e] = Vec3<P8d>{concat(dlo[e].x, dhi[e].x), concat(dlo[e].y, dhi[e].y),
-                          concat(dlo[e].z, dhi[e].z)};
-      Vec3<P8d> f[4];
-      P8d w, det_f, m1(0.0), m2(0.0), det_a(0.0);
-      batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
-      if (lanes == 8) {
-        for (int half = 0; half < 2; ++half) {
-          Vec3<P4> fd[4];
-          for (int c = 0; c < 4; ++c)
-            fd[c] = Vec3<P4>{half_of(f[c].x, half), half_of(f[c].y, half), half_of(f[c].z, half)};
-          store_corner_forces4(fd, &out[4 * (t0 + 4 * half)].x);
-        }
-        for (int l = 0; l < 8; ++l) energy += w.v[l];
-      } else {
-        for (int l = 0; l < lanes; ++l) {
-          for (int c = 0; c < 4; ++c)
-            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
-          energy += w.v[l];
-        }
-      }
-      M8d ok = det_f.v > 0.0;
-      if constexpr (kSvk) ok &= (m1.v > 0.0) & (m2.v > 0.0) & (det_a.v > 0.0);
-      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
-    }
-    r.elastic_energy = energy;
-    s.tet_chunks[static_cast<size_t>(chunk)] = r;
-  }
+tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  batch_pass<kSvk, Lanes8d>(context, chunk_begin, chunk_end);
 }
 #endif
-
-// The same with float32 element math (ElementPrecision::kFloat32), eight tetrahedra per pack:
-// edge differences formed in float64 and rounded, shapes and Lame coefficients rounded at build,
-// corner forces widened back to float64 (the CUDA kernels' mixed precision). Lane by lane the
-// fem_element.h functions at T = float, so bit-identical to them.
-template <bool kSvk>
-ZONA_SIMD_CLONES void tet_pass_chunks_batched_f32(void* context, int64_t chunk_begin,
-                                                  int64_t chunk_end) {
-  const Model& m = *static_cast<PassContext*>(context)->model;
-  State& s = *static_cast<PassContext*>(context)->state;
-  const int64_t nt = static_cast<int64_t>(m.tet_count());
-  const Vec3d* ug = s.u.data();
-  Vec3d* out = s.tet_force.data();
-  const Tet* tets = m.tets.data();
-  for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
-    TetChunkResult r;
-    double energy = 0;
-    const int64_t begin = chunk * kTetChunk;
-    const int64_t end = std::min(nt, begin + kTetChunk);
-    for (int64_t t0 = begin; t0 < end; t0 += 8) {
-      const int lanes = static_cast<int>(std::min<int64_t>(8, end - t0));
-      const Tet* tb = tets + t0;
-      Tet tail[8];
-      if (lanes < 8) {
-        for (int l = 0; l < 8; ++l) tail[l] = tets[t0 + std::min(l, lanes - 1)];
-        tb = tail;
-      }
-      const float* batch = m.cpu_tet_batches_f32.data() + (t0 / 8) * kCpuTetBatchStrideF32;
-      TetShape<P8f> shape;
-      for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(batch + 8 * (3 * j + i));
-      shape.volume = load8f(batch + 8 * 12);
-      const P8f lambda = load8f(batch + 8 * 13);
-      const P8f mu = load8f(batch + 8 * 14);
-      Vec3<P4> lo[3], hi[3];
-      batch_edges(ug, tb, lo);
-      batch_edges(ug, tb + 4, hi);
-      Vec3<P8f> du[3];
-      for (int e = 0; e < 3; ++e)
-        du[e] = Vec3<P8f>{narrow(lo[e].x, hi[e].x), narrow(lo[e].y, hi[e].y),
-                          narrow(lo[e].z, hi[e].z)};
-      Vec3<P8f> f[4];
-      P8f w, det_f, m1(0.0f), m2(0.0f), det_a(0.0f);
-      batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, &det_f, &m1, &m2, &det_a);
-      if (lanes == 8) {
-        for (int half = 0; half < 2; ++half) {
-          Vec3<P4> fd[4];
-          for (int c = 0; c < 4; ++c)
-            fd[c] = Vec3<P4>{widen(f[c].x, half), widen(f[c].y, half), widen(f[c].z, half)};
-          store_corner_forces4(fd, &out[4 * (t0 + 4 * half)].x);
-        }
-        for (int l = 0; l < 8; ++l) energy += static_cast<double>(w.v[l]);
-      } else {
-        for (int l = 0; l < lanes; ++l) {
-          for (int c = 0; c < 4; ++c)
-            out[4 * (t0 + l) + c] = Vec3d{f[c].x.v[l], f[c].y.v[l], f[c].z.v[l]};
-          energy += static_cast<double>(w.v[l]);
-        }
-      }
-      M8 ok = det_f.v > 0.0f;
-      if constexpr (kSvk) ok &= (m1.v > 0.0f) & (m2.v > 0.0f) & (det_a.v > 0.0f);
-      if (!all_lanes(ok)) batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
-    }
-    r.elastic_energy = energy;
-    s.tet_chunks[static_cast<size_t>(chunk)] = r;
-  }
-}
 
 // The element pass over chunks [chunk_begin, chunk_end) for one element kind.
 template <class Kernel>
@@ -407,21 +414,20 @@ ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   switch (m.formulation) {
     case Formulation::kGradient:
       if (m.element_precision == ElementPrecision::kFloat32)  // build_model: no clamp then
-        return svk ? &tet_pass_chunks_batched_f32<true> : &tet_pass_chunks_batched_f32<false>;
+        return svk ? &tet_pass_chunks_f32<true> : &tet_pass_chunks_f32<false>;
+      if (svk && m.inversion == InversionHandling::kClampStretch)
+        return &tet_pass_chunks<SvkGradientClamped>;
 #ifdef ZONA_HAVE_AVX512_PASS
-      if (m.inversion != InversionHandling::kClampStretch && cpu_simd_bits() >= 512)
-        return svk ? &tet_pass_chunks_batched8<true> : &tet_pass_chunks_batched8<false>;
+      if (cpu_simd_bits() >= 512)
+        return svk ? &tet_pass_chunks_f64_avx512<true> : &tet_pass_chunks_f64_avx512<false>;
 #endif
-      if (!svk) return &tet_pass_chunks_batched<false>;
-      return m.inversion == InversionHandling::kClampStretch
-                 ? &tet_pass_chunks<SvkGradientClamped>
-                 : &tet_pass_chunks_batched<true>;
+      return svk ? &tet_pass_chunks_f64<true> : &tet_pass_chunks_f64<false>;
     case Formulation::kTensorStored:
       return svk ? &tet_pass_chunks<SvkTensorStored> : &tet_pass_chunks<LinearTensorStored>;
     case Formulation::kTensorRebuilt:
       return svk ? &tet_pass_chunks<SvkTensorRebuilt> : &tet_pass_chunks<LinearTensorRebuilt>;
   }
-  return &tet_pass_chunks_batched<true>;
+  return &tet_pass_chunks_f64<true>;
 }
 
 void gather_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {

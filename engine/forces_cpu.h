@@ -33,11 +33,11 @@ void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 /// Elastic force on vertex v [N]: its corner slots of state.tet_force summed in adjacency order
 /// (ascending tetrahedron).
 inline Vec3d gather_vertex_force(const Model& model, const State& state, size_t v) {
-  const Vec3d* slots = state.tet_force.data();
-  const int32_t* slot = model.adjacency_slot.data();
+  const double* slots = &state.tet_force.data()->x;
+  const int32_t* offset = model.adjacency_slot_offset.data();
   Vec3d f{0, 0, 0};
   for (int32_t i = model.adjacency.offsets[v]; i < model.adjacency.offsets[v + 1]; ++i)
-    f += slots[slot[i]];
+    f += Vec3d{slots[offset[i]], slots[offset[i] + 1], slots[offset[i] + 2]};
   return f;
 }
 

@@ -24,63 +24,94 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
   return (p.v[0] + p.v[1]) + p.v[2];
 }
 
-// Stage 2, per chunk of vertices: gather the elastic force, then the centred-difference update
-// u+ = a u - b u- + c (f_el + f_ext) of free vertices (DESIGN.md section 3); fixed vertices go to
-// zero; prescribed ones are written by apply_prescribed_vertices. Vectors are (x, y, z, 0) packs:
-// lane by lane the Vec3d operations in their order, so the same bits.
+// The elastic force of vertex v: its corner slots summed in adjacency order, as
+// gather_vertex_force does, with x, y, z in the lanes of one pack: one 32-byte load per corner
+// (x, y, z and the next slot's x; State::tet_force has a padding slot). Lane 3 (that next x) is
+// summed too but never stored or used.
+[[gnu::always_inline]] inline P4 gather_force(const double* slots, const int32_t* slot_offset,
+                                              int32_t begin, int32_t end) {
+  P4 f = zero4();
+#pragma GCC unroll 4
+  for (int32_t i = begin; i < end; ++i) f += load4(slots + slot_offset[i]);
+  return f;
+}
+
+// What the vertex pass reads and writes, as plain pointers: the pass stores through memcpy
+// (store_xyz), which may alias anything, so pointers read from the Model and State on every
+// vertex would be reloaded on every vertex.
+struct VertexPassArrays {
+  const double* slots;                    // State::tet_force
+  const int32_t* slot_offset;             // Model::adjacency_slot_offset
+  const int32_t* offsets;                 // Model::adjacency.offsets
+  const Vec3d* u;                         // u_n
+  const Vec3d* u_prev;                    // u_{n-1}
+  const Vec3d* external_force;
+  const uint8_t* constraint;              // VertexConstraint per vertex
+  const VertexCoefficients* coefficients;
+  const double* mass;
+  Vec3d* force;                           // out: elastic force
+  Vec3d* u_next;                          // out: u_{n+1}
+};
+
+// The centred-difference update u+ = a u - b u- + c (f_el + f_ext) of vertex v with elastic force
+// f (DESIGN.md section 3); fixed vertices go to zero; prescribed ones are written by
+// apply_prescribed_vertices. Vectors are (x, y, z, -) packs: lane by lane the Vec3d operations in
+// their order, so the same bits; lane 3 is never stored or summed (dot3, store_xyz and the probe
+// read lanes 0-2). Adds the vertex's terms to the chunk's sums and its next - next (0 for finite
+// lanes, NaN otherwise) to `probe`.
+[[gnu::always_inline]] inline void update_vertex(const VertexPassArrays& a, size_t v, P4 f,
+                                                 P4 half_inv_dt, VertexChunkResult& r,
+                                                 P4& probe) {
+  const P4 f_ext = load_xyzz(a.external_force[v]);
+  store_xyz(f, a.force[v]);
+  P4 next = load_xyzz(a.u[v]);  // prescribed: overwritten by the next stage
+  if (a.constraint[v] == kVertexFree) {
+    const VertexCoefficients& k = a.coefficients[v];
+    const P4 f_total = f + f_ext;
+    const P4 up = load_xyzz(a.u_prev[v]);
+    next = P4(k.a) * next - P4(k.b) * up + P4(k.c) * f_total;
+    const P4 du = next - up;  // = 2 dt v_n
+    const P4 vel = half_inv_dt * du;
+    r.kinetic_energy += 0.5 * a.mass[v] * dot3(vel, vel);
+    r.input_work += 0.5 * dot3(f_ext, du);
+    r.residual_sq += dot3(f_total, f_total);
+  } else {
+    if (a.constraint[v] == kVertexFixed) next = zero4();
+    r.reference_sq += dot3(f, f);
+  }
+  r.reference_sq += dot3(f_ext, f_ext);
+  probe += next - next;
+  store_xyz(next, a.u_next[v]);
+}
+
+// Stage 2, per chunk of vertices: gather the elastic force, then the centred-difference update.
 ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
   const P4 half_inv_dt(0.5 / m.dt);
-  const double* slots = &s.tet_force.data()->x;
-  const int32_t* slot = m.adjacency_slot.data();
-  const int32_t* offsets = m.adjacency.offsets.data();
-  const P4 zero = zero4();
+  const VertexPassArrays a{&s.tet_force.data()->x, m.adjacency_slot_offset.data(),
+                           m.adjacency.offsets.data(), s.u.data(),
+                           s.u_prev.data(), s.external_force.data(),
+                           s.vertex_constraint.data(), m.vertex_coefficients.data(),
+                           m.vertex_mass.data(), s.force.data(),
+                           s.u_next.data()};
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     VertexChunkResult r;
     const int64_t begin = chunk * kVertexChunk;
     const int64_t end = std::min(nv, begin + kVertexChunk);
-    // next - next is 0 for finite lanes and NaN otherwise; summed over the chunk, one test at
-    // the end finds out whether to look for the first non-finite vertex.
+    // Summed over the chunk, one test at the end finds out whether to look for the first
+    // non-finite vertex.
     P4 probe = zero4();
     for (int64_t vi = begin; vi < end; ++vi) {
       const size_t v = static_cast<size_t>(vi);
-      // gather_vertex_force with x, y, z in the lanes of one pack: the same additions in the
-      // same order, so the same bits. One 32-byte load per corner (x, y, z and the next slot's
-      // x): State::tet_force has a padding slot.
-      P4 acc = zero4();
-#pragma GCC unroll 4
-      for (int32_t i = offsets[v]; i < offsets[v + 1]; ++i)
-        acc += load4(slots + 3 * size_t{static_cast<uint32_t>(slot[i])});
-      // Lane 3 of f (that x) and of everything formed from it is never stored or summed:
-      // dot3, store_xyz and the probe read lanes 0-2.
-      const P4 f = acc;
-      const P4 f_ext = load_xyzz(s.external_force[v]);
-      store_xyz(f, s.force[v]);
-      P4 next = load_xyzz(s.u[v]);  // prescribed: overwritten by the next stage
-      if (s.vertex_constraint[v] == kVertexFree) {
-        const VertexCoefficients& k = m.vertex_coefficients[v];
-        const P4 f_total = f + f_ext;
-        const P4 up = load_xyzz(s.u_prev[v]);
-        next = P4(k.a) * next - P4(k.b) * up + P4(k.c) * f_total;
-        const P4 du = next - up;  // = 2 dt v_n
-        const P4 vel = half_inv_dt * du;
-        r.kinetic_energy += 0.5 * m.vertex_mass[v] * dot3(vel, vel);
-        r.input_work += 0.5 * dot3(f_ext, du);
-        r.residual_sq += dot3(f_total, f_total);
-      } else {
-        if (s.vertex_constraint[v] == kVertexFixed) next = zero;
-        r.reference_sq += dot3(f, f);
-      }
-      r.reference_sq += dot3(f_ext, f_ext);
-      probe += next - next;
-      store_xyz(next, s.u_next[v]);
+      const P4 f = gather_force(a.slots, a.slot_offset, a.offsets[v], a.offsets[v + 1]);
+      update_vertex(a, v, f, half_inv_dt, r, probe);
     }
     if (!(probe.v[0] == 0 && probe.v[1] == 0 && probe.v[2] == 0)) {
-      for (int64_t vi = begin; vi < end; ++vi)
-        if (!finite3(s.u_next[static_cast<size_t>(vi)])) {
-          r.first_nonfinite = vi;
+      for (int64_t v = begin; v < end; ++v)
+        if (!finite3(a.u_next[static_cast<size_t>(v)])) {
+          r.first_nonfinite = v;
           break;
         }
     }

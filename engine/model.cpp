@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include "engine/forces_cpu.h"
@@ -15,6 +16,12 @@ bool finite_nonneg(double x) { return std::isfinite(x) && x >= 0; }
 
 Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
   if (mesh.tet_count() == 0) return make_error("model: the mesh has no tetrahedra");
+  // Model::adjacency_slot_offset holds 3 (4 t + c) and cpu_tet_corner_offsets 3 v in an int32.
+  if (mesh.tet_count() > static_cast<size_t>(INT32_MAX / 12) ||
+      mesh.vertex_count() > static_cast<size_t>(INT32_MAX / 3))
+    return make_error("model: %zu tetrahedra and %zu vertices, more than the CPU element pass's "
+                      "int32 offsets address (%d tetrahedra, %d vertices)", mesh.tet_count(),
+                      mesh.vertex_count(), INT32_MAX / 12, INT32_MAX / 3);
   if (!mesh.tet_region.empty() && mesh.tet_region.size() != mesh.tet_count())
     return make_error("model: tet_region has %zu entries for %zu tetrahedra",
                       mesh.tet_region.size(), mesh.tet_count());
@@ -83,9 +90,9 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.rest_positions = mesh.rest_positions;
   model.tets = mesh.tets;
   model.adjacency = build_vertex_tet_adjacency(mesh);
-  model.adjacency_slot.resize(model.adjacency.tets.size());
+  model.adjacency_slot_offset.resize(model.adjacency.tets.size());
   for (size_t i = 0; i < model.adjacency.tets.size(); ++i)
-    model.adjacency_slot[i] = 4 * model.adjacency.tets[i] + model.adjacency.corner[i];
+    model.adjacency_slot_offset[i] = 3 * (4 * model.adjacency.tets[i] + model.adjacency.corner[i]);
   model.constitutive = desc.constitutive;
   model.formulation = desc.formulation;
   model.inversion = desc.inversion;
@@ -227,19 +234,22 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
 
   model.energy_floor = min_mu * total_volume * 1e-16;
 
-  // Lane-major batches of four for the CPU's vectorised element pass.
-  const size_t batches = (nt + 3) / 4;
+  // Lane-major batches of eight for the CPU's vectorised element pass.
+  const size_t batches = (nt + 7) / 8;
   model.cpu_tet_batches.assign(batches * kCpuTetBatchStride, 0.0);
+  model.cpu_tet_corner_offsets.assign(batches * kCpuTetOffsetStride, 0);
   for (size_t b = 0; b < batches; ++b)
-    for (size_t l = 0; l < 4; ++l) {
-      const size_t t = std::min(4 * b + l, nt - 1);
+    for (size_t l = 0; l < 8; ++l) {
+      const size_t t = std::min(8 * b + l, nt - 1);
       double* out = model.cpu_tet_batches.data() + b * kCpuTetBatchStride + l;
       const TetShape<double>& shape = model.tet_shape[t];
       for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) out[4 * (3 * j + i)] = shape.grad[j][i];
-      out[4 * 12] = shape.volume;
-      out[4 * 13] = model.tet_lame(t).lambda;
-      out[4 * 14] = model.tet_lame(t).mu;
+        for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = shape.grad[j][i];
+      out[8 * 12] = shape.volume;
+      out[8 * 13] = model.tet_lame(t).lambda;
+      out[8 * 14] = model.tet_lame(t).mu;
+      for (int c = 0; c < 4; ++c)
+        model.cpu_tet_corner_offsets[b * kCpuTetOffsetStride + 8 * c + l] = 3 * model.tets[t][c];
     }
 
   if (desc.element_precision == ElementPrecision::kFloat32) {

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/aligned_vector.h"
 #include "engine/base.h"
 #include "engine/fem_element.h"
 #include "engine/mass_tensor.h"
@@ -89,10 +90,12 @@ struct ModelDesc {
   ElementPrecision element_precision = ElementPrecision::kFloat64;
 };
 
-/// Doubles per batch of four tetrahedra in Model::cpu_tet_batches.
-inline constexpr int kCpuTetBatchStride = 60;
+/// Doubles per batch of eight tetrahedra in Model::cpu_tet_batches.
+inline constexpr int kCpuTetBatchStride = 120;
 /// Floats per batch of eight tetrahedra in Model::cpu_tet_batches_f32.
 inline constexpr int kCpuTetBatchStrideF32 = 120;
+/// Offsets per batch of eight tetrahedra in Model::cpu_tet_corner_offsets.
+inline constexpr int kCpuTetOffsetStride = 32;
 
 /// Integration coefficients of one vertex for the centred-difference update
 /// u+ = a u - b u- + c f (DESIGN.md section 3), with gamma = alpha M:
@@ -109,10 +112,11 @@ struct Model {
   std::vector<Vec3d> rest_positions;  ///< rest positions [m], (vertex_count)
   std::vector<Tet> tets;              ///< vertex indices, (tet_count)
   VertexTetAdjacency adjacency;       ///< tetrahedra around each vertex, ascending
-  /// For each adjacency entry i, the slot 4 t + c of its (tetrahedron, corner) in a tet-major
-  /// corner-force buffer, (4 tet_count): the vertex pass sums a vertex's corner forces through
-  /// it. (Tet-major slots keep each thread's writes in its own cache lines.)
-  std::vector<int32_t> adjacency_slot;
+  /// For each adjacency entry i, where its (tetrahedron, corner) slot 4 t + c of the tet-major
+  /// corner-force buffer State::tet_force starts, in doubles (3 (4 t + c)), (4 tet_count): the
+  /// vertex pass sums a vertex's corner forces through it (one indexed load per corner, no
+  /// multiply). Tet-major slots keep each thread's writes in its own cache lines.
+  std::vector<int32_t> adjacency_slot_offset;
 
   // Materials.
   std::vector<Material> materials;     ///< distinct materials, (material_count)
@@ -126,16 +130,20 @@ struct Model {
   // Precomputed element data.
   std::vector<TetShape<double>> tet_shape;  ///< shape gradients [1/m] and volume [m^3], (tet_count)
   MassTensors tensors;  ///< stored tensors, filled only for Formulation::kTensorStored
-  /// The CPU backend's copy of the gradient-form data in batches of four tetrahedra, lane-major
-  /// so that one load fills four lanes: per batch 15 x 4 doubles (grad[0..3] x/y/z, volume,
-  /// lambda, mu; lane l = tetrahedron 4 b + l, the last one repeated past the end),
-  /// (ceil(tet_count / 4) x 60). Same numbers as tet_shape and tet_lame.
-  std::vector<double> cpu_tet_batches;
+  /// The CPU backend's copy of the gradient-form data in batches of eight tetrahedra, lane-major
+  /// so that one load fills eight lanes (AVX-512) or four (half a batch): per batch 15 x 8
+  /// doubles (grad[0..3] x/y/z, volume, lambda, mu; lane l = tetrahedron 8 b + l, the last one
+  /// repeated past the end), (ceil(tet_count / 8) x 120). Same numbers as tet_shape and tet_lame.
+  CacheAlignedVector<double> cpu_tet_batches;
+  /// Where each corner's displacement starts in State::u, in doubles (3 x vertex index), in the
+  /// same batches: per batch 4 corners x 8 lanes, (ceil(tet_count / 8) x 32). The element pass
+  /// loads corners through it: no index scaling, no special case for the last batch.
+  std::vector<int32_t> cpu_tet_corner_offsets;
   /// CPU element math precision (ModelDesc::element_precision).
   ElementPrecision element_precision = ElementPrecision::kFloat64;
   /// kFloat32 only: the same numbers rounded to float in batches of eight (lane l = tetrahedron
   /// 8 b + l, the last one repeated past the end), (ceil(tet_count / 8) x 120); empty otherwise.
-  std::vector<float> cpu_tet_batches_f32;
+  CacheAlignedVector<float> cpu_tet_batches_f32;
 
   // Masses and boundary conditions.
   std::vector<double> vertex_mass;          ///< lumped mass, scaled [kg], (vertex_count)

@@ -84,21 +84,22 @@ typedef double V2 __attribute__((vector_size(16)));
   return m[0] != 0;
 }
 
-/// The x, y and z packs of four Vec3d (lane l from a_l): a 16-byte load of (x, y) per vector,
-/// two unpacks, and the four z gathered. Loads nothing past any vector's end.
-[[gnu::always_inline]] inline void load_xyz_transposed(const Vec3d& a0, const Vec3d& a1,
-                                                       const Vec3d& a2, const Vec3d& a3, P4& x,
+/// The x, y and z packs of four 3-vectors of doubles starting at a0..a3 (lane l from a_l): a
+/// 16-byte load of (x, y) per vector, two unpacks, and the four z gathered. Loads nothing past
+/// any vector's end.
+[[gnu::always_inline]] inline void load_xyz_transposed(const double* a0, const double* a1,
+                                                       const double* a2, const double* a3, P4& x,
                                                        P4& y, P4& z) {
   V2 l0, l1, l2, l3;
-  std::memcpy(&l0, &a0, sizeof l0);
-  std::memcpy(&l1, &a1, sizeof l1);
-  std::memcpy(&l2, &a2, sizeof l2);
-  std::memcpy(&l3, &a3, sizeof l3);
+  std::memcpy(&l0, a0, sizeof l0);
+  std::memcpy(&l1, a1, sizeof l1);
+  std::memcpy(&l2, a2, sizeof l2);
+  std::memcpy(&l3, a3, sizeof l3);
   const V4 a = __builtin_shufflevector(l0, l2, 0, 1, 2, 3);  // x0 y0 x2 y2
   const V4 b = __builtin_shufflevector(l1, l3, 0, 1, 2, 3);  // x1 y1 x3 y3
   x.v = __builtin_shufflevector(a, b, 0, 4, 2, 6);
   y.v = __builtin_shufflevector(a, b, 1, 5, 3, 7);
-  z = P4(a0.z, a1.z, a2.z, a3.z);
+  z = P4(a0[2], a1[2], a2[2], a3[2]);
 }
 
 /// 4 x 4 transpose in place: afterwards r[i] holds lane i of the packs r[0..3] as given.
@@ -190,6 +191,13 @@ struct P8d {
 ZONA_PACK_OPS(P8d)
 #undef ZONA_PACK_OPS
 #undef ZONA_PACK_BINARY_OP
+
+/// Eight doubles from p (any alignment).
+[[gnu::always_inline]] inline P8d load8d(const double* p) {
+  P8d r;
+  std::memcpy(&r.v, p, sizeof r.v);
+  return r;
+}
 
 /// Lanes 0-3 from lo, 4-7 from hi.
 [[gnu::always_inline]] inline P8d concat(P4 lo, P4 hi) {
