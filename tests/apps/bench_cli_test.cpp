@@ -13,37 +13,14 @@
 
 #include "kernels/backend_info.h"
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
 
-struct CliRun {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
+using zona::test::CliRun;
+using zona::test::run_zona;
 
 // Runs the zona binary with `args`, capturing stdout and stderr through temporary files.
-CliRun run_zona(const std::string& args) {
-  const std::filesystem::path dir = std::filesystem::temp_directory_path();
-  const std::string tag = "zona_bench_cli_" +
-                          std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) +
-                          "_" + std::to_string(::getpid());
-  const std::string out_path = (dir / (tag + ".out")).string();
-  const std::string err_path = (dir / (tag + ".err")).string();
-  const std::string cmd =
-      std::string(ZONA_CLI_PATH) + " " + args + " >" + out_path + " 2>" + err_path;
-  const int status = std::system(cmd.c_str());
-  CliRun r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p);
-    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  };
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
-  std::filesystem::remove(out_path);
-  std::filesystem::remove(err_path);
-  return r;
-}
 
 int count_lines(const std::string& s) {
   int n = 0;

@@ -8,39 +8,17 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
+
+using zona::test::CliRun;
+using zona::test::run_zona;
 
 namespace fs = std::filesystem;
 
-struct CliOutput {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-CliOutput run_zona(const std::string& args) {
-  const fs::path dir = fs::temp_directory_path();
-  const std::string tag = std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "_" +
-                          ::testing::UnitTest::GetInstance()->current_test_info()->name();
-  const std::string out_path = (dir / ("zona_analytic_out_" + tag)).string();
-  const std::string err_path = (dir / ("zona_analytic_err_" + tag)).string();
-  std::string cmd = ZONA_CLI_PATH;
-  cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>").append(err_path);
-  const int status = std::system(cmd.c_str());
-  CliOutput r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p);
-    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  };
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
-  fs::remove(out_path);
-  fs::remove(err_path);
-  return r;
-}
-
 TEST(CmdAnalytic, MaxwellEq8JsonMatchesTheHandValue) {
-  const CliOutput r = run_zona("analytic maxwell --deformation 300um --speed 0.1mm/s --time 3s --json");
+  const CliRun r = run_zona("analytic maxwell --deformation 300um --speed 0.1mm/s --time 3s --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(r.out);
   EXPECT_NEAR(j["force_N"].get<double>(), 0.9031057653117864e-3, 1e-12);  // analytic_test.cpp
@@ -49,7 +27,7 @@ TEST(CmdAnalytic, MaxwellEq8JsonMatchesTheHandValue) {
 
 TEST(CmdAnalytic, MaxwellEq6WithItsOwnSolidAndDefaultTime) {
   // k1 3 N/m, arm 2 (2 N/m, 4 N*s/m); X 2 mm at 1 mm/s: t = X / V = 2 s, 0.006 + 0.004 / e.
-  const CliOutput r = run_zona(
+  const CliRun r = run_zona(
       "analytic maxwell --deformation 2mm --speed 1mm/s --k1 3N/m --k2 2N/m --c2 4N*s/m --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(r.out);
@@ -59,7 +37,7 @@ TEST(CmdAnalytic, MaxwellEq6WithItsOwnSolidAndDefaultTime) {
 
 TEST(CmdAnalytic, MembraneSolvesForTheMissingQuantity) {
   // The seed's chorion is the default geometry (3 um, 400 um, 30 um, nu 0.5).
-  CliOutput r = run_zona("analytic membrane --young 1.32MPa --deformation 300um --json");
+  CliRun r = run_zona("analytic membrane --young 1.32MPa --deformation 300um --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   nlohmann::json j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["solved"], "force");
@@ -75,19 +53,19 @@ TEST(CmdAnalytic, MembraneSolvesForTheMissingQuantity) {
 }
 
 TEST(CmdAnalytic, ModulusPrintsEq9) {
-  const CliOutput r = run_zona("analytic modulus --speed 0.6mm/s --speed 1mm/s --json");
+  const CliRun r = run_zona("analytic modulus --speed 0.6mm/s --speed 1mm/s --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(r.out);
   ASSERT_EQ(j["values"].size(), 2u);
   EXPECT_NEAR(j["values"][0]["young_Pa"].get<double>(), 411.1111111111111e6, 1.0);
   EXPECT_NEAR(j["values"][1]["young_Pa"].get<double>(), 500e6, 1.0);
-  const CliOutput text = run_zona("analytic modulus");
+  const CliRun text = run_zona("analytic modulus");
   ASSERT_EQ(text.exit_code, 0) << text.err;
   EXPECT_NE(text.out.find("411.111 MPa"), std::string::npos) << text.out;
 }
 
 TEST(CmdAnalytic, BadInputIsOneLineError) {
-  CliOutput r = run_zona("analytic membrane --force 1mN");
+  CliRun r = run_zona("analytic membrane --force 1mN");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("give two of"), std::string::npos) << r.err;
   r = run_zona("analytic maxwell --deformation 3kPa");

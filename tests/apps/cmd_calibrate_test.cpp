@@ -8,37 +8,19 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
 
-namespace fs = std::filesystem;
+using zona::test::CliRun;
+using zona::test::run_zona;
 
-struct CliOutput {
-  int exit_code = -1;
-  std::string out, err;
-};
+namespace fs = std::filesystem;
 
 fs::path temp_path(const std::string& name) {
   return fs::temp_directory_path() /
          ("zona_cmd_calibrate_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
           "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name() + "_" + name);
-}
-
-CliOutput run_zona(const std::string& args) {
-  const std::string out_path = temp_path("out").string(), err_path = temp_path("err").string();
-  std::string cmd = ZONA_CLI_PATH;
-  cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>").append(err_path);
-  const int status = std::system(cmd.c_str());
-  CliOutput r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p);
-    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  };
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
-  fs::remove(out_path);
-  fs::remove(err_path);
-  return r;
 }
 
 // A small held cell pushed 3 um (a fraction of a second per run).
@@ -59,7 +41,7 @@ TEST(CmdCalibrate, PrintsFittedValuesAndErrorsAsJson) {
   std::ofstream(scene) << kScene;
   // A stiff, made-up curve: the fit goes to the top of the range, the error stays large.
   std::ofstream(data) << "deformation_m,force_N\n1e-6,1e-6\n2e-6,2e-6\n";
-  const CliOutput r = run_zona("calibrate " + scene.string() + " --data " + data.string() +
+  const CliRun r = run_zona("calibrate " + scene.string() + " --data " + data.string() +
                                " --fit materials.default.young=5kPa..20kPa --no-puncture"
                                " --max-evaluations 7 --threads 1 --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -84,7 +66,7 @@ TEST(CmdCalibrate, BadArgumentsAreOneLineErrors) {
   const fs::path scene = temp_path("scene.json"), data = temp_path("data.csv");
   std::ofstream(scene) << kScene;
   std::ofstream(data) << "deformation_m,force_N\n1e-6,1e-6\n2e-6,2e-6\n";
-  CliOutput r = run_zona("calibrate " + scene.string() + " --data " + data.string() +
+  CliRun r = run_zona("calibrate " + scene.string() + " --data " + data.string() +
                          " --fit materials.default.young=20kPa..5kPa");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("LO < HI"), std::string::npos) << r.err;

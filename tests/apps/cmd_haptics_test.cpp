@@ -12,52 +12,21 @@
 #include <string>
 #include <vector>
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
 
+using zona::test::CliRun;
+using zona::test::run_zona;
+using zona::test::TempDir;
+
 namespace fs = std::filesystem;
-
-struct RunOutput {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-RunOutput run_zona(const std::string& args, const fs::path& dir) {
-  const std::string out_path = (dir / "stdout.txt").string(),
-                    err_path = (dir / "stderr.txt").string();
-  std::string cmd = ZONA_CLI_PATH;
-  cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>").append(err_path);
-  const int status = std::system(cmd.c_str());
-  RunOutput r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p);
-    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  };
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
-  return r;
-}
 
 int count_lines(const std::string& s) {
   int n = 0;
   for (char c : s) n += c == '\n';
   return n;
 }
-
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    path =
-        fs::temp_directory_path() /
-        ("zona_cmd_haptics_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-         "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(path);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
 
 // A tiny held cell that steps in microseconds, with the mouse scene's haptic scaling.
 const char* kScene = R"({
@@ -99,7 +68,7 @@ TEST(CmdHaptics, JsonKeysAndLogColumns) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
   const fs::path log = dir.path / "session.csv";
-  const RunOutput r =
+  const CliRun r =
       run_zona("haptics " + scene.string() +
                    " --device scripted --duration 0.3 --no-realtime --json --log " + log.string(),
                dir.path);
@@ -136,13 +105,13 @@ TEST(CmdHaptics, ReplaysRecordedSession) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
   const fs::path log = dir.path / "session.csv", replayed = dir.path / "replayed.csv";
-  const RunOutput a =
+  const CliRun a =
       run_zona("haptics " + scene.string() +
                    " --device scripted --duration 0.2 --no-realtime --log " + log.string(),
                dir.path);
   ASSERT_EQ(a.exit_code, 0) << a.err;
   EXPECT_NE(a.out.find("zona haptics:"), std::string::npos) << a.out;  // the summary line
-  const RunOutput b =
+  const CliRun b =
       run_zona("haptics " + scene.string() + " --device replay --replay " + log.string() +
                    " --duration 0.1 --no-realtime --json --log " + replayed.string(),
                dir.path);
@@ -159,7 +128,7 @@ TEST(CmdHaptics, ReplaysRecordedSession) {
 TEST(CmdHaptics, EmulatedHandRunIsPassive) {
   TempDir dir;
   const fs::path scene = write_scene(dir);
-  const RunOutput r = run_zona(
+  const CliRun r = run_zona(
       "haptics " + scene.string() + " --device emulated --duration 0.4 --no-realtime --json",
       dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -201,7 +170,7 @@ TEST(CmdHaptics, BadArgumentsAreOneLineErrors) {
        "coupling_stiffness"},
   };
   for (const Case& c : cases) {
-    const RunOutput r = run_zona(c.args, dir.path);
+    const CliRun r = run_zona(c.args, dir.path);
     EXPECT_NE(r.exit_code, 0) << c.args;
     EXPECT_EQ(count_lines(r.err), 1) << c.args << "\n" << r.err;
     EXPECT_NE(r.err.find(c.names), std::string::npos) << c.args << "\n" << r.err;
@@ -215,7 +184,7 @@ TEST(CmdHaptics, SceneWithoutNeedleIsRefused) {
   std::ofstream(scene)
       << R"({"name": "ball", "mesh": {"generate": {"diameter": "20 um", "vertices": 150}},
     "integrator": {"duration": "1 ms"}})";
-  const RunOutput r =
+  const CliRun r =
       run_zona("haptics " + scene.string() + " --device emulated --duration 0.1", dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_EQ(count_lines(r.err), 1) << r.err;

@@ -9,43 +9,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
 
+using zona::test::CliRun;
+using zona::test::run_zona;
+using zona::test::TempDir;
+
 namespace fs = std::filesystem;
-
-struct RunOutput {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-RunOutput run_zona(const std::string& args, const fs::path& dir) {
-  const std::string out_path = (dir / "stdout.txt").string(), err_path = (dir / "stderr.txt").string();
-  const std::string cmd = std::string(ZONA_CLI_PATH) + " " + args + " >" + out_path + " 2>" + err_path;
-  const int status = std::system(cmd.c_str());
-  RunOutput r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p);
-    return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  };
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
-  return r;
-}
-
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    path = fs::temp_directory_path() /
-           ("zona_cmd_run_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(path);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
 
 // A small held cell punctured early: runs in a fraction of a second.
 const char* kScene = R"({
@@ -66,7 +38,7 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   const fs::path scene = dir.path / "tiny.json";
   std::ofstream(scene) << kScene;
   const fs::path out = dir.path / "out";
-  const RunOutput r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
+  const CliRun r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("puncture: t "), std::string::npos) << r.out;
   EXPECT_NE(r.err.find("zona run: t "), std::string::npos) << r.err;  // progress line
@@ -103,7 +75,7 @@ TEST(CmdRun, SetOverridesAndModelChoice) {
   const fs::path scene = dir.path / "tiny.json";
   std::ofstream(scene) << kScene;
   const fs::path out = dir.path / "linear";
-  const RunOutput r = run_zona("run " + scene.string() + " --out " + out.string() +
+  const CliRun r = run_zona("run " + scene.string() + " --out " + out.string() +
                                    " --set model=linear --set puncture.criterion=none --no-frames --quiet",
                                dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -117,7 +89,7 @@ TEST(CmdRun, SetOverridesAndModelChoice) {
 
 TEST(CmdRun, ErrorsAreOneLine) {
   TempDir dir;
-  RunOutput r = run_zona("run no_such_scene --out " + (dir.path / "x").string(), dir.path);
+  CliRun r = run_zona("run no_such_scene --out " + (dir.path / "x").string(), dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_EQ(r.err.rfind("zona: error: ", 0), 0u) << r.err;
   const fs::path scene = dir.path / "tiny.json";
@@ -131,7 +103,6 @@ TEST(CmdRun, ErrorsAreOneLine) {
   EXPECT_NE(r.err.find("auto, cpu or cuda"), std::string::npos) << r.err;
 }
 
-
 // --frames DIR renders numbered PNG frames (headless Vulkan) as the run goes; a build or machine
 // without the renderer says so in one line instead.
 TEST(CmdRun, PngFramesDuringTheRun) {
@@ -139,7 +110,7 @@ TEST(CmdRun, PngFramesDuringTheRun) {
   const fs::path scene = dir.path / "tiny.json";
   std::ofstream(scene) << kScene;
   const fs::path frames = dir.path / "png";
-  const RunOutput r =
+  const CliRun r =
       run_zona("run " + scene.string() + " --out " + (dir.path / "out").string() + " --frames " +
                    frames.string() + " --frame-count 3 --frame-color stress --quiet",
                dir.path);
@@ -158,7 +129,7 @@ TEST(CmdRun, PngFramesDuringTheRun) {
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
   EXPECT_NE(r.err.find("built without the Vulkan renderer"), std::string::npos) << r.err;
 #endif
-  const RunOutput bad = run_zona("run " + scene.string() + " --out " + (dir.path / "b").string() +
+  const CliRun bad = run_zona("run " + scene.string() + " --out " + (dir.path / "b").string() +
                                      " --frame-count -2 --quiet",
                                  dir.path);
   EXPECT_EQ(bad.exit_code, 1);

@@ -9,33 +9,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tests/apps/cli_runner.h"
+
 namespace {
 
+using zona::test::CliRun;
+using zona::test::run_zona;
+using zona::test::TempDir;
+
 namespace fs = std::filesystem;
-
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    path = fs::temp_directory_path() /
-           ("zona_particles_cli_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(path);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
-int run_zona(const std::string& args, const fs::path& dir, std::string* out) {
-  const std::string out_path = (dir / "stdout.txt").string();
-  std::string cmd = ZONA_CLI_PATH;
-  cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>&1");
-  const int status = std::system(cmd.c_str());
-  std::ifstream f(out_path);
-  *out = std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 TEST(ParticlesCli, ZebrafishPuncturesInTheMeasuredForceRange) {
   TempDir dir;
@@ -47,8 +29,10 @@ TEST(ParticlesCli, ZebrafishPuncturesInTheMeasuredForceRange) {
   args.append(ZONA_SOURCE_DIR).append("/scenes/zebrafish_particles.json");
   args.append(" --headless --quiet --no-frames --stop-after-puncture 0.002 --set needle.speed=1mm/s --set particles.particles=642 --out ");
   args.append(out.string());
-  std::string text;
-  ASSERT_EQ(run_zona(args, dir.path, &text), 0) << text;
+  const CliRun r = run_zona(args, dir.path);
+  std::string text = r.out;
+  text.append(r.err);
+  ASSERT_EQ(r.exit_code, 0) << text;
   std::ifstream in(out / "summary.json");
   ASSERT_TRUE(in) << text;
   const nlohmann::json summary = nlohmann::json::parse(in);
