@@ -176,7 +176,6 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     if (!pm.ok()) return make_error("%s: %s", name.c_str(), pm.error().message.c_str());
     particles_ = std::make_unique<ParticleModel>(std::move(*pm));
     mesh_ = particle_body_mesh(*particles_);
-    notes_.push_back(describe_particle_model(*particles_));
   } else {
     Result<Mesh> mesh = build_scene_mesh(scene, &notes_);
     if (!mesh.ok()) return mesh.error();
