@@ -43,7 +43,7 @@ struct RenderArgs {
   double close_after = 0;
   bool validate = false;
   std::string backend = "cpu";
-  bool interop = false;
+  bool copy_path = false;
 };
 
 #if defined(ZONA_HAVE_VULKAN)
@@ -66,27 +66,48 @@ Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scen
   return Simulation::create(*scene, options);
 }
 
-// --interop: the CUDA backend writes the surface into the renderer's memory. Returns the writer,
-// or null with a one-line notice on stderr when only the copy path is possible.
-std::unique_ptr<SurfaceWriter> make_interop(const Simulation& s, ColorField field,
-                                            Renderer& renderer, SharedSurface* shared) {
-  auto copy_path = [](const std::string& why) {
-    std::fprintf(stderr, "zona: --interop: %s; using the copy path\n", why.c_str());
-    return std::unique_ptr<SurfaceWriter>();
-  };
-  if (field == ColorField::kStress)
-    return copy_path("the stress field is computed on the CPU (interop colours displacement)");
-  if (!s.backend()) return copy_path("the simulation runs on the CPU (give --backend cuda)");
-  Result<SharedSurface> made = renderer.create_shared_surface(s.surface().triangles,
-                                                              s.mesh().vertex_count());
-  if (!made.ok()) return copy_path(made.error().message);
-  *shared = std::move(made).value();
-  const SharedSurfaceTarget target = shared_surface_target(*shared);
-  Result<std::unique_ptr<SurfaceWriter>> writer =
-      make_surface_writer(*s.backend(), s.model(), target);
-  if (!writer.ok()) return copy_path(writer.error().message);
-  return std::move(writer).value();
-}
+// CUDA-Vulkan interop (docs/rendering.md): when the simulation runs on the CUDA backend, its
+// surface is written straight into the renderer's memory; otherwise frames take the copy path.
+struct InteropPath {
+  SharedSurface shared;
+  std::unique_ptr<SurfaceWriter> writer;
+
+  // Sets up the writer when it can: a simulation on the CPU or a stress colour map (computed on
+  // the CPU) quietly keep the copy path; any other reason is said on one line.
+  void setup(const Simulation& s, ColorField field, Renderer& renderer) {
+    if (!s.backend() || field == ColorField::kStress) return;
+    Result<SharedSurface> made =
+        renderer.create_shared_surface(s.surface().triangles, s.mesh().vertex_count());
+    if (!made.ok()) return notice(made.error().message);
+    shared = std::move(made).value();
+    Result<std::unique_ptr<SurfaceWriter>> w =
+        make_surface_writer(*s.backend(), s.model(), shared_surface_target(shared));
+    if (!w.ok()) return notice(w.error().message);
+    writer = std::move(w).value();
+  }
+
+  // Writes the surface for `frame`'s camera and marks the frame to draw it (no-op without a
+  // writer: the frame keeps the arrays frame_from_simulation filled).
+  Status apply(const Simulation& s, ColorField field, RenderFrame* frame) {
+    if (!writer) return {};
+    Vec3d origin;
+    double scale = 1;
+    camera_render_space(frame->camera, &origin, &scale);
+    Result<SurfaceWriteResult> w = writer->write(
+        *s.backend(), origin, scale,
+        field == ColorField::kDisplacement ? SurfaceScalar::kDisplacement : SurfaceScalar::kNone);
+    if (!w.ok()) return w.error();
+    frame->shared_surface = true;
+    frame->scalar_min = w->scalar_min;
+    frame->scalar_max = w->scalar_max;
+    return {};
+  }
+
+  static void notice(const std::string& why) {
+    std::fprintf(stderr, "zona: CUDA-Vulkan interop unavailable (%s): using the copy path\n",
+                 why.c_str());
+  }
+};
 
 // Steps until the simulated time reaches `time` [s] or the experiment ends.
 void advance(Simulation& sim, double time) {
@@ -129,12 +150,11 @@ void run_render(const RenderArgs& args) {
   RendererOptions options;
   options.validation = args.validate;
   options.samples = args.samples;
-  options.external_memory = args.interop;
+  options.external_memory = !args.copy_path;
   Result<Renderer> renderer = create_headless_renderer(args.width, args.height, options);
   if (!renderer.ok()) return fail(renderer.error().message);
-  SharedSurface shared;
-  std::unique_ptr<SurfaceWriter> writer =
-      args.interop ? make_interop(s, *field, *renderer, &shared) : nullptr;
+  InteropPath interop;
+  if (!args.copy_path) interop.setup(s, *field, *renderer);
 
   OrbitCamera camera = default_camera(s.mesh());
   camera.yaw_deg = args.yaw;
@@ -152,18 +172,7 @@ void run_render(const RenderArgs& args) {
     rates.simulation_hz =
         wall > 0 && s.report().step > 0 ? static_cast<double>(s.report().step) / wall : 0;
     frame.overlay_lines = overlay_lines(scene.name, s.report(), rates);
-    if (writer) {
-      Vec3d origin;
-      double scale = 1;
-      camera_render_space(frame.camera, &origin, &scale);
-      Result<SurfaceWriteResult> w = writer->write(
-          *s.backend(), origin, scale,
-          *field == ColorField::kDisplacement ? SurfaceScalar::kDisplacement : SurfaceScalar::kNone);
-      if (!w.ok()) return w.error();
-      frame.shared_surface = true;
-      frame.scalar_min = w->scalar_min;
-      frame.scalar_max = w->scalar_max;
-    }
+    if (Status st = interop.apply(s, *field, &frame); !st.ok()) return st;
     return sequence ? sequence->write(frame) : renderer->render_to_png(frame, path);
   };
 
@@ -184,7 +193,7 @@ void run_render(const RenderArgs& args) {
     std::printf("wrote %s (%dx%d, t = %.4g s, %lld steps, %s, %s path)\n", args.out.c_str(),
                 args.width, args.height, s.report().time,
                 static_cast<long long>(s.report().step), renderer->device_name().c_str(),
-                writer ? "interop" : "copy");
+                interop.writer ? "interop" : "copy");
   }
   validation_clean(renderer->validation());
 }
@@ -218,7 +227,9 @@ Result<PngFrameWriter> make_png_frame_writer(const Simulation& simulation,
                                              int width, int height) {
   Result<ColorField> field = parse_color_field(color);
   if (!field.ok()) return field.error();
-  Result<Renderer> created = create_headless_renderer(width, height);
+  RendererOptions options;
+  options.external_memory = true;  // for interop; ignored where the device lacks it
+  Result<Renderer> created = create_headless_renderer(width, height, options);
   if (!created.ok()) return created.error();
   // Shared state of the returned function: the renderer, the sequence and the frame arrays.
   struct Writer {
@@ -227,6 +238,7 @@ Result<PngFrameWriter> make_png_frame_writer(const Simulation& simulation,
     SimulationFrameData data;
     RenderFrame frame;
     ColorField field;
+    InteropPath interop;
     std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
   };
   auto w = std::make_shared<Writer>();
@@ -234,8 +246,10 @@ Result<PngFrameWriter> make_png_frame_writer(const Simulation& simulation,
   w->sequence = std::make_unique<FrameSequence>(&w->renderer, directory);
   w->field = *field;
   w->frame.camera = default_camera(simulation.mesh());
+  w->interop.setup(simulation, w->field, w->renderer);
   return PngFrameWriter([w](const Simulation& s) -> Status {
     frame_from_simulation(s, w->field, &w->data, &w->frame);
+    if (Status st = w->interop.apply(s, w->field, &w->frame); !st.ok()) return st;
     const double wall =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - w->start).count();
     OverlayRates rates;
@@ -291,9 +305,9 @@ void add_render_commands(CLI::App& app) {
     cmd->add_flag("--validate", args->validate,
                   "Enable the Khronos validation layer; any message fails the command");
     cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda");
-    cmd->add_flag("--interop", args->interop,
-                  "CUDA backend: write the surface straight into Vulkan memory (CUDA-Vulkan "
-                  "interop); falls back to the copy path with a notice");
+    cmd->add_flag("--copy-path", args->copy_path,
+                  "Always copy the surface through the host (by default the CUDA backend writes "
+                  "it straight into Vulkan memory when it can)");
     cmd->callback([args] { run_render(*args); });
   }
   {

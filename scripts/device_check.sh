@@ -124,10 +124,10 @@ run() {
       note "interop bench: rc $?"
       tee -a "$summary" <"$out/interop_bench.log"
     fi
-    timeout 200 "$carry/zona" render mouse_oocyte --backend cuda --interop --validate \
+    timeout 200 "$carry/zona" render mouse_oocyte --backend cuda --validate \
       --set needle.speed=1mm/s --time 25ms --out "$out/interop_frame.png" \
       >"$out/interop_render.log" 2>&1
-    note "zona render --interop: rc $? ; $(tail -2 "$out/interop_render.log" | tr '\n' ' ')"
+    note "zona render --backend cuda (interop): rc $? ; $(tail -2 "$out/interop_render.log" | tr '\n' ' ')"
   fi
   local sfilter=${SANITIZER_FILTER:-$filter}
   if has memcheck; then

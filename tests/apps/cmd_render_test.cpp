@@ -16,8 +16,6 @@ namespace {
 using zona::test::CliRun;
 using zona::test::run_zona;
 
-// Runs the zona binary with `args`; stdout and stderr go through temp files.
-
 TEST(CmdRender, WritesAPngOfTheSceneWithValidationClean) {
   const std::string png = (std::filesystem::temp_directory_path() /
                            ("zona_render_" + std::to_string(::getpid()) + ".png"))
@@ -42,6 +40,36 @@ TEST(CmdRender, WritesAPngOfTheSceneWithValidationClean) {
 #else
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("built without the Vulkan renderer"), std::string::npos) << r.err;
+#endif
+}
+
+TEST(CmdRender, BackendChoiceAndTheCopyPathFallback) {
+#if defined(ZONA_HAVE_VULKAN)
+  const std::string png = (std::filesystem::temp_directory_path() /
+                           ("zona_render_backend_" + std::to_string(::getpid()) + ".png"))
+                              .string();
+  const std::string base = "render bench_ball --set mesh.generate.vertices=300 --width 64 "
+                           "--height 48 --samples 1 --time 20us --out " + png;
+  // auto: the GPU with interop where there is one, else the CPU and the copy path; the line
+  // says which path drew the frame.
+  CliRun r = run_zona(base + " --backend auto");
+  if (r.exit_code != 0 && r.err.find("no Vulkan") != std::string::npos) GTEST_SKIP() << r.err;
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(r.out.find("interop path") != std::string::npos ||
+              r.out.find("copy path") != std::string::npos)
+      << r.out;
+  // --copy-path always copies.
+  r = run_zona(base + " --backend auto --copy-path");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("copy path"), std::string::npos) << r.out;
+  std::filesystem::remove(png);
+  // An unknown backend is a one-line error naming the accepted values.
+  r = run_zona(base + " --backend gpu");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_NE(r.err.find("cuda"), std::string::npos) << r.err;
+#else
+  GTEST_SKIP() << "built without the Vulkan renderer";
 #endif
 }
 
