@@ -187,6 +187,7 @@ void ContactSet::measure_reactions(const Model& model, std::span<const Vec3d> u,
     const Vec3d vel = half_inv_dt * (u[v] - c.u_before);
     c.static_reaction = -1.0 * (force[v] + external[v]);
     c.reaction = model.vertex_mass[v] * acc + model.vertex_damping[v] * vel + c.static_reaction;
+    if (c.measurements < 2) ++c.measurements;
   }
 }
 
@@ -207,6 +208,7 @@ void ContactSet::add(int32_t vertex, Vec3d anchor, Vec3d normal, Vec3d u_now) {
   c.static_reaction = Vec3d{0, 0, 0};
   c.slipping = false;
   c.face = false;
+  c.measurements = 0;
   in_set_[static_cast<size_t>(vertex)] = 1;
 }
 
@@ -225,11 +227,30 @@ ContactUpdate ContactSet::update(const Model& model, std::span<const Vec3d> u, V
   const double mu = tool_.friction;
   ++update_count_;
 
-  // 1. Release contacts that pull; slide the ones whose friction cone is exceeded.
+  // 1. Release contacts that pull; slide the ones whose friction cone is exceeded. Only
+  // contacts measured on the tool are judged, against a tolerance relative to the set's mean
+  // quasi-static reaction (contact.h: the release rule, robust to rounding).
+  double reaction_sum = 0;
+  int32_t measured = 0;
+  for (size_t i = 0; i < count_; ++i) {
+    const double r = norm(contacts_[i].static_reaction);
+    if (contacts_[i].measurements >= 2 && std::isfinite(r)) {  // a NaN releases only its own
+      reaction_sum += r;
+      ++measured;
+    }
+  }
+  const double tolerance =
+      measured > 0 ? kContactReleaseTolerance * reaction_sum / static_cast<double>(measured) : 0.0;
   for (size_t i = 0; i < count_;) {
     Contact& c = contacts_[i];
+    if (c.measurements < 2) {
+      // Its reaction so far is the free vertex's before the take: keep it where it was put.
+      c.slipping = false;
+      ++i;
+      continue;
+    }
     const double rn = dot(c.static_reaction, c.normal);
-    if (!(rn > 0)) {
+    if (!(rn >= -tolerance)) {  // NaN releases too
       in_set_[static_cast<size_t>(c.vertex)] = 0;
       // A released vertex sits on the tool surface, within rounding of inside it: it must not
       // be taken back in the same update, only if it moves into the tool again.
@@ -240,13 +261,15 @@ ContactUpdate ContactSet::update(const Model& model, std::span<const Vec3d> u, V
     }
     const Vec3d rt = c.static_reaction - rn * c.normal;
     const double rt_norm = norm(rt);
-    c.slipping = !c.face && rt_norm > mu * rn;
+    // A kept contact within the tolerance (rn <= 0) has a cone of zero radius.
+    const double cone = mu * std::max(rn, 0.0);
+    c.slipping = !c.face && rt_norm > cone;
     if (c.slipping) {
       // Return mapping: the reaction answers a target shift by shift / c (c = dt^2 / (M +
       // gamma dt / 2)) at first, so moving the anchor by -c (|r_t| - mu r_n) t_hat brings the
       // tangential reaction back to the cone; `relax` < 1 damps the one-step lag.
       const double compliance = model.vertex_coefficients[static_cast<size_t>(c.vertex)].c;
-      const Vec3d shift = (-relax * compliance * (rt_norm - mu * rn) / rt_norm) * rt;
+      const Vec3d shift = (-relax * compliance * (rt_norm - cone) / rt_norm) * rt;
       const Vec3d x = origin + c.anchor + shift;
       const ToolDistance d = tool_distance(tool_, origin, x);
       c.anchor = project_to_surface(x, d) - origin;

@@ -7,12 +7,34 @@
 // integrator's constraint force on it is the contact reaction, and the needle force is minus
 // their sum. No penalty stiffness to tune, no penetration, and in quasi-static loading the
 // reaction equals the elastic force the body pushes back with. Each step, after the integrator:
-//  - a contact whose normal reaction pulls (the body wants to leave) is released;
+//  - a contact whose normal reaction pulls (the body wants to leave) by more than a small
+//    tolerance is released (the release rule below);
 //  - a contact whose tangential reaction exceeds mu times the normal one slips: its anchor on
 //    the tool moves against the excess by the step's compliance dt^2 / M (a return mapping);
 //  - free surface vertices found inside the tool (a local search from the last contacts) are
 //    added at their projection on the tool surface;
 // and every contact's target is its anchor carried along with the tool's next pose.
+//
+// The release rule, made robust to rounding (issue 9). A release is a discrete decision that
+// changes the experiment from then on (the vertex may be re-taken at another anchor, or as a
+// face contact that sticks), so it must not be taken on a reaction that is rounding noise:
+//  - A contact is not judged (neither released nor slid) until its reaction has been measured
+//    on the tool. The reaction is measured with a one-step lag: the first measurement after the
+//    take is -(f_el + f_ext) at u_n, the free vertex before it was put on the tool, not the
+//    contact's force. On a quiet, unloaded surface that force is zero up to rounding (exactly
+//    zero on the CPU, where an unloaded particle membrane has exactly zero forces; +-1e-18 N on
+//    the GPU, whose volume sum runs in another order), and its sign decided which of the tip's
+//    first contacts survived (docs/particles.md).
+//  - A measured contact is released when its normal reaction pulls by more than
+//    kContactReleaseTolerance times the mean quasi-static reaction |r| of the set's measured
+//    contacts. Rounding noise in a vertex's force is about 1e-16 (float64) to 1e-7 (float32
+//    forces on the GPU) of the forces summed into it, far below 1e-3 of a typical contact's
+//    load, so noise around zero falls on the keep side. It is not sticky: a kept contact pulls
+//    the body by at most 0.1 % of the mean contact load (the whole set by at most 0.1 % of its
+//    load), and a contact whose reaction falls through zero at a rate of r per step is released
+//    at most 1e-3 mean / r steps late (a step or two when the tool is pulled away; tested).
+//  - In the friction test a measured contact's normal reaction counts only where it pushes: a
+//    kept contact with rn <= 0 has a cone of zero radius and slides freely.
 #pragma once
 
 #include <array>
@@ -97,11 +119,19 @@ struct Contact {
   /// change, so release, friction and the published needle force use this part.
   Vec3d static_reaction{0, 0, 0};
   bool slipping = false;     ///< the last friction check found it sliding
+  /// Reaction measurements since the take (saturates at 2). The first is of the free vertex
+  /// before it was put on the tool (the one-step lag): the contact is judged from the second.
+  int32_t measurements = 0;
   /// Held by seed 000's face contact (the tip point pierced a triangle whose corners lie outside
   /// the tool): the anchor is the corner carried with the tip, not a point of the tool surface,
   /// and it sticks.
   bool face = false;
 };
+
+/// Release tolerance: a measured contact is released when its normal reaction pulls by more
+/// than this fraction of the mean |quasi-static reaction| of the set's measured contacts [-]
+/// (the file comment says why 1e-3).
+inline constexpr double kContactReleaseTolerance = 1e-3;
 
 /// Counters of one contact update.
 struct ContactUpdate {
@@ -134,7 +164,8 @@ class ContactSet {
   /// u_{n-1} to 2 u_n - u_{n+1} (its last sub-step's history). Call before measure_reactions.
   void set_linear_history(std::span<const Vec3d> u, std::span<const Vec3d> u_prev);
 
-  /// Releases pulling contacts, applies friction, and adds the free vertices found inside the
+  /// Releases pulling contacts (measured ones only, beyond the tolerance: the release rule
+  /// above), applies friction, and adds the free vertices found inside the
   /// tool at pose `origin` (configuration rest + u): surface vertices, and interior ones where
   /// the surface layer has been crushed. New contacts are searched breadth-first through the
   /// mesh (vertices sharing a tetrahedron, expanding within `search_margin` [m] of the tool)

@@ -4,7 +4,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "engine/integrator.h"
@@ -193,6 +195,9 @@ TEST(Contact, PullingContactsAreReleasedAndFrictionReturnsToTheCone) {
   for (const Contact& c : set.contacts()) force[static_cast<size_t>(c.vertex)] = Vec3d{0.1, 0, 1.0};
   force[static_cast<size_t>(pulling)] = Vec3d{0, 0, -1.0};  // static reaction +z: pulls
   force[static_cast<size_t>(sliding)] = Vec3d{-2.0, 0, 1.0};  // r = (2, 0, -1): |r_t| 2 > 0.5
+  // Measured twice: the first measurement after a take is the free vertex's (the one-step
+  // lag), and a contact is judged from the second.
+  set.measure_reactions(rig.model, u, u, force, ext);
   set.measure_reactions(rig.model, u, u, force, ext);
   for (const Contact& c : set.contacts()) expect_vec(c.static_reaction, -1.0 * force[static_cast<size_t>(c.vertex)], 0);
   const Vec3d anchor_before = set.contacts()[1].anchor;
@@ -215,6 +220,146 @@ TEST(Contact, PullingContactsAreReleasedAndFrictionReturnsToTheCone) {
   up = set.update(rig.model, u, origin, seeds, rig.none(), true, 1.0);
   EXPECT_EQ(up.added, 1);
   EXPECT_TRUE(set.holds(pulling));
+}
+
+// Fixture for the release rule: the rig's nine top vertices held by the flat tool, and the
+// elastic forces that measure_reactions reads (static reaction -f; the tool normal is -z, so
+// f = (0, 0, s) gives a normal reaction s: positive pushes, negative pulls).
+struct ReleaseRig {
+  ContactRig rig{0.3};
+  size_t nv = rig.mesh.vertex_count();
+  ContactSet set{rig.tool, rig.surface, nv, 16};
+  std::vector<Vec3d> u = std::vector<Vec3d>(nv, Vec3d{0, 0, 0});
+  std::vector<Vec3d> force = std::vector<Vec3d>(nv, Vec3d{0, 0, 0});
+  std::vector<Vec3d> ext = std::vector<Vec3d>(nv, Vec3d{0, 0, 0});
+  Vec3d origin{1, 1, 0.9};
+  int32_t seeds[1] = {0};
+  ReleaseRig() {
+    set.update(rig.model, u, origin, seeds, rig.none(), true, 1.0);
+    std::vector<Vec3d> targets(set.size());
+    set.targets(rig.model, u, origin, targets);
+  }
+  int32_t vertex(size_t i) const { return set.contacts()[i].vertex; }
+  void set_normal(int32_t v, double s, double tangential = 0) {
+    force[static_cast<size_t>(v)] = Vec3d{tangential, 0, s};
+  }
+  ContactUpdate measure_and_update() {
+    set.measure_reactions(rig.model, u, u, force, ext);
+    return set.update(rig.model, u, origin, seeds, rig.none(), false, 0.0);
+  }
+};
+
+TEST(Contact, ReleaseActsOnPullingReactionsNotOnRounding) {
+  ReleaseRig r;
+  ASSERT_EQ(r.set.size(), 9u);
+  for (size_t i = 0; i < 9; ++i) r.set_normal(r.vertex(i), 1.0);
+  const int32_t rounding_pull = r.vertex(0), zero = r.vertex(1), small_pull = r.vertex(2),
+                clear_pull = r.vertex(3);
+  // The first measurement after the take is the free vertex's force before it was put on the
+  // tool: not judged, even where it pulls clearly.
+  r.set_normal(clear_pull, -1.0);
+  r.set_normal(zero, -0.0);
+  ContactUpdate up = r.measure_and_update();
+  EXPECT_EQ(up.released, 0);
+  EXPECT_EQ(up.slipping, 0);
+  EXPECT_EQ(r.set.size(), 9u);
+  // Measured on the tool: five contacts push with 1 N; a pull at rounding level (1e-17 N), an
+  // exact zero and a pull within the tolerance (2e-4 of the mean |reaction| ~0.56 N) are kept;
+  // a pull of 1 % of the mean contact load is released.
+  r.set_normal(rounding_pull, -1e-17);
+  r.set_normal(small_pull, -2e-4, 0.1);
+  r.set_normal(clear_pull, -1e-2);
+  up = r.measure_and_update();
+  EXPECT_EQ(up.released, 1);
+  EXPECT_FALSE(r.set.holds(clear_pull));
+  EXPECT_TRUE(r.set.holds(rounding_pull));
+  EXPECT_TRUE(r.set.holds(zero));
+  EXPECT_TRUE(r.set.holds(small_pull));
+  // A kept contact that does not push has no friction cone: any tangential load slides it.
+  for (const Contact& c : r.set.contacts()) EXPECT_EQ(c.slipping, c.vertex == small_pull) << c.vertex;
+  // The same rounding-level pull with the opposite sign changes nothing either; the released
+  // vertex, still inside the tool, is taken again (fresh).
+  r.set_normal(rounding_pull, 1e-17);
+  up = r.measure_and_update();
+  EXPECT_EQ(up.released, 0);
+  EXPECT_EQ(up.added, 1);
+  EXPECT_TRUE(r.set.holds(rounding_pull));
+  EXPECT_TRUE(r.set.holds(clear_pull));
+  // A non-finite reaction releases its own contact only (it must not poison the tolerance).
+  r.set_normal(zero, std::numeric_limits<double>::quiet_NaN());
+  up = r.measure_and_update();
+  EXPECT_EQ(up.released, 1);
+  EXPECT_FALSE(r.set.holds(zero));
+}
+
+TEST(Contact, PeelingContactIsReleasedWithinAStepOfPulling) {
+  // One contact's reaction falls through zero by 1 % of the contact load per update (a slow
+  // peel: the tolerance is a tenth of a step of it); it must be released at the first or second
+  // update that measures a pull, so the tolerance makes no sticky contact.
+  ReleaseRig r;
+  for (size_t i = 0; i < 9; ++i) r.set_normal(r.vertex(i), 1.0);
+  const int32_t peeling = r.vertex(4);
+  r.measure_and_update();  // the take's measurement
+  int pulls_measured = 0;
+  for (int k = 0; k < 200 && r.set.holds(peeling); ++k) {
+    const double s = 0.105 - 0.01 * k;  // crosses zero between k = 10 and 11
+    r.set_normal(peeling, s);
+    if (s < 0) ++pulls_measured;
+    r.measure_and_update();
+  }
+  EXPECT_FALSE(r.set.holds(peeling));
+  EXPECT_GE(pulls_measured, 1);
+  EXPECT_LE(pulls_measured, 2);
+  EXPECT_EQ(r.set.size(), 8u);
+}
+
+TEST(Contact, WithdrawnToolReleasesEveryContactWithinTwoSteps) {
+  // The flat tool pressed into the box, held, then pulled up past the rest surface with the
+  // explicit integrator in the loop: each contact is released at most one update after the
+  // first one that measured it pulling, and none is left once the tool has left the body.
+  ContactRig rig(0.3);
+  const size_t nv = rig.mesh.vertex_count();
+  State state = make_state(rig.model, 1);
+  ContactSet set(rig.tool, rig.surface, nv, nv);
+  const int32_t seeds[1] = {0};
+  std::vector<Vec3d> targets(nv);
+  std::vector<int32_t> vertices;
+  std::vector<int> first_pull(nv, -1);
+  // Tool face height per step: down 0.05 over 20 steps, held 20, up to 1.1 over 10.
+  auto height = [](int k) {
+    if (k < 20) return 1.0 - 0.0025 * (k + 1);
+    if (k < 40) return 0.95;
+    return std::min(1.1, 0.95 + 0.015 * (k - 39));
+  };
+  Vec3d origin{1, 1, 1.0};
+  int max_delay = 0, taken = 0;
+  for (int k = 0; k < 60; ++k) {
+    const ContactUpdate up =
+        set.update(rig.model, state.u, origin, seeds, std::vector<uint8_t>(nv, 0), true, 1.0);
+    taken += up.added;
+    for (size_t v = 0; v < nv; ++v) {
+      if (first_pull[v] < 0 || set.holds(static_cast<int32_t>(v))) continue;
+      max_delay = std::max(max_delay, k - first_pull[v]);
+      first_pull[v] = -1;
+    }
+    const Vec3d next{1, 1, height(k)};
+    vertices.clear();
+    for (const Contact& c : set.contacts()) vertices.push_back(c.vertex);
+    set.targets(rig.model, state.u_prev, next, targets);
+    ASSERT_TRUE(set_prescribed_vertices(rig.model, state, vertices).ok());
+    std::copy(targets.begin(), targets.begin() + static_cast<std::ptrdiff_t>(set.size()),
+              state.prescribed_displacement.begin());
+    step(rig.model, state);
+    set.measure_reactions(rig.model, state.u, state.u_prev, state.force, state.external_force);
+    for (const Contact& c : set.contacts())
+      if (c.measurements >= 2 && dot(c.static_reaction, c.normal) < 0 &&
+          first_pull[static_cast<size_t>(c.vertex)] < 0)
+        first_pull[static_cast<size_t>(c.vertex)] = k + 1;  // the update that reads it
+    origin = next;
+  }
+  EXPECT_GE(taken, 9);
+  EXPECT_EQ(set.size(), 0u);
+  EXPECT_LE(max_delay, 1);
 }
 
 TEST(Contact, MeasuredReactionIsTheIntegratorsConstraintForce) {

@@ -11,7 +11,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -27,12 +29,16 @@ namespace {
 constexpr double kForceTolerance = 1e-11;
 /// Displacements after 200 steps, relative to the largest: rounding carried by the dynamics.
 constexpr double kTrajectoryTolerance = 1e-9;
-/// A whole simulated injection, relative: contact decisions flip on a rounding difference at a
-/// threshold, and with a handful of contact vertices the force history then differs (measured
-/// on the H100, 2026-11-21: mean force 14 %, peak force 12 % apart, peak deformation 0.2 %), so
-/// only the deformation and the volume are compared over the whole run.
+/// A whole simulated injection, relative. With the contact release rule robust to rounding
+/// (issue 9, engine/contact.h) the GPU and CPU runs take the same contact decisions, so the
+/// force history is compared over the whole run. (With the old rule a release of the tip's first
+/// contacts flipped on rounding: on the H100, 2026-11-21, mean force 14 % and peak force 12 %
+/// apart.)
+constexpr double kInjectionForceTolerance = 1e-2;
 constexpr double kInjectionDeformationTolerance = 1e-2;
-constexpr double kInjectionVolumeTolerance = 1e-1;
+constexpr double kInjectionVolumeTolerance = 1e-2;
+/// Samples whose needle contact counts may differ, as a fraction of all samples.
+constexpr double kInjectionContactCountTolerance = 1e-2;
 
 #define ZONA_PARTICLE_CUDA_OR_SKIP(var, model, options)                                    \
   Result<std::unique_ptr<Backend>> var##_result = make_particle_cuda_backend(model, options); \
@@ -228,18 +234,25 @@ TEST(CudaParticleSimulation, InjectionMatchesCpu) {
   EXPECT_GT(rc.peak_force, 0.0);
   ASSERT_EQ(rc.samples.size(), rg.samples.size());
   double mean_c = 0, mean_g = 0;
+  size_t contact_samples = 0, contacts_differ = 0;
   for (size_t i = 0; i < rc.samples.size(); ++i) {
     mean_c += rc.samples[i].force;
     mean_g += rg.samples[i].force;
+    if (rc.samples[i].contacts > 0) ++contact_samples;
+    if (rc.samples[i].contacts != rg.samples[i].contacts) ++contacts_differ;
   }
   mean_c /= static_cast<double>(rc.samples.size());
   mean_g /= static_cast<double>(rg.samples.size());
   std::printf("[ measured ] injection cpu vs cuda: mean force %.6g / %.6g N, peak force %.6g / %.6g N, "
-              "peak deformation %.6g / %.6g m\n",
-              mean_c, mean_g, rc.peak_force, rg.peak_force, rc.peak_deformation, rg.peak_deformation);
-  // The mean force is not compared: StepByStepMatchesTheCpuBackend shows the two runs agree to
-  // rounding until a contact decision flips (step 251 of this scene on the H100), after which
-  // the few-contact force history differs (14 % in the mean here).
+              "peak deformation %.6g / %.6g m, %zu of %zu samples with other contact counts\n",
+              mean_c, mean_g, rc.peak_force, rg.peak_force, rc.peak_deformation, rg.peak_deformation,
+              contacts_differ, rc.samples.size());
+  // The same experiment over the whole run (the needle is on the membrane for most of it).
+  EXPECT_GT(contact_samples, rc.samples.size() / 2);
+  EXPECT_LE(static_cast<double>(contacts_differ),
+            kInjectionContactCountTolerance * static_cast<double>(rc.samples.size()));
+  EXPECT_NEAR(mean_g, mean_c, kInjectionForceTolerance * mean_c);
+  EXPECT_NEAR(rg.peak_force, rc.peak_force, kInjectionForceTolerance * rc.peak_force);
   EXPECT_NEAR(rg.peak_deformation, rc.peak_deformation,
               kInjectionDeformationTolerance * rc.peak_deformation);
   EXPECT_NEAR((*gpu)->volume_change_max_rel(), (*cpu)->volume_change_max_rel(),
@@ -247,8 +260,10 @@ TEST(CudaParticleSimulation, InjectionMatchesCpu) {
 }
 
 // The same injection step by step against the CPU backend driven through the same Backend
-// calls (SimulationOptions::keep_cpu_backend): reports the first step whose state differs beyond
-// rounding, with what the simulation did around it (contacts, prescribed count).
+// calls (SimulationOptions::keep_cpu_backend): the state within rounding of the CPU's until the
+// first differing contact decision, and over the whole run the same contact set at all but a
+// few steps and the needle force within 1 % of its peak (the decisions no longer act on
+// rounding-level reactions, engine/contact.h).
 TEST(CudaParticleSimulation, StepByStepMatchesTheCpuBackend) {
   const nlohmann::json j = injection_scene();
   Result<Scene> scene = parse_scene(j, "cuda_particles_steps.json");
@@ -270,16 +285,23 @@ TEST(CudaParticleSimulation, StepByStepMatchesTheCpuBackend) {
   ASSERT_TRUE(cpu.ok() && gpu.ok());
   Simulation& c = **cpu;
   Simulation& g = **gpu;
-  int contact_steps = 0, diverged_at = -1;
-  for (int k = 0; k < 6000; ++k) {
+  int contact_steps = 0, steps = 0, sets_differ = 0, first_differing = -1;
+  double peak = 0, max_force_diff = 0;
+  for (int k = 0; k < 6000 && !c.finished(); ++k) {
     const StepStatus sc = c.step(), sg = g.step();
+    ++steps;
     ASSERT_EQ(sc & kStepNotAdvanced, sg & kStepNotAdvanced) << "step " << k;
-    // A contact decision (take, release) at a threshold may flip on a rounding difference; from
-    // then on the two runs are different experiments. Compare up to that step.
+    if (c.report().contacts > 0) ++contact_steps;
+    peak = std::max(peak, std::fabs(c.report().force));
+    max_force_diff = std::max(max_force_diff, std::fabs(g.report().force - c.report().force));
+    // A contact decision can still flip where a geometric test straddles its threshold (a
+    // face-contact corner taken one step apart); count those steps, and compare the states to
+    // rounding only up to the first.
     if (c.state().prescribed_vertices != g.state().prescribed_vertices) {
-      diverged_at = k;
-      break;
+      ++sets_differ;
+      if (first_differing < 0) first_differing = k;
     }
+    if (first_differing >= 0) continue;
     double scale = 0, diff = 0, fscale = 0, fdiff = 0;
     for (size_t i = 0; i < c.state().u.size(); ++i) {
       scale = std::max(scale, norm(c.state().u[i]));
@@ -293,15 +315,125 @@ TEST(CudaParticleSimulation, StepByStepMatchesTheCpuBackend) {
     ASSERT_LE(fdiff, 1e-7 * fscale + 1e-15) << "step " << k;
     ASSERT_NEAR(g.report().force, c.report().force, 1e-6 * std::fabs(c.report().force) + 1e-15)
         << "step " << k;
-    if (c.report().contacts > 0) ++contact_steps;
   }
-  std::printf("[ measured ] cpu and cuda agree to rounding for %d steps in contact; first differing "
-              "contact decision at step %d\n", contact_steps, diverged_at);
-  // The comparison reaches the needle on the membrane. Measured on the H100 (2026-11-21): the
-  // states agree until step 251, the second step in contact, where the GPU run releases one of
-  // three new contacts that the CPU run keeps (open: a rounding flip at the release threshold of
-  // a just-taken contact, or a difference in the first step after an upload; docs/particles.md).
-  EXPECT_GE(contact_steps, 1);
+  std::printf("[ measured ] cpu and cuda: %d steps, %d in contact; agree to rounding until step %d; "
+              "contact sets differ in %d steps; largest force difference %.3g of the peak\n",
+              steps, contact_steps, first_differing, sets_differ, max_force_diff / peak);
+  // The whole run, needle on the membrane for most of it. (With the old release rule, on the
+  // H100 2026-11-21, the states agreed until step 251, the second step in contact, where the GPU
+  // released one of three just-taken contacts that the CPU kept, and the runs stayed apart:
+  // docs/particles.md. The CPU emulation, ParticleSimulationRounding, measured 4 differing steps
+  // and 0.12 % of the peak with the robust rule.)
+  EXPECT_TRUE(c.finished());
+  EXPECT_GT(contact_steps, steps / 2);
+  EXPECT_LE(static_cast<double>(sets_differ), kInjectionContactCountTolerance * steps);
+  EXPECT_LE(max_force_diff, kInjectionForceTolerance * peak);
+}
+
+// The CPU particle backend with rounding-level noise on what it hands back, as a GPU's results
+// differ from the CPU's (sums in another order): each downloaded force component moves by up to
+// 2 ulp of itself plus 1e-18 N, each displacement by 2 ulp plus 1e-21 m (pseudo-random,
+// reproducible). The forces feed the contact decisions; the displacements reach the dynamics at
+// the next upload (every change of the contact set).
+class RoundingNoiseBackend final : public Backend {
+ public:
+  explicit RoundingNoiseBackend(std::unique_ptr<Backend> inner) : inner_(std::move(inner)) {}
+  const char* name() const override { return "cpu+rounding-noise"; }
+  std::string description() const override {
+    std::string d = inner_->description();
+    d.append(" + rounding noise");
+    return d;
+  }
+  Status upload(const Model& model, const State& state) override { return inner_->upload(model, state); }
+  Status set_prescribed_targets(std::span<const Vec3d> targets) override {
+    return inner_->set_prescribed_targets(targets);
+  }
+  StepReport step(int substeps) override { return inner_->step(substeps); }
+  Status download(State& state) override {
+    Status s = inner_->download(state);
+    if (!s) return s;
+    for (size_t v = 0; v < state.u.size(); ++v) {
+      state.force[v] = jitter(state.force[v], 1e-18);
+      state.u[v] = jitter(state.u[v], 1e-21);
+    }
+    return s;
+  }
+  Status elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) override {
+    return inner_->elastic_forces(u, f);
+  }
+  Result<StateSummary> summarize() override { return inner_->summarize(); }
+
+ private:
+  // Uniform in [-1, 1) from a splitmix64 sequence.
+  double next() {
+    uint64_t z = (state_ += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return static_cast<double>(z >> 11) * 0x1.0p-52 - 1.0;
+  }
+  Vec3d jitter(Vec3d x, double floor) {
+    constexpr double kUlp = std::numeric_limits<double>::epsilon();
+    return Vec3d{x.x + (2 * kUlp * std::fabs(x.x) + floor) * next(),
+                 x.y + (2 * kUlp * std::fabs(x.y) + floor) * next(),
+                 x.z + (2 * kUlp * std::fabs(x.z) + floor) * next()};
+  }
+  std::unique_ptr<Backend> inner_;
+  uint64_t state_ = 0x5EED;
+};
+
+// Issue 9 without a GPU: the injection of the CudaParticleSimulation tests, driven through the
+// CPU backend with and without rounding noise, must take the same contact decisions and give the
+// same force curve. With the earlier release rule (release when the normal reaction is not
+// > 0) the noise flipped the release of the tip's first contacts, whose reaction is the unloaded
+// membrane's, exactly zero on the CPU.
+TEST(ParticleSimulationRounding, NoiseInTheBackendStateDoesNotChangeTheInjection) {
+  Result<Scene> scene = parse_scene(injection_scene(), "rounding_noise.json");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  SimulationOptions ref_options, noisy_options;
+  ref_options.keep_cpu_backend = true;
+  ref_options.particle_backend_factory = [](const ParticleModel& pm, std::string* notice) {
+    return make_particle_backend(BackendKind::kCpu, pm, BackendOptions{}, notice);
+  };
+  noisy_options.particle_backend_factory =
+      [](const ParticleModel& pm, std::string* notice) -> Result<std::unique_ptr<Backend>> {
+    Result<std::unique_ptr<Backend>> cpu = make_particle_backend(BackendKind::kCpu, pm, BackendOptions{}, notice);
+    if (!cpu) return cpu;
+    return std::unique_ptr<Backend>(std::make_unique<RoundingNoiseBackend>(std::move(*cpu)));
+  };
+  Result<std::unique_ptr<Simulation>> ref = Simulation::create(*scene, ref_options);
+  Result<std::unique_ptr<Simulation>> noisy = Simulation::create(*scene, noisy_options);
+  ASSERT_TRUE(ref.ok() && noisy.ok());
+  ASSERT_NE((*noisy)->backend_description().find("rounding noise"), std::string::npos);
+  Simulation& a = **ref;
+  Simulation& b = **noisy;
+  int contact_steps = 0, count_differs = 0, set_differs = 0;
+  double sum_a = 0, sum_b = 0, max_diff = 0, peak = 0;
+  while (!a.finished() && !b.finished()) {
+    a.step();
+    b.step();
+    if (a.report().contacts > 0) ++contact_steps;
+    if (a.report().contacts != b.report().contacts) ++count_differs;
+    if (a.state().prescribed_vertices != b.state().prescribed_vertices) ++set_differs;
+    sum_a += a.report().force;
+    sum_b += b.report().force;
+    peak = std::max(peak, std::fabs(a.report().force));
+    max_diff = std::max(max_diff, std::fabs(a.report().force - b.report().force));
+  }
+  EXPECT_TRUE(a.finished() && b.finished());
+  std::printf("[ measured ] rounding noise: %d steps in contact, contact count differs in %d, "
+              "contact set in %d; mean force %.9g / %.9g N; largest force difference %.3g of the peak\n",
+              contact_steps, count_differs, set_differs, sum_a / contact_steps, sum_b / contact_steps,
+              max_diff / peak);
+  // Measured: with the old rule the contact sets differed from step 251 on (2749 of 2750 steps in
+  // contact), the mean force by 4 % and the force by up to 15 % of its peak; with the robust rule
+  // 4 steps differ (a pulling face-contact corner re-held and released one step apart, see
+  // docs/particles.md), the mean force by 1e-5, the force by at most 0.12 % of its peak.
+  EXPECT_GT(contact_steps, 1000);
+  EXPECT_LE(count_differs, contact_steps / 100);
+  EXPECT_LE(set_differs, contact_steps / 100);
+  EXPECT_NEAR(sum_b, sum_a, 1e-4 * sum_a);
+  EXPECT_LT(max_diff, 1e-2 * peak);
 }
 
 TEST(ParticleBackendFactory, CpuAlwaysAndAutoFallsBackWithANotice) {
