@@ -49,4 +49,8 @@ Result<Assembly> parse_assembly(std::string_view text) {
       std::string(text).c_str());
 }
 
+Status Backend::set_external_forces(std::span<const Vec3d>) {
+  return make_error("%s backend: set_external_forces is not supported", name());
+}
+
 }  // namespace zona

@@ -131,6 +131,12 @@ class Backend {
   /// between move each vertex linearly from its current target. Does not allocate.
   virtual Status set_prescribed_targets(std::span<const Vec3d> targets) = 0;
 
+  /// Replaces the external nodal forces [N], (vertex_count), from the next step() on, without a
+  /// new upload: loads that change every step (suction ramps, the punctured tip's released load,
+  /// the stiffness-damping term). Does not allocate after the first call with a non-zero load.
+  /// The default answers "not supported" (the caller then uploads the whole state).
+  virtual Status set_external_forces(std::span<const Vec3d> forces);
+
   /// Advances `substeps` steps of model.dt (>= 1). Stops early at a sub-step that was not
   /// advanced (kStepNonFinite: the state keeps the last good step). Only the report comes back
   /// from the device.

@@ -49,6 +49,15 @@ Status CpuBackendBase::set_prescribed_targets(std::span<const Vec3d> targets) {
   return {};
 }
 
+Status CpuBackendBase::set_external_forces(std::span<const Vec3d> forces) {
+  if (!model_) return make_error("%s: nothing uploaded", label_);
+  if (forces.size() != state_.external_force.size())
+    return make_error("%s: %zu loads given for %zu vertices", label_, forces.size(),
+                      state_.external_force.size());
+  std::copy(forces.begin(), forces.end(), state_.external_force.begin());
+  return {};
+}
+
 StepReport CpuBackendBase::step(int substeps) {
   StepReport report;
   if (!model_ || substeps < 1) return report;

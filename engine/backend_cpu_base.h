@@ -21,6 +21,7 @@ class CpuBackendBase : public Backend {
   const char* name() const override { return "cpu"; }
   Status upload(const Model& model, const State& state) final;
   Status set_prescribed_targets(std::span<const Vec3d> targets) final;
+  Status set_external_forces(std::span<const Vec3d> forces) final;
   StepReport step(int substeps) final;
   Status download(State& state) final;
   Result<StateSummary> summarize() final;

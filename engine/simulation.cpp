@@ -375,11 +375,10 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     }
   }
 
-  // Stiffness damping rewrites every load each step: the in-place path only.
-  stiffness_damping_ = backend_ ? 0.0 : scene.integrator.stiffness_damping;
+  // Stiffness damping rewrites every load each step (Backend::set_external_forces on the
+  // Backend path; with several sub-steps per call its term is held over the call).
+  stiffness_damping_ = scene.integrator.stiffness_damping;
   if (stiffness_damping_ > 0) force_prev_.assign(nv, Vec3d{0, 0, 0});
-  if (backend_ && scene.integrator.stiffness_damping > 0)
-    notes_.push_back("stiffness damping is not applied on the Backend path");
 
   tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   report_.tip = tip_;
@@ -501,6 +500,7 @@ void Simulation::apply_loads() {
       force_prev_[v] = state_.force[v];
     }
     loaded_.clear();
+    loads_changed_ = true;
   } else {
     // Clear last step's loads (only the entries that had any).
     for (int32_t v : loaded_) state_.external_force[static_cast<size_t>(v)] = Vec3d{0, 0, 0};
@@ -538,12 +538,16 @@ StepStatus Simulation::integrate() {
     if (particles_) return mask_budget_flag(particle_step(*particles_, model_, state_, nullptr));
     return mask_budget_flag(zona::step(model_, state_));
   }
-  // Backend: a new prescribed set or new loads need a fresh upload (the interface has no call
-  // for them yet); otherwise only the targets move. The prescribed vertices start from where
-  // they are and reach their targets at the last sub-step.
+  // Backend: a new prescribed set needs a fresh upload (the interface has no call for it);
+  // new loads go through set_external_forces, or an upload where the backend lacks it.
+  // Otherwise only the targets move. The prescribed vertices start from where they are and
+  // reach their targets at the last sub-step.
   const bool same_set = uploaded_prescribed_.size() == np &&
                         std::equal(prescribed_.begin(), prescribed_.end(), uploaded_prescribed_.begin());
-  if (!same_set || loads_changed_) {
+  bool upload = !same_set;
+  if (same_set && loads_changed_ && !backend_->set_external_forces(state_.external_force).ok())
+    upload = true;
+  if (upload) {
     if (Status s = set_prescribed_vertices(model_, state_, prescribed_); !s) return kStepNonFinite;
     if (Status s = backend_->upload(model_, state_); !s) return kStepNonFinite;
     uploaded_prescribed_.assign(prescribed_.begin(), prescribed_.end());

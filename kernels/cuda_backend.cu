@@ -115,6 +115,7 @@ class CudaBackend final : public Backend {
 
   Status upload(const Model& model, const State& state) override;
   Status set_prescribed_targets(std::span<const Vec3d> targets) override;
+  Status set_external_forces(std::span<const Vec3d> forces) override;
   StepReport step(int substeps) override;
   Status download(State& state) override;
   Status elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) override;
@@ -161,6 +162,7 @@ class CudaBackend final : public Backend {
   DeviceBuffer<int32_t> d_tet_new_to_old_, d_vertex_new_to_old_;
   DeviceBuffer<double> d_u_[3];
   DeviceBuffer<float4> d_force_[2], d_tet_force_, d_external_;
+  PinnedBuffer<float4> h_external_;  // staging of set_external_forces
   DeviceBuffer<unsigned long long> d_fixed_[2];  // fixed-point accumulators (3 per vertex)
   DeviceBuffer<float2> d_update_;
   DeviceBuffer<double> d_mass_;
@@ -677,6 +679,32 @@ StepReport CudaBackend::step(int substeps) {
   report.elastic_energy = d.elastic_energy;
   report.residual_norm = d.residual_norm;
   return report;
+}
+
+Status CudaBackend::set_external_forces(std::span<const Vec3d> forces) {
+  if (!model_) return make_error("cuda backend: nothing uploaded");
+  if (forces.size() != nv_)
+    return make_error("cuda backend: %zu loads given for %zu vertices", forces.size(), nv_);
+  if (!has_external_) {
+    bool any = false;
+    for (const Vec3d& f : forces) any = any || f.x != 0 || f.y != 0 || f.z != 0;
+    if (!any) return {};  // still none: no array, no bytes per step
+    // The step graphs were captured without loads: allocate, and capture them again.
+    if (Status s = d_external_.allocate(nv_, "loads"); !s) return s;
+    has_external_ = true;
+    graphs_.clear();
+  }
+  if (h_external_.size() != nv_)
+    if (Status s = h_external_.allocate(nv_, "loads"); !s) return s;
+  // The previous copy out of the staging buffer must be done before it is overwritten.
+  ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));
+  for (size_t i = 0; i < nv_; ++i) {
+    const Vec3d p = forces[static_cast<size_t>(new_to_old_[i])] / force_unit_;
+    h_external_[i] = make_float4(float(p.x), float(p.y), float(p.z), 0.0f);
+  }
+  ZONA_CUDA_TRY(cudaMemcpyAsync(d_external_.data(), h_external_.data(), d_external_.bytes(),
+                                cudaMemcpyHostToDevice, stream_.get()));
+  return {};
 }
 
 Status CudaBackend::download(State& state) {

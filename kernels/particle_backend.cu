@@ -355,6 +355,18 @@ class ParticleCudaBackend final : public Backend {
     return {};
   }
 
+  Status set_external_forces(std::span<const Vec3d> forces) override {
+    if (!model_) return make_error("particle cuda backend: nothing uploaded");
+    const size_t n = pm_.particle_count();
+    if (forces.size() != n)
+      return make_error("particle cuda backend: %zu loads given for %zu particles", forces.size(), n);
+    // The step stream first (the copy below is on the legacy stream), then a blocking copy.
+    ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));
+    ZONA_CUDA_TRY(cudaMemcpy(external_.data(), forces.data(), n * sizeof(Vec3d),
+                             cudaMemcpyHostToDevice));
+    return {};
+  }
+
   Status set_prescribed_targets(std::span<const Vec3d> targets) override {
     if (!model_) return make_error("particle cuda backend: nothing uploaded");
     if (targets.size() != size_t(prescribed_count_))
