@@ -314,6 +314,45 @@ TEST(CudaHealth, NonFiniteLoadStopsTheWindowAndKeepsTheState) {
   EXPECT_EQ(max_diff(out.u, u0), 0.0);
 }
 
+// Loads set between steps (Backend::set_external_forces) act as loads given at upload: the
+// first set allocates the array and recaptures the step graphs, later sets only copy.
+TEST(CudaLoads, SetExternalForcesEqualsUploadingThem) {
+  BackendOptions options;
+  options.assembly = Assembly::kScatterFixed;  // bitwise reproducible
+  ZONA_CUDA_BACKEND_OR_SKIP(a, options);
+  ZONA_CUDA_BACKEND_OR_SKIP(b, options);
+  const Mesh mesh = small_cell();
+  Result<Model> model =
+      build_model(mesh, cell_desc(ConstitutiveModel::kSvk, Formulation::kGradient));
+  ASSERT_TRUE(model.ok());
+  State loaded = make_state(*model, 1);
+  for (size_t v = 0; v < loaded.external_force.size(); ++v)
+    loaded.external_force[v] = Vec3d{1e-9, -2e-9, 0.5e-9} * (1.0 + 0.01 * double(v % 7));
+  State bare = make_state(*model, 1);
+  ASSERT_TRUE(a->upload(*model, loaded).ok());
+  ASSERT_TRUE(b->upload(*model, bare).ok());
+  ASSERT_EQ(b->step(5).steps, 5);  // graphs captured without loads
+  ASSERT_TRUE(a->upload(*model, loaded).ok());
+  ASSERT_TRUE(b->upload(*model, bare).ok());
+  ASSERT_TRUE(b->set_external_forces(loaded.external_force).ok());
+  ASSERT_EQ(a->step(100).steps, 100);
+  ASSERT_EQ(b->step(100).steps, 100);
+  State out_a = make_state(*model, 1), out_b = make_state(*model, 1);
+  ASSERT_TRUE(a->download(out_a).ok());
+  ASSERT_TRUE(b->download(out_b).ok());
+  EXPECT_GT(max_norm(out_a.u), 0.0);
+  EXPECT_EQ(max_diff(out_a.u, out_b.u), 0.0);
+  // Loads removed on one, kept on the other: the runs part.
+  std::vector<Vec3d> none(model->vertex_count(), Vec3d{0, 0, 0});
+  ASSERT_TRUE(b->set_external_forces(none).ok());
+  ASSERT_EQ(a->step(50).steps, 50);
+  ASSERT_EQ(b->step(50).steps, 50);
+  ASSERT_TRUE(a->download(out_a).ok());
+  ASSERT_TRUE(b->download(out_b).ok());
+  EXPECT_GT(max_diff(out_a.u, out_b.u), 1e-3 * max_norm(out_a.u));
+  EXPECT_FALSE(b->set_external_forces(std::vector<Vec3d>(3)).ok());
+}
+
 TEST(CudaHealth, InvertedElementIsFlaggedLikeOnTheCpu) {
   ZONA_CUDA_BACKEND_OR_SKIP(gpu, BackendOptions{});
   const Mesh mesh = small_cell();
