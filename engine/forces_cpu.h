@@ -23,6 +23,12 @@ int cpu_simd_bits();
 /// has it (bits >= 512). Not thread-safe against a running pass.
 void set_cpu_simd_bits(int bits);
 
+/// The batched element passes skip the exact health checks (det F, SVK collapse) of a batch
+/// whose displacement gradients all have |H|^2 (Frobenius) below this [-]: there the checks
+/// cannot fail (engine/forces_cpu.cpp says why; forces_simd_test checks it with the scalar
+/// functions), so the flags are those of always checking.
+inline constexpr double kHealthCheckSkipBelowGradientSq = 0.01;
+
 /// Element pass: corner forces of every tetrahedron at displacements state.u into
 /// state.tet_force, energy and health per chunk into state.tet_chunks. Runs on state.pool.
 void compute_tet_forces(const Model& model, State& state);

@@ -187,6 +187,47 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
   set_cpu_simd_bits(512);
 }
 
+// The batched passes skip the exact health checks where every lane has |H|^2 below
+// kHealthCheckSkipBelowGradientSq: the scalar checks must pass for every such H, in both
+// precisions, in the worst directions (uniaxial and uniform compression, shear) and in random
+// ones; and a gradient a few times larger must be able to fail them.
+TEST(SimdElementPass, HealthChecksCannotFailBelowTheSkipBound) {
+  const double r = std::sqrt(kHealthCheckSkipBelowGradientSq);  // largest |H| skipped
+  std::vector<Mat3d> gradients;
+  Mat3d h{};
+  h.m[0][0] = -r;
+  gradients.push_back(h);
+  gradients.push_back((-r / std::sqrt(3.0)) * Mat3d::identity());
+  h = Mat3d{};
+  h.m[0][1] = r;
+  gradients.push_back(h);
+  uint64_t seed = 12345;
+  auto next = [&seed] {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(seed >> 11) / 9007199254740992.0 - 0.5;
+  };
+  for (int i = 0; i < 2000; ++i) {
+    Mat3d g{};
+    double norm_sq = 0;
+    for (auto& row : g.m)
+      for (double& x : row) {
+        x = next();
+        norm_sq += x * x;
+      }
+    gradients.push_back((r / std::sqrt(norm_sq)) * g);
+  }
+  for (const Mat3d& hd : gradients) {
+    Mat3<float> hf{};
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) hf.m[a][b] = static_cast<float>(hd.m[a][b]);
+    ASSERT_EQ(tet_health(hd), 0u);
+    ASSERT_EQ(tet_health(hf), 0u);
+  }
+  h = Mat3d{};
+  h.m[0][0] = -5 * r;  // stretch 0.5, below 1/sqrt(3)
+  EXPECT_EQ(tet_health(h), uint32_t{kElementCollapsing});
+}
+
 // The float32 step is as deterministic as the float64 one: the same bits for 1, 2 and 3 threads
 // and on a second run.
 TEST(SimdElementPass, Float32StepIsBitwiseIdenticalForAnyThreadCount) {
