@@ -17,11 +17,21 @@ namespace zona {
 
 /// Widest SIMD the float64 element pass uses: 512 (eight tetrahedra per AVX-512 pack) on CPUs
 /// with AVX-512F unless the environment sets ZONA_CPU_SIMD_BITS=256, else 256 (four per AVX2
-/// pack). Both give the same bits; for benchmarks and tests.
+/// pack). Both give the same bits (cpu_element_fma() decides which); for benchmarks and tests.
 int cpu_simd_bits();
 /// Limits the float64 element pass to 256-bit packs (bits < 512) or allows AVX-512 where the CPU
 /// has it (bits >= 512). Not thread-safe against a running pass.
 void set_cpu_simd_bits(int bits);
+
+/// Whether the float64 gradient-form element pass fuses multiply-adds (~half the operations):
+/// true on CPUs with AVX2 and FMA unless the environment sets ZONA_CPU_FMA=0. With FMA its corner
+/// forces differ from the scalar fem_element.h functions in the last bits (relative 1e-13 of the
+/// element's largest corner force; the AVX2 and AVX-512 passes still agree bit for bit, for any
+/// thread count); without, they equal them bit for bit. One setting per process.
+bool cpu_element_fma();
+/// Switches the fused pass off (false) or back on where the CPU has FMA (true). Not thread-safe
+/// against a running pass; for tests and benchmarks.
+void set_cpu_element_fma(bool on);
 
 /// The batched element passes skip the exact health checks (det F, SVK collapse) of a batch
 /// whose displacement gradients all have |H|^2 (Frobenius) below this [-]: there the checks

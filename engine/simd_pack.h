@@ -1,11 +1,16 @@
 // Four-lane double and eight-lane float packs (GCC vector extensions) for the CPU backend's
 // batched loops, and the attribute that builds an AVX2 clone beside the baseline one. Each lane
 // performs exactly the scalar operations in the scalar order, so packed results are
-// bit-identical to scalar code of the same precision.
+// bit-identical to scalar code of the same precision; `fmadd` (one rounding) is the exception,
+// for the FMA element passes only.
 #pragma once
 
 #include <cstring>
 #include <type_traits>
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 #include "engine/vec.h"
 
@@ -221,6 +226,31 @@ ZONA_PACK_OPS(P8d)
   m &= __builtin_shufflevector(m, m, 1, 0, 3, 2, 5, 4, 7, 6);
   return m[0] != 0;
 }
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+// Fused multiply-add a * b + c, rounded once (vfmadd). Plain `inline` with the instruction set
+// as target: they are inlined only into functions built for it (the FMA element passes of
+// forces_cpu.cpp, through `flatten`); a call from anywhere else would not compile to FMA code
+// and must not exist.
+
+/// a * b + c per lane with one rounding (FMA3).
+__attribute__((target("fma"))) inline P4 fmadd(P4 a, P4 b, P4 c) {
+  P4 r;
+  r.v = reinterpret_cast<V4>(_mm256_fmadd_pd(reinterpret_cast<__m256d>(a.v),
+                                             reinterpret_cast<__m256d>(b.v),
+                                             reinterpret_cast<__m256d>(c.v)));
+  return r;
+}
+
+/// a * b + c per lane with one rounding (AVX-512F).
+__attribute__((target("avx512f"))) inline P8d fmadd(P8d a, P8d b, P8d c) {
+  P8d r;
+  r.v = reinterpret_cast<V8>(_mm512_fmadd_pd(reinterpret_cast<__m512d>(a.v),
+                                             reinterpret_cast<__m512d>(b.v),
+                                             reinterpret_cast<__m512d>(c.v)));
+  return r;
+}
+#endif
 
 /// (x, y, z, 0) of a Vec3d: a 16-byte and an 8-byte load, never past the vector's end.
 [[gnu::always_inline]] inline P4 load_xyz0(const Vec3d& a) { return P4(a.x, a.y, a.z, 0.0); }

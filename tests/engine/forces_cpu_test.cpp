@@ -6,6 +6,7 @@
 
 #include <Eigen/Dense>
 #include <Eigen/SparseCholesky>
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <vector>
@@ -82,17 +83,26 @@ TEST(ForcesCpu, AssemblyEqualsTheSumOfElementForces) {
   double energy;
   const auto f = forces_of(model, u, 2, &energy);
   std::vector<Vec3d> ref(u.size(), Vec3d{0, 0, 0});
-  double ref_energy = 0;
+  double ref_energy = 0, scale = 0;
   for (size_t t = 0; t < model.tet_count(); ++t) {
     const Tet& e = model.tets[t];
     const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
     Vec3d fe[4];
     ref_energy += tet_svk_forces(model.tet_shape[t], model.tet_lame(t).lambda,
                                  model.tet_lame(t).mu, ue, fe);
-    for (int c = 0; c < 4; ++c) ref[e[c]] += fe[c];
+    for (int c = 0; c < 4; ++c) {
+      ref[e[c]] += fe[c];
+      scale = std::max(scale, norm(fe[c]));
+    }
   }
-  // Same terms in the same order (ascending tetrahedron): identical bits.
-  for (size_t v = 0; v < u.size(); ++v) EXPECT_EQ(norm(f[v] - ref[v]), 0.0);
+  // Same terms in the same order (ascending tetrahedron): identical bits where the element pass
+  // is the scalar functions' (no FMA), within 1e-13 of the largest corner force where it fuses.
+  for (size_t v = 0; v < u.size(); ++v) {
+    if (cpu_element_fma())
+      EXPECT_LE(norm(f[v] - ref[v]), 1e-13 * scale) << "vertex " << v;
+    else
+      EXPECT_EQ(norm(f[v] - ref[v]), 0.0) << "vertex " << v;
+  }
   EXPECT_NEAR(energy, ref_energy, 1e-14 * ref_energy);
 }
 

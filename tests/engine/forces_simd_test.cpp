@@ -1,9 +1,12 @@
 // The CPU element pass's packed kernels against the scalar element functions: float64 (four
-// tetrahedra per AVX2 pack, eight per AVX-512 pack) bit for bit, float32 (eight per pack, ElementPrecision::kFloat32) bit for
-// bit against fem_element.h at T = float and within a stated tolerance of float64, health bits
-// through the packed masks, and determinism of the float32 step for any thread count.
+// tetrahedra per AVX2 pack, eight per AVX-512 pack) bit for bit without FMA and within 1e-13 of
+// the element's largest corner force with it (the AVX2 and AVX-512 FMA passes bit for bit
+// against each other), float32 (eight per pack, ElementPrecision::kFloat32) bit for bit against
+// fem_element.h at T = float and within a stated tolerance of float64, health bits through the
+// packed masks, and determinism of the float32 step for any thread count.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <utility>
@@ -80,10 +83,12 @@ double scalar_element(const Model& m, size_t t, const std::vector<Vec3d>& u, Vec
   return static_cast<double>(s.volume * psi);
 }
 
-// Every corner force of the pass equals the scalar element function's, bit for bit, and the
-// energy the scalar energies' sum.
+// Every corner force of the pass equals the scalar element function's, bit for bit (or, with
+// `fused`, within 1e-13 of the element's largest corner force component: the FMA pass rounds
+// differently), and the energy the scalar energies' sum.
 template <class T>
-void expect_pass_equals_scalar(ConstitutiveModel law, ElementPrecision precision) {
+void expect_pass_equals_scalar(ConstitutiveModel law, ElementPrecision precision,
+                               bool fused = false) {
   const Mesh mesh = test_box();
   const Model model = build(mesh, law, precision);
   const std::vector<Vec3d> u = wavy(mesh, 0.2);
@@ -96,23 +101,83 @@ void expect_pass_equals_scalar(ConstitutiveModel law, ElementPrecision precision
     Vec3d f[4];
     uint32_t bits = 0;
     energy += scalar_element<T>(model, t, u, f, &bits);
+    double scale = 0;
     for (int c = 0; c < 4; ++c)
-      EXPECT_EQ(std::memcmp(&s.tet_force[4 * t + c], &f[c], sizeof(Vec3d)), 0)
-          << "tet " << t << " corner " << c;
+      for (int i = 0; i < 3; ++i) scale = std::max(scale, std::abs(f[c][i]));
+    for (int c = 0; c < 4; ++c) {
+      if (fused) {
+        for (int i = 0; i < 3; ++i)
+          EXPECT_LE(std::abs(s.tet_force[4 * t + c][i] - f[c][i]), 1e-13 * scale)
+              << "tet " << t << " corner " << c << " component " << i;
+      } else {
+        EXPECT_EQ(std::memcmp(&s.tet_force[4 * t + c], &f[c], sizeof(Vec3d)), 0)
+            << "tet " << t << " corner " << c;
+      }
+    }
   }
   EXPECT_NEAR(d.elastic_energy, energy, 1e-13 * energy);
   EXPECT_GT(energy, 0);
   EXPECT_EQ(d.element_health, 0u);
 }
 
-// Both float64 passes: eight tetrahedra per AVX-512 pack (where the CPU has it) and four per
-// AVX2 pack.
+// Both float64 passes without FMA: eight tetrahedra per AVX-512 pack (where the CPU has it) and
+// four per AVX2 pack.
 TEST(SimdElementPass, Float64CornerForcesEqualTheScalarFunctionsBitForBit) {
+  set_cpu_element_fma(false);
   for (int bits : {512, 256}) {
     set_cpu_simd_bits(bits);
     SCOPED_TRACE(::testing::Message() << "simd bits " << cpu_simd_bits());
     expect_pass_equals_scalar<double>(ConstitutiveModel::kSvk, ElementPrecision::kFloat64);
     expect_pass_equals_scalar<double>(ConstitutiveModel::kLinear, ElementPrecision::kFloat64);
+  }
+  set_cpu_simd_bits(512);
+  set_cpu_element_fma(true);
+}
+
+// The fused (FMA) float64 passes, where the CPU has FMA: within 1e-13 of the scalar functions.
+TEST(SimdElementPass, Float64FusedCornerForcesAreWithin1e13OfTheScalarFunctions) {
+  set_cpu_element_fma(true);
+  if (!cpu_element_fma()) GTEST_SKIP() << "no FMA on this CPU (or ZONA_CPU_FMA=0)";
+  for (int bits : {512, 256}) {
+    set_cpu_simd_bits(bits);
+    SCOPED_TRACE(::testing::Message() << "simd bits " << cpu_simd_bits());
+    expect_pass_equals_scalar<double>(ConstitutiveModel::kSvk, ElementPrecision::kFloat64, true);
+    expect_pass_equals_scalar<double>(ConstitutiveModel::kLinear, ElementPrecision::kFloat64,
+                                      true);
+  }
+  set_cpu_simd_bits(512);
+}
+
+// The fused passes differ from the scalar functions (else FMA would not be in use) but the AVX2
+// and AVX-512 ones agree bit for bit: the same fused operations in the same order per lane.
+TEST(SimdElementPass, Float64FusedPassesAgreeBitForBitAcrossPackWidths) {
+  set_cpu_element_fma(true);
+  if (!cpu_element_fma()) GTEST_SKIP() << "no FMA on this CPU (or ZONA_CPU_FMA=0)";
+  const Mesh mesh = test_box();
+  const std::vector<Vec3d> u = wavy(mesh, 0.2);
+  for (ConstitutiveModel law : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear}) {
+    const Model model = build(mesh, law, ElementPrecision::kFloat64);
+    std::vector<std::vector<Vec3d>> forces;
+    std::vector<double> energies;
+    for (int bits : {256, 512}) {
+      set_cpu_simd_bits(bits);
+      State s = loaded_state(model, u, 2);
+      compute_tet_forces(model, s);
+      StepDiagnostics d;
+      reduce_tet_chunks(s, d);
+      forces.push_back(s.tet_force);
+      energies.push_back(d.elastic_energy);
+    }
+    set_cpu_element_fma(false);
+    State plain = loaded_state(model, u, 2);
+    compute_tet_forces(model, plain);
+    set_cpu_element_fma(true);
+    EXPECT_NE(std::memcmp(forces[0].data(), plain.tet_force.data(),
+                          forces[0].size() * sizeof(Vec3d)),
+              0);
+    EXPECT_EQ(std::memcmp(forces[0].data(), forces[1].data(), forces[0].size() * sizeof(Vec3d)),
+              0);
+    EXPECT_EQ(std::memcmp(&energies[0], &energies[1], sizeof(double)), 0);
   }
   set_cpu_simd_bits(512);
 }
