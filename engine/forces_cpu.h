@@ -15,12 +15,15 @@
 
 namespace zona {
 
-/// Widest SIMD the float64 element pass uses: 512 (eight tetrahedra per AVX-512 pack) on CPUs
-/// with AVX-512F unless the environment sets ZONA_CPU_SIMD_BITS=256, else 256 (four per AVX2
-/// pack). Both give the same bits (cpu_element_fma() decides which); for benchmarks and tests.
+/// Widest SIMD the float64 element pass uses: 512 (eight tetrahedra per AVX-512 pack) or 256
+/// (four per AVX2 pack). Both give the same bits (cpu_element_fma() decides which). Default on
+/// CPUs with AVX-512F: 256 when the fused pass runs (it made the step faster than the fused
+/// 512-bit one; docs/performance.md), 512 with ZONA_CPU_FMA=0 or ZONA_CPU_SIMD_BITS=512;
+/// ZONA_CPU_SIMD_BITS=256 forbids 512. For benchmarks and tests.
 int cpu_simd_bits();
-/// Limits the float64 element pass to 256-bit packs (bits < 512) or allows AVX-512 where the CPU
-/// has it (bits >= 512). Not thread-safe against a running pass.
+/// Limits the float64 element pass to 256-bit packs (bits < 512) or uses AVX-512 where the CPU
+/// has it and ZONA_CPU_SIMD_BITS is not 256 (bits >= 512). Not thread-safe against a running
+/// pass.
 void set_cpu_simd_bits(int bits);
 
 /// Whether the float64 gradient-form element pass fuses multiply-adds (~half the operations):
