@@ -39,7 +39,10 @@ pack() {
     -DCMAKE_CUDA_ARCHITECTURES=90 >/dev/null
   local targets=(zona_tests gpu_step_bench zona)
   # The renderer (and so interop_bench) exists when Vulkan headers and glslc were found.
-  if cmake --build "$build" --target help 2>/dev/null | grep -q interop_bench; then
+  # (Not `| grep -q`: grep's early exit fails the pipeline under pipefail.)
+  local help
+  help=$(cmake --build "$build" --target help 2>/dev/null || true)
+  if [[ "$help" == *interop_bench* ]]; then
     targets+=(interop_bench)
   fi
   cmake --build "$build" -j "${ZONA_JOBS:-2}" --target "${targets[@]}"
