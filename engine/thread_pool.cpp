@@ -77,7 +77,12 @@ int64_t ThreadPool::drain(int self) {
         fn_(context_, begin, end);
         done += end - begin;
       }
-      if (active_.fetch_sub(1, std::memory_order_acq_rel) == 1) active_.notify_all();
+      // Wake run() only when it sleeps: notify_all is a futex system call, and a step's two
+      // runs make dozens of claims (seq_cst pairs with run()'s store of caller_sleeping_, so
+      // one of the two sides always sees the other).
+      if (active_.fetch_sub(1, std::memory_order_seq_cst) == 1 &&
+          caller_sleeping_.load(std::memory_order_seq_cst))
+        active_.notify_all();
       if (!claimed) break;
     }
   }
@@ -99,17 +104,20 @@ void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
   for (uint64_t i = 0; i < threads; ++i)
     slices_[i].word.store(pack_claim(job_, count * (i + 1) / threads, count * i / threads),
                           std::memory_order_release);
-  generation_.fetch_add(1, std::memory_order_acq_rel);
-  generation_.notify_all();
+  generation_.fetch_add(1, std::memory_order_seq_cst);
+  // Only sleeping workers need the system call; spinning ones see the new generation.
+  if (sleepers_.load(std::memory_order_seq_cst) > 0) generation_.notify_all();
   drain(0);
   // Every chunk is claimed; wait for the ones other threads are still running.
   for (int spin = 0; spin < kSpinIterations; ++spin) {
     if (active_.load(std::memory_order_acquire) == 0) return;
     ZONA_CPU_RELAX();
   }
-  for (int32_t a = active_.load(std::memory_order_acquire); a != 0;
-       a = active_.load(std::memory_order_acquire))
+  caller_sleeping_.store(true, std::memory_order_seq_cst);
+  for (int32_t a = active_.load(std::memory_order_seq_cst); a != 0;
+       a = active_.load(std::memory_order_seq_cst))
     active_.wait(a, std::memory_order_acquire);
+  caller_sleeping_.store(false, std::memory_order_relaxed);
 }
 
 void ThreadPool::worker_main(int index) {
@@ -121,9 +129,12 @@ void ThreadPool::worker_main(int index) {
       ZONA_CPU_RELAX();
       g = generation_.load(std::memory_order_acquire);
     }
-    while (g == seen) {
-      generation_.wait(seen, std::memory_order_acquire);
-      g = generation_.load(std::memory_order_acquire);
+    if (g == seen) {
+      sleepers_.fetch_add(1, std::memory_order_seq_cst);
+      for (g = generation_.load(std::memory_order_seq_cst); g == seen;
+           g = generation_.load(std::memory_order_seq_cst))
+        generation_.wait(seen, std::memory_order_acquire);
+      sleepers_.fetch_sub(1, std::memory_order_relaxed);
     }
     seen = g;
     if (stop_.load(std::memory_order_acquire)) return;

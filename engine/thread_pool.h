@@ -64,6 +64,8 @@ class ThreadPool {
   // it is zero, which keeps fn_ and context_ valid for every claimed chunk.
   std::atomic<int32_t> active_{0};
   std::atomic<uint32_t> generation_{0};  // wake-up signal for sleeping workers
+  std::atomic<int32_t> sleepers_{0};          // workers asleep on generation_
+  std::atomic<bool> caller_sleeping_{false};  // run() asleep on active_
   std::atomic<bool> stop_{false};
   uint32_t job_ = 0;
 };
