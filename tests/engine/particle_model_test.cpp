@@ -11,11 +11,13 @@
 
 #include "engine/particle_element.h"
 #include "engine/simulation.h"
+#include "tests/engine/test_scenes.h"
 
 namespace zona {
 namespace {
 
 using json = nlohmann::json;
+using test::particle_scene;
 constexpr double kPi = 3.14159265358979323846;
 
 ParticleModelDesc small_desc(ParticleLayout layout = ParticleLayout::kIcosphere, int64_t count = 642) {
@@ -313,34 +315,7 @@ TEST(ParticleModel, BadParametersAreRefusedInOneLine) {
 // ---------------------------------------------------------------------------------------------
 // In the injection simulation.
 
-std::string speed_text(double speed) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%g m/s", speed);
-  return text;
-}
 
-json particle_scene(double speed = 2e-3) {
-  return json{
-      {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
-      {"model", "particles"},
-      {"particles",
-       {{"particles", 642},
-        {"membrane_modulus", "20 N/m"},
-        {"radial_stiffness", "1000 N/m^3"},
-        {"radial_damping", "3e4 N*s/m^3"},
-        {"damping", {"1e4 N*s/m^3", "1e4 N*s/m^3", "2e4 N*s/m^3"}},
-        {"compressibility", "1e-6 1/Pa"}}},
-      {"integrator", {{"target_dt", "20 us"}}},
-      {"needle",
-       {{"shape", "sphere"},
-        {"tip_radius", "30 um"},
-        {"direction", "+x"},
-        {"standoff", "10 um"},
-        {"speed", speed_text(speed)},
-        {"max_travel", "250 um"}}},
-      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
-      {"output", {{"frames", 0}, {"sample_interval", "1 ms"}}}};
-}
 
 std::unique_ptr<Simulation> make_sim(const json& j, const SimulationOptions& options = {}) {
   Result<Scene> scene = parse_scene(j, "particles_test.json");

@@ -15,11 +15,13 @@
 #include "engine/mesh_generate.h"
 #include "engine/mesh_io.h"
 #include "engine/scene_mesh.h"
+#include "tests/engine/test_scenes.h"
 
 namespace zona {
 namespace {
 
 using json = nlohmann::json;
+using test::small_cell_scene;
 namespace fs = std::filesystem;
 
 // A folder for this test binary's files, removed at the end of each test.
@@ -181,21 +183,6 @@ TEST(Simulation, NeedleForceIsConsistentUnderMeshRefinement) {
 
 // A 24 um ball held on its far side, indented by a point needle: the quasi-static SVK setup of
 // the mouse scene at a size a test can afford.
-json small_cell() {
-  return json{
-      {"mesh", {{"generate", {{"diameter", "24 um"}, {"vertices", 250}}}}},
-      {"model", "svk"},
-      {"materials",
-       {{"default", {{"young", "17.9 kPa"}, {"poisson", 0.45}, {"damping", "50 1/s"}}}}},
-      {"integrator",
-       {{"target_dt", "10 us"}, {"mass_scaling_mode", "selective"}, {"dt_safety", 0.25},
-        {"stiffness_damping", "50 us"}}},
-      {"needle",
-       {{"tip_radius", "3 um"}, {"standoff", "0.5 um"}, {"speed", "0.2 mm/s"},
-        {"max_travel", "6.5 um"}}},
-      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "6 um"}}},
-      {"output", {{"frames", 0}, {"sample_interval", "0.1 ms"}}}};
-}
 
 // Force at deformation `at` [m] by linear interpolation of the recorded curve.
 double force_at(const RunResult& run, double at) {
@@ -211,7 +198,7 @@ TEST(Simulation, QuasiStaticForceDoesNotDependOnTheMassScaling) {
   RunResult runs[2];
   const char* steps[2][2] = {{"20 us", "100 us"}, {"10 us", "50 us"}};
   for (int k = 0; k < 2; ++k) {
-    json j = small_cell();
+    json j = small_cell_scene();
     j["integrator"]["target_dt"] = steps[k][0];
     j["integrator"]["stiffness_damping"] = steps[k][1];
     Result<RunResult> r = run_scene(parse(j));
@@ -228,7 +215,7 @@ TEST(Simulation, QuasiStaticForceDoesNotDependOnTheMassScaling) {
 }
 
 TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
-  json j = small_cell();
+  json j = small_cell_scene();
   j["puncture"] = {{"criterion", "force"}, {"threshold", "0.2 uN"}, {"force_drop", 0.8},
                    {"drop_time", "0.5 ms"}, {"shaft_friction", "0.01 N/m"}};
   j["needle"]["max_travel"] = "7 um";
@@ -285,7 +272,7 @@ TEST(Simulation, SuctionOnTheAspiratedPatchIsBalancedByTheRim) {
 }
 
 TEST(Simulation, SplitStepTakesTheHandedInPose) {
-  auto sim = create(parse(small_cell()));
+  auto sim = create(parse(small_cell_scene()));
   ASSERT_TRUE(sim);
   sim->step1();
   const Vec3d handed = sim->needle_script().start + Vec3d{0.3e-6, 0.1e-6, 0};
@@ -333,7 +320,7 @@ class RenamedBackend final : public Backend {
 // path's answer, whether loads travel through set_external_forces or by re-uploading; the
 // former uploads only when the contact set changes.
 TEST(Simulation, BackendPathMatchesTheInPlacePath) {
-  json j = small_cell();
+  json j = small_cell_scene();
   j["needle"]["max_travel"] = "2 um";
   const Scene scene = parse(j);
   ASSERT_GT(scene.integrator.stiffness_damping, 0.0);
@@ -377,9 +364,9 @@ TEST(Simulation, BackendPathMatchesTheInPlacePath) {
 TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
   SimulationOptions o;
   o.snapshot_interval = 10;
-  auto sim = create(parse(small_cell()), o);
+  auto sim = create(parse(small_cell_scene()), o);
   ASSERT_TRUE(sim);
-  EXPECT_EQ(create(parse(small_cell()))->surface_snapshots(), nullptr);
+  EXPECT_EQ(create(parse(small_cell_scene()))->surface_snapshots(), nullptr);
   TripleBuffer<SurfaceSnapshot>* snapshots = sim->surface_snapshots();
   ASSERT_NE(snapshots, nullptr);
   const std::vector<int32_t>& surface = sim->surface().vertices;
@@ -397,7 +384,7 @@ TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
   const SurfaceSnapshot& snap = snapshots->read_slot();
   EXPECT_EQ(snap.step, published);  // the newest publication, not an older one
   // The state has moved on 5 steps since: recompute that step's surface from a second run.
-  auto again = create(parse(small_cell()));
+  auto again = create(parse(small_cell_scene()));
   for (int64_t k = 0; k < published; ++k) again->step();
   double moved = 0;
   for (size_t i = 0; i < surface.size(); ++i) {
@@ -413,7 +400,7 @@ TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
 TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
   // Seed 000's 115-vertex resolution: a 1 um point tip fits between the vertices, and the
   // triangle it pierces is carried along (the force rises as soon as the tip meets the surface).
-  json j = small_cell();
+  json j = small_cell_scene();
   j["mesh"]["generate"]["vertices"] = 60;
   j["needle"]["tip_radius"] = "0.5 um";
   j["needle"]["max_travel"] = "2 um";
@@ -426,13 +413,13 @@ TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
 }
 
 TEST(Simulation, ScenesItCannotRunAreRefused) {
-  json j = small_cell();
+  json j = small_cell_scene();
   j["model"] = "particles";  // runs (issue 9), but not with the strain criterion: no elements
   j["puncture"] = {{"criterion", "strain"}, {"threshold", 0.2}};
   Result<std::unique_ptr<Simulation>> s = Simulation::create(parse(j));
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("particles"), std::string::npos);
-  j = small_cell();
+  j = small_cell_scene();
   j["holding_pipette"]["inner_radius"] = "0.01 um";
   s = Simulation::create(parse(j));
   ASSERT_FALSE(s.ok());

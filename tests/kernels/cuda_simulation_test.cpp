@@ -11,34 +11,20 @@
 #include "engine/simulation.h"
 #include "kernels/backend_factory.h"
 #include "kernels/cuda_backend.h"
+#include "tests/engine/test_scenes.h"
 
 namespace zona {
 namespace {
-
-// A 24 um cell with 250 vertices pushed 4 um by a 3 um needle (tests/engine/simulation_test.cpp
-// runs the same cell on the CPU paths).
-nlohmann::json small_cell() {
-  return nlohmann::json{
-      {"mesh", {{"generate", {{"diameter", "24 um"}, {"vertices", 250}}}}},
-      {"model", "svk"},
-      {"materials",
-       {{"default", {{"young", "17.9 kPa"}, {"poisson", 0.45}, {"damping", "50 1/s"}}}}},
-      {"integrator",
-       {{"target_dt", "10 us"}, {"mass_scaling_mode", "selective"}, {"dt_safety", 0.25},
-        {"stiffness_damping", "50 us"}}},
-      {"needle",
-       {{"tip_radius", "3 um"}, {"standoff", "0.5 um"}, {"speed", "0.2 mm/s"},
-        {"max_travel", "4 um"}}},
-      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "6 um"}}},
-      {"output", {{"frames", 0}, {"sample_interval", "0.1 ms"}}}};
-}
 
 TEST(CudaSimulation, InjectionWithStiffnessDampingMatchesCpu) {
   {
     Result<std::unique_ptr<Backend>> probe = make_cuda_backend(BackendOptions{});
     if (!probe) GTEST_SKIP() << probe.error().message;
   }
-  Result<Scene> scene = parse_scene(small_cell(), "cuda_simulation.json");
+  // tests/engine/simulation_test.cpp runs the same cell on the CPU paths; 4 um of travel here.
+  nlohmann::json j = test::small_cell_scene();
+  j["needle"]["max_travel"] = "4 um";
+  Result<Scene> scene = parse_scene(j, "cuda_simulation.json");
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   ASSERT_GT(scene->integrator.stiffness_damping, 0.0);
   SimulationOptions gpu_options, cpu_options;

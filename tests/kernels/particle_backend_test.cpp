@@ -20,6 +20,7 @@
 
 #include "engine/particle_model.h"
 #include "engine/simulation.h"
+#include "tests/engine/test_scenes.h"
 
 namespace zona {
 namespace {
@@ -194,22 +195,10 @@ TEST(CudaParticleHealth, NonFiniteLoadKeepsTheLastGoodState) {
 
 // The injection both CudaParticleSimulation tests run: 642 particles, a 30 um sphere at 2 mm/s.
 nlohmann::json injection_scene() {
-  return nlohmann::json{
-      {"mesh", {{"generate", {{"diameter", "800 um"}}}}},
-      {"model", "particles"},
-      {"particles",
-       {{"particles", 642},
-        {"membrane_modulus", "20 N/m"},
-        {"radial_stiffness", "1000 N/m^3"},
-        {"radial_damping", "3e4 N*s/m^3"},
-        {"damping", {"1e4 N*s/m^3", "1e4 N*s/m^3", "2e4 N*s/m^3"}},
-        {"compressibility", "1e-6 1/Pa"}}},
-      {"integrator", {{"target_dt", "20 us"}}},
-      {"needle",
-       {{"shape", "sphere"}, {"tip_radius", "30 um"}, {"standoff", "10 um"}, {"speed", "2 mm/s"},
-        {"max_travel", "120 um"}}},
-      {"holding_pipette", {{"mode", "fixed"}, {"inner_radius", "150 um"}}},
-      {"output", {{"frames", 0}}}};
+  nlohmann::json j = test::particle_scene(2e-3);
+  j["needle"]["max_travel"] = "120 um";
+  j["output"] = {{"frames", 0}};
+  return j;
 }
 
 TEST(CudaParticleSimulation, InjectionMatchesCpu) {

@@ -62,7 +62,9 @@ Result<std::unique_ptr<Backend>> deformed_backend() {
   return backend;
 }
 
-#define ZONA_INTEROP_OR_SKIP(renderer, backend)                                               \
+// The deformed CUDA backend, a renderer on the NVIDIA device and the writer into its shared
+// surface; skips where any of them cannot be had.
+#define ZONA_INTEROP_OR_SKIP(renderer, backend, shared, writer)                               \
   Result<std::unique_ptr<Backend>> backend = deformed_backend();                              \
   if (!backend) GTEST_SKIP() << backend.error().message;                                      \
   RendererOptions renderer##_options;                                                         \
@@ -70,8 +72,12 @@ Result<std::unique_ptr<Backend>> deformed_backend() {
   renderer##_options.device_name = "NVIDIA";                                                  \
   Result<Renderer> renderer = create_headless_renderer(kWidth, kHeight, renderer##_options);  \
   if (!renderer.ok()) GTEST_SKIP() << renderer.error().message;                               \
-  do {                                                                                        \
-  } while (0)
+  Result<SharedSurface> shared = renderer->create_shared_surface(                             \
+      fixture().surface.triangles, fixture().mesh.vertex_count());                            \
+  if (!shared.ok()) GTEST_SKIP() << shared.error().message;                                   \
+  Result<std::unique_ptr<SurfaceWriter>> writer =                                             \
+      make_surface_writer(**backend, fixture().model, shared_surface_target(*shared));        \
+  ASSERT_TRUE(writer.ok()) << writer.error().message
 
 RenderFrame copy_frame(const Fixture& f, std::vector<float>* scalar) {
   RenderFrame frame;
@@ -86,14 +92,8 @@ RenderFrame copy_frame(const Fixture& f, std::vector<float>* scalar) {
 }
 
 TEST(CudaInterop, GpuSurfaceEqualsTheCopyPathsSurface) {
-  ZONA_INTEROP_OR_SKIP(renderer, backend);
+  ZONA_INTEROP_OR_SKIP(renderer, backend, shared, writer);
   const Fixture& f = fixture();
-  Result<SharedSurface> shared =
-      renderer->create_shared_surface(f.surface.triangles, f.mesh.vertex_count());
-  if (!shared.ok()) GTEST_SKIP() << shared.error().message;
-  const SharedSurfaceTarget target = shared_surface_target(*shared);
-  Result<std::unique_ptr<SurfaceWriter>> writer = make_surface_writer(**backend, f.model, target);
-  ASSERT_TRUE(writer.ok()) << writer.error().message;
 
   std::vector<float> scalar;
   RenderFrame frame = copy_frame(f, &scalar);
@@ -158,14 +158,8 @@ TEST(CudaInterop, GpuSurfaceEqualsTheCopyPathsSurface) {
 }
 
 TEST(CudaInterop, WriterFollowsTheBackendAfterSteps) {
-  ZONA_INTEROP_OR_SKIP(renderer, backend);
+  ZONA_INTEROP_OR_SKIP(renderer, backend, shared, writer);
   const Fixture& f = fixture();
-  Result<SharedSurface> shared =
-      renderer->create_shared_surface(f.surface.triangles, f.mesh.vertex_count());
-  if (!shared.ok()) GTEST_SKIP() << shared.error().message;
-  const SharedSurfaceTarget target = shared_surface_target(*shared);
-  Result<std::unique_ptr<SurfaceWriter>> writer = make_surface_writer(**backend, f.model, target);
-  ASSERT_TRUE(writer.ok()) << writer.error().message;
   // The released dimple springs back: after steps the written surface is the downloaded state's.
   const StepReport r = (*backend)->step(50);
   ASSERT_EQ(r.status & kStepNonFinite, 0u);
