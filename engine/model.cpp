@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
 
 #include "engine/forces_cpu.h"
 
@@ -234,40 +235,37 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
 
   model.energy_floor = min_mu * total_volume * 1e-16;
 
-  // Lane-major batches of eight for the CPU's vectorised element pass.
+  // Lane-major batches of eight for the CPU's vectorised element passes: shape gradients,
+  // volume and Lame coefficients, in float64 and (for the float32 pass) rounded to float; the
+  // last batch repeats the last tetrahedron.
   const size_t batches = (nt + 7) / 8;
+  auto fill_batches = [&](auto* data, size_t stride) {
+    using T = std::remove_pointer_t<decltype(data)>;
+    for (size_t b = 0; b < batches; ++b)
+      for (size_t l = 0; l < 8; ++l) {
+        const size_t t = std::min(8 * b + l, nt - 1);
+        T* out = data + b * stride + l;
+        const TetShape<double>& shape = model.tet_shape[t];
+        for (int j = 0; j < 4; ++j)
+          for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = static_cast<T>(shape.grad[j][i]);
+        out[8 * 12] = static_cast<T>(shape.volume);
+        out[8 * 13] = static_cast<T>(model.tet_lame(t).lambda);
+        out[8 * 14] = static_cast<T>(model.tet_lame(t).mu);
+      }
+  };
   model.cpu_tet_batches.assign(batches * kCpuTetBatchStride, 0.0);
+  fill_batches(model.cpu_tet_batches.data(), size_t{kCpuTetBatchStride});
+  if (desc.element_precision == ElementPrecision::kFloat32) {
+    model.cpu_tet_batches_f32.assign(batches * kCpuTetBatchStrideF32, 0.0f);
+    fill_batches(model.cpu_tet_batches_f32.data(), size_t{kCpuTetBatchStrideF32});
+  }
   model.cpu_tet_corner_offsets.assign(batches * kCpuTetOffsetStride, 0);
   for (size_t b = 0; b < batches; ++b)
     for (size_t l = 0; l < 8; ++l) {
       const size_t t = std::min(8 * b + l, nt - 1);
-      double* out = model.cpu_tet_batches.data() + b * kCpuTetBatchStride + l;
-      const TetShape<double>& shape = model.tet_shape[t];
-      for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = shape.grad[j][i];
-      out[8 * 12] = shape.volume;
-      out[8 * 13] = model.tet_lame(t).lambda;
-      out[8 * 14] = model.tet_lame(t).mu;
       for (int c = 0; c < 4; ++c)
         model.cpu_tet_corner_offsets[b * kCpuTetOffsetStride + 8 * c + l] = 3 * model.tets[t][c];
     }
-
-  if (desc.element_precision == ElementPrecision::kFloat32) {
-    // The same layout in batches of eight, rounded to float (what the float32 pass loads).
-    const size_t batches8 = (nt + 7) / 8;
-    model.cpu_tet_batches_f32.assign(batches8 * kCpuTetBatchStrideF32, 0.0f);
-    for (size_t b = 0; b < batches8; ++b)
-      for (size_t l = 0; l < 8; ++l) {
-        const size_t t = std::min(8 * b + l, nt - 1);
-        float* out = model.cpu_tet_batches_f32.data() + b * kCpuTetBatchStrideF32 + l;
-        const TetShape<double>& shape = model.tet_shape[t];
-        for (int j = 0; j < 4; ++j)
-          for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = static_cast<float>(shape.grad[j][i]);
-        out[8 * 12] = static_cast<float>(shape.volume);
-        out[8 * 13] = static_cast<float>(model.tet_lame(t).lambda);
-        out[8 * 14] = static_cast<float>(model.tet_lame(t).mu);
-      }
-  }
 
   if (desc.formulation == Formulation::kTensorStored) {
     const auto tensor_start = std::chrono::steady_clock::now();
