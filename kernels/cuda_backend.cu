@@ -835,23 +835,8 @@ Result<StateSummary> CudaBackend::summarize() {
 }  // namespace cuda
 
 Result<std::unique_ptr<Backend>> make_cuda_backend(const BackendOptions& options) {
-  int count = 0;
-  const cudaError_t err = cudaGetDeviceCount(&count);
-  if (err != cudaSuccess) {
-    (void)cudaGetLastError();  // clear the sticky error so later calls start clean
-    return make_error("no usable CUDA device (%s)", cudaGetErrorString(err));
-  }
-  if (count == 0) return make_error("no CUDA device found");
-  if (options.device < 0 || options.device >= count)
-    return make_error("CUDA device %d does not exist (%d found)", options.device, count);
   cudaDeviceProp prop{};
-  if (const cudaError_t e = cudaGetDeviceProperties(&prop, options.device); e != cudaSuccess)
-    return cuda::cuda_error(e, "cudaGetDeviceProperties", __FILE__, __LINE__);
-  const cudaError_t set = cudaSetDevice(options.device);
-  if (set != cudaSuccess) {
-    (void)cudaGetLastError();
-    return cuda::cuda_error(set, "cudaSetDevice", __FILE__, __LINE__);
-  }
+  if (Status s = cuda::open_device(options.device, &prop); !s) return s.error();
   // The kernels must exist for this device's architecture (built for CMAKE_CUDA_ARCHITECTURES).
   cudaFuncAttributes attributes{};
   const cudaError_t image = cudaFuncGetAttributes(

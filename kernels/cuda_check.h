@@ -19,6 +19,29 @@ inline Error cuda_error(cudaError_t err, const char* call, const char* file, int
                     cudaGetErrorName(err));
 }
 
+/// Makes CUDA device `ordinal` current for the calling thread and reads its properties (what
+/// every backend's constructor does first). Errors (one line): no usable device (with the
+/// driver's reason), none found, the ordinal out of range, a failed call.
+inline Status open_device(int ordinal, cudaDeviceProp* prop) {
+  int count = 0;
+  if (const cudaError_t err = cudaGetDeviceCount(&count); err != cudaSuccess) {
+    (void)cudaGetLastError();  // clear the sticky error so later calls start clean
+    return make_error("no usable CUDA device (%s)", cudaGetErrorString(err));
+  }
+  if (count == 0) return make_error("no CUDA device found");
+  if (ordinal < 0 || ordinal >= count)
+    return make_error("CUDA device %d does not exist (%d found)", ordinal, count);
+  if (const cudaError_t e = cudaGetDeviceProperties(prop, ordinal); e != cudaSuccess) {
+    (void)cudaGetLastError();
+    return cuda_error(e, "cudaGetDeviceProperties", __FILE__, __LINE__);
+  }
+  if (const cudaError_t e = cudaSetDevice(ordinal); e != cudaSuccess) {
+    (void)cudaGetLastError();
+    return cuda_error(e, "cudaSetDevice", __FILE__, __LINE__);
+  }
+  return {};
+}
+
 /// Where the step path records its first CUDA failure: fixed storage, written once per failure,
 /// read by the host after the step returns its flags.
 struct StepErrorLog {

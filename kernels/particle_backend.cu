@@ -622,22 +622,8 @@ class ParticleCudaBackend final : public Backend {
 
 Result<std::unique_ptr<Backend>> make_particle_cuda_backend(const ParticleModel& model,
                                                             const BackendOptions& options) {
-  int count = 0;
-  const cudaError_t err = cudaGetDeviceCount(&count);
-  if (err != cudaSuccess) {
-    (void)cudaGetLastError();
-    return make_error("no usable CUDA device (%s)", cudaGetErrorString(err));
-  }
-  if (count == 0) return make_error("no CUDA device found");
-  if (options.device < 0 || options.device >= count)
-    return make_error("CUDA device %d does not exist (%d found)", options.device, count);
   cudaDeviceProp prop{};
-  if (const cudaError_t e = cudaGetDeviceProperties(&prop, options.device); e != cudaSuccess)
-    return cuda::cuda_error(e, "cudaGetDeviceProperties", __FILE__, __LINE__);
-  if (const cudaError_t e = cudaSetDevice(options.device); e != cudaSuccess) {
-    (void)cudaGetLastError();
-    return cuda::cuda_error(e, "cudaSetDevice", __FILE__, __LINE__);
-  }
+  if (Status s = cuda::open_device(options.device, &prop); !s) return s.error();
   cudaFuncAttributes attributes{};
   if (const cudaError_t e = cudaFuncGetAttributes(&attributes, cuda::membrane_kernel); e != cudaSuccess) {
     (void)cudaGetLastError();
