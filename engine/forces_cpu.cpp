@@ -188,20 +188,33 @@ template <bool kSvk, class P>
   }
 }
 
-// Stores the corner forces of four consecutive tetrahedra starting at `dst` (48 doubles,
-// lane-major: tetrahedron, corner, xyz): three 4 x 4 transposes of the 12 component packs give
-// them as 12 four-double stores.
-[[gnu::always_inline]] inline void store_corner_forces4(const Vec3<P4> f[4], double* dst) {
-  P4 col[12];
+// Adds corner force `f` (x, y, z, 0) to its block as AssemblyPlan::corner_code `code` says: the
+// block's sum so far plus f; +0 plus f for a vertex's first corner (block 0 holds +0.0, as the
+// ordered sum starts); -0 plus f, which is f exactly, for a late slot (block 1 holds -0.0).
+// A conditional move, no branch.
+[[gnu::always_inline]] inline void scatter_corner(double* blocks, int32_t code, P4 f) {
+  const int32_t dst = code & ~3;
+  const int32_t kind = code & 3;
+  const int32_t src = kind != 0 ? 4 * kind - 4 : dst;
+  store4(load4(blocks + src) + f, blocks + dst);
+}
+
+// Scatters the corner forces of four consecutive tetrahedra (lanes) to their blocks, lane by lane
+// (ascending tetrahedron) and corner by corner; `code` points at lane 0, corner 0 of them in the
+// batch layout (corner c of lane l at 8 c + l). One 4 x 4 transpose per corner gives each lane's
+// (x, y, z, 0).
+[[gnu::always_inline]] inline void scatter_corner_forces4(const Vec3<P4> f[4], double* blocks,
+                                                          const int32_t* code) {
+  P4 corner[4][4];  // [corner][lane]
   for (int c = 0; c < 4; ++c) {
-    col[3 * c] = f[c].x;
-    col[3 * c + 1] = f[c].y;
-    col[3 * c + 2] = f[c].z;
+    corner[c][0] = f[c].x;
+    corner[c][1] = f[c].y;
+    corner[c][2] = f[c].z;
+    corner[c][3] = zero4();
+    transpose4(corner[c]);
   }
-  for (int b = 0; b < 3; ++b) {
-    transpose4(col + 4 * b);
-    for (int l = 0; l < 4; ++l) store4(col[4 * b + l], dst + 12 * l + 4 * b);
-  }
+  for (int l = 0; l < 4; ++l)
+    for (int c = 0; c < 4; ++c) scatter_corner(blocks, code[8 * c + l], corner[c][l]);
 }
 
 // Health of the lanes [0, lanes) when some lane failed the packed check (rare path): the bits
@@ -283,8 +296,9 @@ struct Lanes4d {
     mu = load4(b + 8 * 14);
     load_edges4(u, batch_offsets(m, t0), du);
   }
-  [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* out) {
-    store_corner_forces4(f, out);
+  [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* blocks,
+                                           const int32_t* code) {
+    scatter_corner_forces4(f, blocks, code);
   }
   template <bool kSvk>
   [[gnu::always_inline]] static bool healthy(const P4& det_f, const P4& m1, const P4& m2,
@@ -319,12 +333,13 @@ struct Lanes8f {
       du[e] = Vec3<P8f>{narrow(lo[e].x, hi[e].x), narrow(lo[e].y, hi[e].y),
                         narrow(lo[e].z, hi[e].z)};
   }
-  [[gnu::always_inline]] static void store(const Vec3<P8f> f[4], double* out) {
+  [[gnu::always_inline]] static void store(const Vec3<P8f> f[4], double* blocks,
+                                           const int32_t* code) {
     for (int half = 0; half < 2; ++half) {
       Vec3<P4> fd[4];
       for (int c = 0; c < 4; ++c)
         fd[c] = Vec3<P4>{widen(f[c].x, half), widen(f[c].y, half), widen(f[c].z, half)};
-      store_corner_forces4(fd, out + 48 * half);
+      scatter_corner_forces4(fd, blocks, code + 4 * half);
     }
   }
   template <bool kSvk>
@@ -349,7 +364,8 @@ template <bool kSvk, class L, bool kFma = false>
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const double* ug = &s.u.data()->x;
-  double* out = &s.tet_force.data()->x;
+  double* blocks = s.assembly.blocks.data();
+  const int32_t* codes = s.assembly.corner_code.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     double energy = 0;  // r.elastic_energy, in a register
@@ -370,15 +386,17 @@ template <bool kSvk, class L, bool kFma = false>
         h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w);
       else
         h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w);
+      const int32_t* code = codes + (t0 / 8) * kCpuTetOffsetStride + t0 % 8;
       if (lanes == kLanes) {
-        L::store(f, out + 12 * t0);
+        L::store(f, blocks, code);
         // A fixed trip count: the energy stays in a register.
         for (int l = 0; l < kLanes; ++l) energy += static_cast<double>(w.v[l]);
       } else {
         for (int l = 0; l < lanes; ++l) {
           for (int c = 0; c < 4; ++c)
-            for (int i = 0; i < 3; ++i)
-              out[12 * (t0 + l) + 3 * c + i] = static_cast<double>(f[c][i].v[l]);
+            scatter_corner(blocks, code[8 * c + l],
+                           P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
+                              static_cast<double>(f[c].z.v[l]), 0.0));
           energy += static_cast<double>(w.v[l]);
         }
       }
@@ -443,12 +461,13 @@ struct Lanes8d {
       du[e] = Vec3<P8d>{concat(lo[e].x, hi[e].x), concat(lo[e].y, hi[e].y),
                         concat(lo[e].z, hi[e].z)};
   }
-  [[gnu::always_inline]] static void store(const Vec3<P8d> f[4], double* out) {
+  [[gnu::always_inline]] static void store(const Vec3<P8d> f[4], double* blocks,
+                                           const int32_t* code) {
     for (int half = 0; half < 2; ++half) {
       Vec3<P4> fd[4];
       for (int c = 0; c < 4; ++c)
         fd[c] = Vec3<P4>{half_of(f[c].x, half), half_of(f[c].y, half), half_of(f[c].z, half)};
-      store_corner_forces4(fd, out + 48 * half);
+      scatter_corner_forces4(fd, blocks, code + 4 * half);
     }
   }
   // lanes_healthy's and lanes_below's comparisons, written out here: in a function without the AVX-512 target GCC
@@ -491,7 +510,8 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const Vec3d* ug = s.u.data();
-  Vec3d* out = s.tet_force.data();
+  double* blocks = s.assembly.blocks.data();
+  const int32_t* codes = s.assembly.corner_code.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     const int64_t end = std::min(nt, (chunk + 1) * kTetChunk);
@@ -502,7 +522,9 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
       uint32_t bits = 0;
       Vec3d f[4];
       r.elastic_energy += Kernel::eval(m, t, u, f, &bits);
-      for (int c = 0; c < 4; ++c) out[4 * t + c] = f[c];
+      for (int c = 0; c < 4; ++c)
+        scatter_corner(blocks, codes[(ti / 8) * kCpuTetOffsetStride + 8 * c + ti % 8],
+                       P4(f[c].x, f[c].y, f[c].z, 0.0));
       if (bits) {
         // Rare path: counts and the first offender for the message.
         r.health |= bits;
@@ -553,7 +575,21 @@ void gather_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
   const int64_t end = std::min(nv, chunk_end * kVertexChunk);
   for (int64_t v = chunk_begin * kVertexChunk; v < end; ++v)
-    s.force[static_cast<size_t>(v)] = gather_vertex_force(m, s, static_cast<size_t>(v));
+    s.force[static_cast<size_t>(v)] = gather_vertex_force(s, static_cast<size_t>(v));
+}
+
+// The element pass over segments [segment_begin, segment_end) of State::assembly: each segment's
+// chunks in order on this thread (AssemblyPlan's ownership rule needs it).
+struct SegmentContext {
+  PassContext pass;
+  ThreadPool::ChunkFn chunks;
+};
+
+void run_segments(void* context, int64_t segment_begin, int64_t segment_end) {
+  SegmentContext& c = *static_cast<SegmentContext*>(context);
+  const std::vector<int64_t>& first = c.pass.state->assembly.segment_chunk;
+  c.chunks(&c.pass, first[static_cast<size_t>(segment_begin)],
+           first[static_cast<size_t>(segment_end)]);
 }
 
 }  // namespace
@@ -620,8 +656,16 @@ void set_cpu_simd_bits(int bits) {
 }
 
 void compute_tet_forces(const Model& model, State& state) {
-  PassContext context{&model, &state};
-  state.pool->run(static_cast<int64_t>(state.tet_chunks.size()), select_tet_pass(model), &context);
+  SegmentContext context{{&model, &state}, select_tet_pass(model)};
+  state.pool->run(state.assembly.segment_count, &run_segments, &context);
+}
+
+Vec3d corner_force(const State& state, size_t t, int c) {
+  ZONA_ASSERT(state.assembly.all_late);
+  const double* b =
+      state.assembly.blocks.data() + 4 * static_cast<size_t>(state.assembly.corner_block[4 * t +
+                                                                  static_cast<size_t>(c)]);
+  return Vec3d{b[0], b[1], b[2]};
 }
 
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag) {

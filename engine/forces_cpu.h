@@ -1,10 +1,12 @@
 // CPU internal-force assembly (both formulations, multi-threaded, bitwise deterministic),
 // global tangent stiffness and the largest natural frequency, for tests and quasi-static tools.
 //
-// Determinism: each tetrahedron writes its four corner forces to its own slots of
-// State::tet_force (no shared writes), then each vertex sums its slots in the fixed order of
-// the vertex-to-tetrahedron adjacency (ascending tetrahedron index). Energies and counts are
-// summed per fixed-size chunk and the chunks in order. No result depends on the thread count.
+// Determinism: every vertex force is the sum of its corner forces in ascending tetrahedron
+// order, ((0 + f_1) + f_2) + ..., with no shared writes: a vertex's corners in the segment of
+// its first tetrahedron are added into its block by the one thread that runs that segment, in
+// tetrahedron order, and its corners in later segments get slots of their own that the vertex
+// pass adds after them, in order (AssemblyPlan in state.h). Energies and counts are summed per
+// fixed-size chunk and the chunks in order. No result depends on the thread or segment count.
 #pragma once
 
 #include <Eigen/SparseCore>
@@ -42,21 +44,26 @@ void set_cpu_element_fma(bool on);
 /// functions), so the flags are those of always checking.
 inline constexpr double kHealthCheckSkipBelowGradientSq = 0.01;
 
-/// Element pass: corner forces of every tetrahedron at displacements state.u into
-/// state.tet_force, energy and health per chunk into state.tet_chunks. Runs on state.pool.
+/// Element pass: corner forces of every tetrahedron at displacements state.u, summed into the
+/// blocks of state.assembly (vertex sums and late slots), energy and health per chunk into
+/// state.tet_chunks. Runs on state.pool, one segment per claim.
 void compute_tet_forces(const Model& model, State& state);
+
+/// After compute_tet_forces with an all-late plan (make_assembly_plan(..., true)): the force of
+/// corner c of tetrahedron t [N]. For tests.
+Vec3d corner_force(const State& state, size_t t, int c);
 
 /// Sums the element-pass chunks into diag: elastic energy, health bits, counts, first indices.
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
-/// Elastic force on vertex v [N]: its corner slots of state.tet_force summed in adjacency order
-/// (ascending tetrahedron).
-inline Vec3d gather_vertex_force(const Model& model, const State& state, size_t v) {
-  const double* slots = &state.tet_force.data()->x;
-  const int32_t* offset = model.adjacency_slot_offset.data();
-  Vec3d f{0, 0, 0};
-  for (int32_t i = model.adjacency.offsets[v]; i < model.adjacency.offsets[v + 1]; ++i)
-    f += Vec3d{slots[offset[i]], slots[offset[i] + 1], slots[offset[i] + 2]};
+/// Elastic force on vertex v [N] after compute_tet_forces: its block (the sum of its corners in
+/// its owning segment) plus its late slots, in ascending tetrahedron order.
+inline Vec3d gather_vertex_force(const State& state, size_t v) {
+  const double* b = state.assembly.blocks.data();
+  const double* own = b + 4 * (v + kAssemblyVertexBlock0);
+  Vec3d f{own[0], own[1], own[2]};
+  for (int32_t k = state.assembly.late_offsets[v]; k < state.assembly.late_offsets[v + 1]; ++k)
+    f += Vec3d{b[4 * k], b[4 * k + 1], b[4 * k + 2]};
   return f;
 }
 

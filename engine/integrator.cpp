@@ -24,15 +24,12 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
   return (p.v[0] + p.v[1]) + p.v[2];
 }
 
-// The elastic force of vertex v: its corner slots summed in adjacency order, as
-// gather_vertex_force does, with x, y, z in the lanes of one pack: one 32-byte load per corner
-// (x, y, z and the next slot's x; State::tet_force has a padding slot). Lane 3 (that next x) is
-// summed too but never stored or used.
-[[gnu::always_inline]] inline P4 gather_force(const double* slots, const int32_t* slot_offset,
-                                              int32_t begin, int32_t end) {
-  P4 f = zero4();
-#pragma GCC unroll 4
-  for (int32_t i = begin; i < end; ++i) f += load4(slots + slot_offset[i]);
+// The elastic force of vertex v, as gather_vertex_force sums it (the same bits): its block, then
+// its late slots in order (AssemblyPlan), with x, y, z in the lanes of one pack. Lane 3 is 0.
+[[gnu::always_inline]] inline P4 gather_force(const double* blocks, const int32_t* late_offsets,
+                                              size_t v) {
+  P4 f = load4(blocks + 4 * (v + kAssemblyVertexBlock0));
+  for (int32_t k = late_offsets[v]; k < late_offsets[v + 1]; ++k) f += load4(blocks + 4 * k);
   return f;
 }
 
@@ -40,9 +37,8 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
 // (store_xyz), which may alias anything, so pointers read from the Model and State on every
 // vertex would be reloaded on every vertex.
 struct VertexPassArrays {
-  const double* slots;                    // State::tet_force
-  const int32_t* slot_offset;             // Model::adjacency_slot_offset
-  const int32_t* offsets;                 // Model::adjacency.offsets
+  const double* blocks;                   // State::assembly.blocks
+  const int32_t* late_offsets;            // State::assembly.late_offsets
   const Vec3d* u;                         // u_n
   const Vec3d* u_prev;                    // u_{n-1}
   const Vec3d* external_force;
@@ -90,12 +86,10 @@ ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
   const P4 half_inv_dt(0.5 / m.dt);
-  const VertexPassArrays a{&s.tet_force.data()->x, m.adjacency_slot_offset.data(),
-                           m.adjacency.offsets.data(), s.u.data(),
-                           s.u_prev.data(), s.external_force.data(),
+  const VertexPassArrays a{s.assembly.blocks.data(), s.assembly.late_offsets.data(),
+                           s.u.data(), s.u_prev.data(), s.external_force.data(),
                            s.vertex_constraint.data(), m.vertex_coefficients.data(),
-                           m.vertex_mass.data(), s.force.data(),
-                           s.u_next.data()};
+                           m.vertex_mass.data(), s.force.data(), s.u_next.data()};
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     VertexChunkResult r;
     const int64_t begin = chunk * kVertexChunk;
@@ -105,7 +99,7 @@ ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64
     P4 probe = zero4();
     for (int64_t vi = begin; vi < end; ++vi) {
       const size_t v = static_cast<size_t>(vi);
-      const P4 f = gather_force(a.slots, a.slot_offset, a.offsets[v], a.offsets[v + 1]);
+      const P4 f = gather_force(a.blocks, a.late_offsets, v);
       update_vertex(a, v, f, half_inv_dt, r, probe);
     }
     if (!(probe.v[0] == 0 && probe.v[1] == 0 && probe.v[2] == 0)) {

@@ -17,12 +17,13 @@ bool finite_nonneg(double x) { return std::isfinite(x) && x >= 0; }
 
 Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
   if (mesh.tet_count() == 0) return make_error("model: the mesh has no tetrahedra");
-  // Model::adjacency_slot_offset holds 3 (4 t + c) and cpu_tet_corner_offsets 3 v in an int32.
-  if (mesh.tet_count() > static_cast<size_t>(INT32_MAX / 12) ||
-      mesh.vertex_count() > static_cast<size_t>(INT32_MAX / 3))
+  // The CPU passes address doubles with int32 offsets: cpu_tet_corner_offsets 3 v, and
+  // AssemblyPlan::corner_code up to 4 (2 + vertices + 4 tetrahedra) (every corner late).
+  if (4.0 * (2.0 + static_cast<double>(mesh.vertex_count()) +
+             4.0 * static_cast<double>(mesh.tet_count())) > static_cast<double>(INT32_MAX))
     return make_error("model: %zu tetrahedra and %zu vertices, more than the CPU element pass's "
-                      "int32 offsets address (%d tetrahedra, %d vertices)", mesh.tet_count(),
-                      mesh.vertex_count(), INT32_MAX / 12, INT32_MAX / 3);
+                      "int32 offsets address (4 (2 + vertices + 4 tetrahedra) <= %d)",
+                      mesh.tet_count(), mesh.vertex_count(), INT32_MAX);
   if (!mesh.tet_region.empty() && mesh.tet_region.size() != mesh.tet_count())
     return make_error("model: tet_region has %zu entries for %zu tetrahedra",
                       mesh.tet_region.size(), mesh.tet_count());
@@ -91,9 +92,6 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.rest_positions = mesh.rest_positions;
   model.tets = mesh.tets;
   model.adjacency = build_vertex_tet_adjacency(mesh);
-  model.adjacency_slot_offset.resize(model.adjacency.tets.size());
-  for (size_t i = 0; i < model.adjacency.tets.size(); ++i)
-    model.adjacency_slot_offset[i] = 3 * (4 * model.adjacency.tets[i] + model.adjacency.corner[i]);
   model.constitutive = desc.constitutive;
   model.formulation = desc.formulation;
   model.inversion = desc.inversion;

@@ -112,11 +112,6 @@ struct Model {
   std::vector<Vec3d> rest_positions;  ///< rest positions [m], (vertex_count)
   std::vector<Tet> tets;              ///< vertex indices, (tet_count)
   VertexTetAdjacency adjacency;       ///< tetrahedra around each vertex, ascending
-  /// For each adjacency entry i, where its (tetrahedron, corner) slot 4 t + c of the tet-major
-  /// corner-force buffer State::tet_force starts, in doubles (3 (4 t + c)), (4 tet_count): the
-  /// vertex pass sums a vertex's corner forces through it (one indexed load per corner, no
-  /// multiply). Tet-major slots keep each thread's writes in its own cache lines.
-  std::vector<int32_t> adjacency_slot_offset;
 
   // Materials.
   std::vector<Material> materials;     ///< distinct materials, (material_count)

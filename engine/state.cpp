@@ -20,8 +20,6 @@ State make_state(const Model& model, int thread_count) {
   s.prescribed_displacement.reserve(nv);
   s.vertex_constraint.assign(nv, kVertexFree);
   for (int32_t v : model.fixed_vertices) s.vertex_constraint[v] = kVertexFixed;
-  // One slot more than the corners: the vertex pass loads 32 bytes from each 24-byte slot.
-  s.tet_force.assign(4 * nt + 1, zero);
   s.tet_chunks.resize(static_cast<size_t>((static_cast<int64_t>(nt) + kTetChunk - 1) / kTetChunk));
   s.vertex_chunks.resize(
       static_cast<size_t>((static_cast<int64_t>(nv) + kVertexChunk - 1) / kVertexChunk));
@@ -32,7 +30,84 @@ State make_state(const Model& model, int thread_count) {
     thread_count = std::clamp(static_cast<int>(nt / 2048), 1, hardware);
   }
   s.pool = std::make_unique<ThreadPool>(thread_count);
+  make_assembly_plan(model, s, assembly_segment_count(model, thread_count));
   return s;
+}
+
+int64_t assembly_segment_count(const Model& model, int thread_count) {
+  const int64_t nt = static_cast<int64_t>(model.tet_count());
+  const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
+  const int64_t threads = std::max(1, thread_count);
+  // Segments of at least ~250k tetrahedra beyond one per thread: a vertex's tetrahedra span
+  // about one lattice layer of the generator's numbering (~5 % of a 1M-vertex mesh), so
+  // shorter segments would make most corners late.
+  const int64_t per_thread = std::clamp<int64_t>(nt / (threads * 262144), 1, 4);
+  return std::clamp<int64_t>(threads * per_thread, 1, std::max<int64_t>(1, chunks));
+}
+
+void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
+                        bool all_late) {
+  const int64_t nt = static_cast<int64_t>(model.tet_count());
+  const int64_t nv = static_cast<int64_t>(model.vertex_count());
+  const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
+  AssemblyPlan& plan = state.assembly;
+  plan.segment_count = std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks));
+  plan.all_late = all_late;
+  // Segments of (nearly) equal chunk counts.
+  plan.segment_chunk.resize(static_cast<size_t>(plan.segment_count + 1));
+  for (int64_t k = 0; k <= plan.segment_count; ++k)
+    plan.segment_chunk[static_cast<size_t>(k)] = chunks * k / plan.segment_count;
+  const auto segment_of = [&](int64_t t) {
+    // The last segment whose first chunk is <= t's chunk.
+    const int64_t chunk = t / kTetChunk;
+    return static_cast<int64_t>(
+        std::upper_bound(plan.segment_chunk.begin(), plan.segment_chunk.end() - 1, chunk) -
+        plan.segment_chunk.begin() - 1);
+  };
+  // Late corners, vertex by vertex in adjacency (ascending tetrahedron) order.
+  const VertexTetAdjacency& adj = model.adjacency;
+  plan.late_offsets.assign(static_cast<size_t>(nv + 1), 0);
+  std::vector<int32_t> block(static_cast<size_t>(4 * nt), 0);
+  std::vector<uint8_t> kind(static_cast<size_t>(4 * nt), 0);
+  int64_t late = 0;
+  const int64_t late_base = kAssemblyVertexBlock0 + nv;
+  for (int64_t v = 0; v < nv; ++v) {
+    plan.late_offsets[static_cast<size_t>(v)] = static_cast<int32_t>(late_base + late);
+    const int32_t begin = adj.offsets[static_cast<size_t>(v)];
+    const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
+    if (begin == end) continue;
+    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
+    for (int32_t i = begin; i < end; ++i) {
+      const int64_t t = adj.tets[static_cast<size_t>(i)];
+      const size_t k = static_cast<size_t>(4 * t + adj.corner[static_cast<size_t>(i)]);
+      if (all_late || segment_of(t) != owner) {
+        block[k] = static_cast<int32_t>(late_base + late++);
+        kind[k] = kAssemblyLate;
+      } else {
+        block[k] = static_cast<int32_t>(kAssemblyVertexBlock0 + v);
+        kind[k] = i == begin ? kAssemblyFirst : 0;
+      }
+    }
+  }
+  plan.late_offsets[static_cast<size_t>(nv)] = static_cast<int32_t>(late_base + late);
+  plan.late_count = late;
+  ZONA_ASSERT(4 * (late_base + late) < (int64_t{1} << 31));
+  // Codes in the batch layout; lanes past the end repeat the last tetrahedron's offsets but are
+  // never stored (batch_pass drops them).
+  const int64_t batches = (nt + 7) / 8;
+  plan.corner_code.assign(static_cast<size_t>(batches * 32), 0);
+  for (int64_t t = 0; t < nt; ++t)
+    for (int c = 0; c < 4; ++c) {
+      const size_t k = static_cast<size_t>(4 * t + c);
+      plan.corner_code[static_cast<size_t>((t / 8) * 32 + 8 * c + t % 8)] =
+          4 * block[k] + kind[k];
+    }
+  if (all_late)
+    plan.corner_block = std::move(block);
+  else
+    plan.corner_block.clear();
+  plan.blocks.assign(static_cast<size_t>(4 * (late_base + late)), 0.0);
+  for (int i = 4; i < 8; ++i) plan.blocks[static_cast<size_t>(i)] = -0.0;
 }
 
 Status set_prescribed_vertices(const Model& model, State& state,

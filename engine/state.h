@@ -7,6 +7,7 @@
 #include <span>
 #include <vector>
 
+#include "engine/aligned_vector.h"
 #include "engine/base.h"
 #include "engine/model.h"
 #include "engine/thread_pool.h"
@@ -37,6 +38,45 @@ struct alignas(64) TetChunkResult {
   int64_t first_inverted = -1;    ///< smallest inverted tetrahedron index, -1 if none
   int64_t first_collapsing = -1;  ///< smallest collapsing tetrahedron index, -1 if none
 };
+
+/// How the element pass sums corner forces into vertex forces without shared writes and in a
+/// fixed order (engine/forces_cpu.h). The tetrahedra are cut into `segment_count` contiguous
+/// segments of whole chunks; one thread runs a segment, in tetrahedron order. A vertex is owned
+/// by the segment of its first tetrahedron: there its corner forces are added into its own
+/// block (`blocks`, four doubles per vertex) as they are computed, in ascending tetrahedron
+/// order; its corners in later segments ("late" corners) are written to slots of their own, and
+/// the vertex pass adds them to the block in ascending order. Every vertex force is therefore
+/// the sum ((0 + f_1) + f_2) + ... over its tetrahedra in ascending order, whatever the
+/// segments: the bits do not depend on the segment or thread count. The blocks of owned vertices
+/// stay in cache between their corners (the generator numbers tetrahedra along a lattice), so
+/// large meshes no longer write and re-read 96 bytes of corner forces per tetrahedron.
+struct AssemblyPlan {
+  int64_t segment_count = 0;
+  std::vector<int64_t> segment_chunk;  ///< first tetrahedron chunk of each segment, (segments + 1)
+  /// Where each corner's force goes, in the layout of Model::cpu_tet_corner_offsets (per batch
+  /// of eight tetrahedra: corner c of lane l at 8 c + l): a double offset into `blocks` (a
+  /// multiple of 4) plus 0 (add to the block's sum), kAssemblyFirst (the vertex's first corner:
+  /// the block becomes +0 + f) or kAssemblyLate (a late slot: it becomes f, exactly).
+  CacheAlignedVector<int32_t> corner_code;
+  /// Block 0: +0.0 and block 1: -0.0 (read only); blocks 2 .. vertex_count + 1: the vertex sums
+  /// (vertex v at block v + 2); then one block per late corner, those of vertex v at
+  /// late_offsets[v] .. late_offsets[v + 1] (block indices), in ascending tetrahedron order.
+  /// Four doubles per block (x, y, z, 0).
+  CacheAlignedVector<double> blocks;
+  std::vector<int32_t> late_offsets;  ///< (vertex_count + 1), block indices
+  int64_t late_count = 0;             ///< late corners
+  /// Every corner is late (each has a slot of its own, in corner_slot order), so that
+  /// State::assembly can be read per corner (corner_force, for tests); same bits.
+  bool all_late = false;
+  /// all_late only: the block of corner 4 t + c, (4 tet_count).
+  std::vector<int32_t> corner_block;
+};
+
+/// Kinds in AssemblyPlan::corner_code's low bits.
+inline constexpr int32_t kAssemblyFirst = 1;  ///< the block starts from +0.0 (block 0)
+inline constexpr int32_t kAssemblyLate = 2;   ///< the slot starts from -0.0 (block 1): f exactly
+/// Block of vertex v's sum in AssemblyPlan::blocks.
+inline constexpr int64_t kAssemblyVertexBlock0 = 2;
 
 /// Partial results of one chunk of vertices (scratch).
 struct alignas(64) VertexChunkResult {
@@ -93,9 +133,9 @@ struct State {
 
   // Scratch, sized once by make_state.
   std::vector<Vec3d> u_next;     ///< u_{n+1} before it is accepted [m], (vertex_count)
-  /// Per-element corner forces [N], (4 tet_count + 1): corner c of tetrahedron t at 4 t + c;
-  /// the last slot is padding (zero) so that a 32-byte load from any corner slot stays inside.
-  std::vector<Vec3d> tet_force;
+  /// The element pass's assembly plan and its force blocks (make_assembly_plan; docs/physics.md
+  /// "Assembly").
+  AssemblyPlan assembly;
   std::vector<TetChunkResult> tet_chunks;        ///< (ceil(tet_count / kTetChunk))
   std::vector<VertexChunkResult> vertex_chunks;  ///< (ceil(vertex_count / kVertexChunk))
   std::unique_ptr<ThreadPool> pool;              ///< the CPU backend's threads
@@ -105,6 +145,17 @@ struct State {
 /// `thread_count` threads (0: automatic, one per ~2000 tetrahedra up to the hardware's count).
 /// Results do not depend on it, bit for bit.
 State make_state(const Model& model, int thread_count = 0);
+
+/// Segments make_state's plan uses for `thread_count` threads: one per thread, up to four per
+/// thread on large meshes (so that a descheduled thread's work can be taken over), never fewer
+/// than one chunk each.
+int64_t assembly_segment_count(const Model& model, int thread_count);
+
+/// Builds state.assembly for `segment_count` segments (clamped to [1, chunks]); `all_late` gives
+/// every corner a slot of its own (corner_force). Allocates; the forces' bits are the same for
+/// any plan.
+void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
+                        bool all_late = false);
 
 /// Sets the prescribed vertices (replacing the previous set); their targets start at their
 /// current displacement. Errors: index out of range, fixed vertex, repeated vertex. Does not

@@ -47,7 +47,7 @@ void BM_ElementPass(benchmark::State& s) {
   Loaded l = make_loaded(c.vertices, c.law, c.form, c.threads);
   for (auto _ : s) {
     compute_tet_forces(*l.model, *l.state);
-    benchmark::DoNotOptimize(l.state->tet_force.data());
+    benchmark::DoNotOptimize(l.state->assembly.blocks.data());
     benchmark::ClobberMemory();
   }
   set_counters(s, l, c);

@@ -120,6 +120,72 @@ TEST(ForcesCpu, ForcesAreBitwiseIdenticalForAnyThreadCount) {
   EXPECT_EQ(std::memcmp(&e1, &e3, sizeof e1), 0);
 }
 
+// The assembly plan decides which corners are added into a vertex's block and which go to slots
+// of their own; whatever it decides, every vertex force is the sum of its element forces in
+// ascending tetrahedron order: with the plain (unfused) element pass, the bits of summing the
+// scalar element functions' forces, for any segment and thread count and in all-late mode.
+TEST(ForcesCpu, ForcesAreBitwiseTheOrderedSumForAnySegmentCount) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 8, 8, 6);  // 2304 tets: 18 chunks
+  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.25);
+  const int64_t chunks = static_cast<int64_t>((model.tet_count() + kTetChunk - 1) / kTetChunk);
+  std::vector<Vec3d> ref(u.size(), Vec3d{0, 0, 0});
+  for (size_t t = 0; t < model.tet_count(); ++t) {
+    const Tet& e = model.tets[t];
+    const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+    Vec3d fe[4];
+    tet_svk_forces(model.tet_shape[t], model.tet_lame(t).lambda, model.tet_lame(t).mu, ue, fe);
+    for (int c = 0; c < 4; ++c) ref[e[c]] += fe[c];
+  }
+  const bool fused = cpu_element_fma();
+  set_cpu_element_fma(false);
+  std::vector<Vec3d> first;
+  for (int threads : {1, 2, 3})
+    for (int64_t segments : {int64_t{1}, int64_t{2}, int64_t{3}, int64_t{5}, chunks, int64_t{0}}) {
+      SCOPED_TRACE(::testing::Message() << threads << " threads, " << segments << " segments");
+      State s = make_state(model, threads);
+      make_assembly_plan(model, s, segments == 0 ? 1 : segments, /*all_late=*/segments == 0);
+      if (segments == 1) {
+        EXPECT_EQ(s.assembly.late_count, 0);
+      } else if (segments == 0) {
+        EXPECT_EQ(s.assembly.late_count, static_cast<int64_t>(4 * model.tet_count()));
+      } else if (segments < chunks) {
+        EXPECT_GT(s.assembly.late_count, 0);
+      }
+      std::copy(u.begin(), u.end(), s.u.begin());
+      compute_elastic_forces(model, s);
+      EXPECT_EQ(std::memcmp(s.force.data(), ref.data(), ref.size() * sizeof(Vec3d)), 0);
+      // The fused pass: the same bits for every plan too.
+      set_cpu_element_fma(fused);
+      compute_elastic_forces(model, s);
+      if (first.empty()) first = s.force;
+      EXPECT_EQ(std::memcmp(s.force.data(), first.data(), first.size() * sizeof(Vec3d)), 0);
+      set_cpu_element_fma(false);
+    }
+  set_cpu_element_fma(fused);
+}
+
+// Steps (element pass, then the vertex pass that adds the late slots) give the same state for
+// any plan.
+TEST(ForcesCpu, StepsAreBitwiseIdenticalForAnySegmentCount) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 8, 8, 6);
+  ModelDesc d;
+  d.fixed_vertices = vertices_where(mesh, 2, 0.0, 1e-12);
+  const Model model = build_model(mesh, d).value();
+  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.02);
+  std::vector<Vec3d> first;
+  for (int64_t segments : {int64_t{1}, int64_t{4}, int64_t{18}, int64_t{0}}) {
+    SCOPED_TRACE(::testing::Message() << segments << " segments");
+    State s = make_state(model, 2);
+    make_assembly_plan(model, s, segments == 0 ? 1 : segments, segments == 0);
+    set_displacement(s, u);
+    for (int i = 0; i < 50; ++i) ASSERT_EQ(step(model, s), kStepOk);
+    if (first.empty()) first = s.u;
+    EXPECT_EQ(std::memcmp(s.u.data(), first.data(), first.size() * sizeof(Vec3d)), 0);
+  }
+  EXPECT_GT(max_norm(first), 0);
+}
+
 // Patch test: an affine displacement u = A x + b gives a uniform strain, so every interior
 // vertex is in equilibrium and every element carries the same stress.
 TEST(ForcesCpu, PatchTestAffineDisplacement) {
