@@ -188,15 +188,9 @@ template <bool kSvk, class P>
   }
 }
 
-// Adds corner force `f` (x, y, z, 0) to its block as AssemblyPlan::corner_code `code` says: the
-// block's sum so far plus f; +0 plus f for a vertex's first corner (block 0 holds +0.0, as the
-// ordered sum starts); -0 plus f, which is f exactly, for a late slot (block 1 holds -0.0).
-// A conditional move, no branch.
+// Adds corner force `f` (x, y, z, 0) into its block (AssemblyPlan::corner_code `code`).
 [[gnu::always_inline]] inline void scatter_corner(double* blocks, int32_t code, P4 f) {
-  const int32_t dst = code & ~3;
-  const int32_t kind = code & 3;
-  const int32_t src = kind != 0 ? 4 * kind - 4 : dst;
-  store4(load4(blocks + src) + f, blocks + dst);
+  store4(load4(blocks + code) + f, blocks + code);
 }
 
 // Scatters the corner forces of four consecutive tetrahedra (lanes) to their blocks, lane by lane
@@ -569,13 +563,20 @@ ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   return &tet_pass_chunks_f64<true>;
 }
 
+// Vertex forces from the blocks, which it puts back at their start values.
 void gather_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
   const int64_t end = std::min(nv, chunk_end * kVertexChunk);
-  for (int64_t v = chunk_begin * kVertexChunk; v < end; ++v)
-    s.force[static_cast<size_t>(v)] = gather_vertex_force(s, static_cast<size_t>(v));
+  double* b = s.assembly.blocks.data();
+  const int32_t* late = s.assembly.late_offsets.data();
+  for (int64_t vi = chunk_begin * kVertexChunk; vi < end; ++vi) {
+    const size_t v = static_cast<size_t>(vi);
+    s.force[v] = gather_vertex_force(s, v);
+    std::fill(b + 4 * v, b + 4 * v + 4, 0.0);
+    std::fill(b + 4 * static_cast<size_t>(late[v]), b + 4 * static_cast<size_t>(late[v + 1]), -0.0);
+  }
 }
 
 // The element pass over segments [segment_begin, segment_end) of State::assembly: each segment's
@@ -656,8 +657,10 @@ void set_cpu_simd_bits(int bits) {
 }
 
 void compute_tet_forces(const Model& model, State& state) {
+  if (state.assembly.dirty) reset_assembly_blocks(state);
   SegmentContext context{{&model, &state}, select_tet_pass(model)};
   state.pool->run(state.assembly.segment_count, &run_segments, &context);
+  state.assembly.dirty = true;
 }
 
 Vec3d corner_force(const State& state, size_t t, int c) {
@@ -689,6 +692,7 @@ void compute_elastic_forces(const Model& model, State& state) {
   compute_tet_forces(model, state);
   PassContext context{&model, &state};
   state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &gather_chunks, &context);
+  state.assembly.dirty = false;
   reduce_tet_chunks(state, state.diag);
 }
 

@@ -57,11 +57,10 @@ Vec3d corner_force(const State& state, size_t t, int c);
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
 /// Elastic force on vertex v [N] after compute_tet_forces: its block (the sum of its corners in
-/// its owning segment) plus its late slots, in ascending tetrahedron order.
+/// its owning segment) plus its late slots, in ascending tetrahedron order. Reads only.
 inline Vec3d gather_vertex_force(const State& state, size_t v) {
   const double* b = state.assembly.blocks.data();
-  const double* own = b + 4 * (v + kAssemblyVertexBlock0);
-  Vec3d f{own[0], own[1], own[2]};
+  Vec3d f{b[4 * v], b[4 * v + 1], b[4 * v + 2]};
   for (int32_t k = state.assembly.late_offsets[v]; k < state.assembly.late_offsets[v + 1]; ++k)
     f += Vec3d{b[4 * k], b[4 * k + 1], b[4 * k + 2]};
   return f;

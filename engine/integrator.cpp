@@ -25,11 +25,16 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
 }
 
 // The elastic force of vertex v, as gather_vertex_force sums it (the same bits): its block, then
-// its late slots in order (AssemblyPlan), with x, y, z in the lanes of one pack. Lane 3 is 0.
-[[gnu::always_inline]] inline P4 gather_force(const double* blocks, const int32_t* late_offsets,
+// its late slots in order (AssemblyPlan), with x, y, z in the lanes of one pack (lane 3 is 0).
+// Puts the blocks back at their start values (+0.0, late slots -0.0) for the next element pass.
+[[gnu::always_inline]] inline P4 gather_force(double* blocks, const int32_t* late_offsets,
                                               size_t v) {
-  P4 f = load4(blocks + 4 * (v + kAssemblyVertexBlock0));
-  for (int32_t k = late_offsets[v]; k < late_offsets[v + 1]; ++k) f += load4(blocks + 4 * k);
+  P4 f = load4(blocks + 4 * v);
+  store4(zero4(), blocks + 4 * v);
+  for (int32_t k = late_offsets[v]; k < late_offsets[v + 1]; ++k) {
+    f += load4(blocks + 4 * k);
+    store4(P4(-0.0), blocks + 4 * k);
+  }
   return f;
 }
 
@@ -37,7 +42,7 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
 // (store_xyz), which may alias anything, so pointers read from the Model and State on every
 // vertex would be reloaded on every vertex.
 struct VertexPassArrays {
-  const double* blocks;                   // State::assembly.blocks
+  double* blocks;                         // State::assembly.blocks (read, then reset)
   const int32_t* late_offsets;            // State::assembly.late_offsets
   const Vec3d* u;                         // u_n
   const Vec3d* u_prev;                    // u_{n-1}
@@ -117,6 +122,7 @@ ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64
 void integrate_vertices(const Model& model, State& state) {
   PassContext context{&model, &state};
   state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &integrate_chunks, &context);
+  state.assembly.dirty = false;
 }
 
 // Stage 3: prescribed vertices take their targets; the constraint force that moves each one is

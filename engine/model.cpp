@@ -18,11 +18,11 @@ bool finite_nonneg(double x) { return std::isfinite(x) && x >= 0; }
 Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
   if (mesh.tet_count() == 0) return make_error("model: the mesh has no tetrahedra");
   // The CPU passes address doubles with int32 offsets: cpu_tet_corner_offsets 3 v, and
-  // AssemblyPlan::corner_code up to 4 (2 + vertices + 4 tetrahedra) (every corner late).
-  if (4.0 * (2.0 + static_cast<double>(mesh.vertex_count()) +
+  // AssemblyPlan::corner_code up to 4 (vertices + 4 tetrahedra) (every corner late).
+  if (4.0 * (static_cast<double>(mesh.vertex_count()) +
              4.0 * static_cast<double>(mesh.tet_count())) > static_cast<double>(INT32_MAX))
     return make_error("model: %zu tetrahedra and %zu vertices, more than the CPU element pass's "
-                      "int32 offsets address (4 (2 + vertices + 4 tetrahedra) <= %d)",
+                      "int32 offsets address (4 (vertices + 4 tetrahedra) <= %d)",
                       mesh.tet_count(), mesh.vertex_count(), INT32_MAX);
   if (!mesh.tet_region.empty() && mesh.tet_region.size() != mesh.tet_count())
     return make_error("model: tet_region has %zu entries for %zu tetrahedra",

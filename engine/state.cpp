@@ -68,9 +68,8 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   const VertexTetAdjacency& adj = model.adjacency;
   plan.late_offsets.assign(static_cast<size_t>(nv + 1), 0);
   std::vector<int32_t> block(static_cast<size_t>(4 * nt), 0);
-  std::vector<uint8_t> kind(static_cast<size_t>(4 * nt), 0);
   int64_t late = 0;
-  const int64_t late_base = kAssemblyVertexBlock0 + nv;
+  const int64_t late_base = nv;
   for (int64_t v = 0; v < nv; ++v) {
     plan.late_offsets[static_cast<size_t>(v)] = static_cast<int32_t>(late_base + late);
     const int32_t begin = adj.offsets[static_cast<size_t>(v)];
@@ -82,16 +81,14 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
       const size_t k = static_cast<size_t>(4 * t + adj.corner[static_cast<size_t>(i)]);
       if (all_late || segment_of(t) != owner) {
         block[k] = static_cast<int32_t>(late_base + late++);
-        kind[k] = kAssemblyLate;
       } else {
-        block[k] = static_cast<int32_t>(kAssemblyVertexBlock0 + v);
-        kind[k] = i == begin ? kAssemblyFirst : 0;
+        block[k] = static_cast<int32_t>(v);
       }
     }
   }
   plan.late_offsets[static_cast<size_t>(nv)] = static_cast<int32_t>(late_base + late);
   plan.late_count = late;
-  ZONA_ASSERT(4 * (late_base + late) < (int64_t{1} << 31));
+  ZONA_ASSERT(4 * (late_base + late) <= INT32_MAX);
   // Codes in the batch layout; lanes past the end repeat the last tetrahedron's offsets but are
   // never stored (batch_pass drops them).
   const int64_t batches = (nt + 7) / 8;
@@ -100,14 +97,24 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     for (int c = 0; c < 4; ++c) {
       const size_t k = static_cast<size_t>(4 * t + c);
       plan.corner_code[static_cast<size_t>((t / 8) * 32 + 8 * c + t % 8)] =
-          4 * block[k] + kind[k];
+          4 * block[k];
     }
   if (all_late)
     plan.corner_block = std::move(block);
   else
     plan.corner_block.clear();
-  plan.blocks.assign(static_cast<size_t>(4 * (late_base + late)), 0.0);
-  for (int i = 4; i < 8; ++i) plan.blocks[static_cast<size_t>(i)] = -0.0;
+  plan.blocks.resize(static_cast<size_t>(4 * (late_base + late)));
+  reset_assembly_blocks(state);
+}
+
+void reset_assembly_blocks(State& state) {
+  AssemblyPlan& plan = state.assembly;
+  const size_t vertex_doubles = 4 * (plan.late_offsets.size() - 1);
+  std::fill(plan.blocks.begin(), plan.blocks.begin() + static_cast<ptrdiff_t>(vertex_doubles),
+            0.0);
+  std::fill(plan.blocks.begin() + static_cast<ptrdiff_t>(vertex_doubles), plan.blocks.end(),
+            -0.0);
+  plan.dirty = false;
 }
 
 Status set_prescribed_vertices(const Model& model, State& state,

@@ -44,39 +44,39 @@ struct alignas(64) TetChunkResult {
 /// segments of whole chunks; one thread runs a segment, in tetrahedron order. A vertex is owned
 /// by the segment of its first tetrahedron: there its corner forces are added into its own
 /// block (`blocks`, four doubles per vertex) as they are computed, in ascending tetrahedron
-/// order; its corners in later segments ("late" corners) are written to slots of their own, and
-/// the vertex pass adds them to the block in ascending order. Every vertex force is therefore
-/// the sum ((0 + f_1) + f_2) + ... over its tetrahedra in ascending order, whatever the
+/// order; its corners in later segments ("late" corners) are added into slots of their own, and
+/// the vertex pass adds those to the block in ascending order. Every vertex force is therefore
+/// the sum ((+0 + f_1) + f_2) + ... over its tetrahedra in ascending order, whatever the
 /// segments: the bits do not depend on the segment or thread count. The blocks of owned vertices
 /// stay in cache between their corners (the generator numbers tetrahedra along a lattice), so
 /// large meshes no longer write and re-read 96 bytes of corner forces per tetrahedron.
+///
+/// Every corner is one add into its destination (no per-corner case): vertex blocks start each
+/// element pass at +0.0, which is how the ordered sum starts, and late slots at -0.0, to which
+/// adding f gives f exactly. Whoever consumes the sums (the vertex pass of step(),
+/// compute_elastic_forces) puts those values back as it reads them; compute_tet_forces resets
+/// every block first when `dirty` says the last pass's sums were not consumed.
 struct AssemblyPlan {
   int64_t segment_count = 0;
   std::vector<int64_t> segment_chunk;  ///< first tetrahedron chunk of each segment, (segments + 1)
-  /// Where each corner's force goes, in the layout of Model::cpu_tet_corner_offsets (per batch
-  /// of eight tetrahedra: corner c of lane l at 8 c + l): a double offset into `blocks` (a
-  /// multiple of 4) plus 0 (add to the block's sum), kAssemblyFirst (the vertex's first corner:
-  /// the block becomes +0 + f) or kAssemblyLate (a late slot: it becomes f, exactly).
+  /// Where each corner's force is added, in the layout of Model::cpu_tet_corner_offsets (per
+  /// batch of eight tetrahedra: corner c of lane l at 8 c + l): 4 x its block index, a double
+  /// offset into `blocks`.
   CacheAlignedVector<int32_t> corner_code;
-  /// Block 0: +0.0 and block 1: -0.0 (read only); blocks 2 .. vertex_count + 1: the vertex sums
-  /// (vertex v at block v + 2); then one block per late corner, those of vertex v at
-  /// late_offsets[v] .. late_offsets[v + 1] (block indices), in ascending tetrahedron order.
-  /// Four doubles per block (x, y, z, 0).
+  /// Blocks 0 .. vertex_count - 1: the vertex sums; then one block per late corner, those of
+  /// vertex v at late_offsets[v] .. late_offsets[v + 1] (block indices), in ascending
+  /// tetrahedron order. Four doubles per block (x, y, z, 0).
   CacheAlignedVector<double> blocks;
   std::vector<int32_t> late_offsets;  ///< (vertex_count + 1), block indices
   int64_t late_count = 0;             ///< late corners
-  /// Every corner is late (each has a slot of its own, in corner_slot order), so that
-  /// State::assembly can be read per corner (corner_force, for tests); same bits.
+  /// The blocks hold an element pass's sums that nobody has consumed (and reset) yet.
+  bool dirty = false;
+  /// Every corner is late (each has a slot of its own), so that the corner forces can be read
+  /// one by one (corner_force, for tests); same bits.
   bool all_late = false;
   /// all_late only: the block of corner 4 t + c, (4 tet_count).
   std::vector<int32_t> corner_block;
 };
-
-/// Kinds in AssemblyPlan::corner_code's low bits.
-inline constexpr int32_t kAssemblyFirst = 1;  ///< the block starts from +0.0 (block 0)
-inline constexpr int32_t kAssemblyLate = 2;   ///< the slot starts from -0.0 (block 1): f exactly
-/// Block of vertex v's sum in AssemblyPlan::blocks.
-inline constexpr int64_t kAssemblyVertexBlock0 = 2;
 
 /// Partial results of one chunk of vertices (scratch).
 struct alignas(64) VertexChunkResult {
@@ -156,6 +156,10 @@ int64_t assembly_segment_count(const Model& model, int thread_count);
 /// any plan.
 void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
                         bool all_late = false);
+
+/// Puts every block of state.assembly at its start value (+0.0 for vertex sums, -0.0 for late
+/// slots) and clears `dirty`.
+void reset_assembly_blocks(State& state);
 
 /// Sets the prescribed vertices (replacing the previous set); their targets start at their
 /// current displacement. Errors: index out of range, fixed vertex, repeated vertex. Does not
