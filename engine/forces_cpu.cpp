@@ -283,11 +283,12 @@ struct Lanes4d {
                                           TetShape<P4>& shape, P4& lambda, P4& mu,
                                           Vec3<P4> du[3]) {
     const double* b = batch_shape(m, t0);
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(b + 8 * (3 * j + i));
-    shape.volume = load4(b + 8 * 12);
-    lambda = load4(b + 8 * 13);
-    mu = load4(b + 8 * 14);
+    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
+    for (int j = 1; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(b + 8 * (3 * (j - 1) + i));
+    shape.volume = load4(b + 8 * 9);
+    lambda = load4(b + 8 * 10);
+    mu = load4(b + 8 * 11);
     load_edges4(u, batch_offsets(m, t0), du);
   }
   [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* blocks,
@@ -314,11 +315,12 @@ struct Lanes8f {
                                           TetShape<P8f>& shape, P8f& lambda, P8f& mu,
                                           Vec3<P8f> du[3]) {
     const float* b = m.cpu_tet_batches_f32.data() + (t0 / 8) * kCpuTetBatchStrideF32;
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(b + 8 * (3 * j + i));
-    shape.volume = load8f(b + 8 * 12);
-    lambda = load8f(b + 8 * 13);
-    mu = load8f(b + 8 * 14);
+    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
+    for (int j = 1; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(b + 8 * (3 * (j - 1) + i));
+    shape.volume = load8f(b + 8 * 9);
+    lambda = load8f(b + 8 * 10);
+    mu = load8f(b + 8 * 11);
     const int32_t* o = batch_offsets(m, t0);
     Vec3<P4> lo[3], hi[3];
     load_edges4(u, o, lo);
@@ -442,11 +444,12 @@ struct Lanes8d {
                                           TetShape<P8d>& shape, P8d& lambda, P8d& mu,
                                           Vec3<P8d> du[3]) {
     const double* b = batch_shape(m, t0);
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8d(b + 8 * (3 * j + i));
-    shape.volume = load8d(b + 8 * 12);
-    lambda = load8d(b + 8 * 13);
-    mu = load8d(b + 8 * 14);
+    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
+    for (int j = 1; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8d(b + 8 * (3 * (j - 1) + i));
+    shape.volume = load8d(b + 8 * 9);
+    lambda = load8d(b + 8 * 10);
+    mu = load8d(b + 8 * 11);
     const int32_t* o = batch_offsets(m, t0);
     Vec3<P4> lo[3], hi[3];
     load_edges4(u, o, lo);

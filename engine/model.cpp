@@ -233,8 +233,9 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
 
   model.energy_floor = min_mu * total_volume * 1e-16;
 
-  // Lane-major batches of eight for the CPU's vectorised element passes: shape gradients,
-  // volume and Lame coefficients, in float64 and (for the float32 pass) rounded to float; the
+  // Lane-major batches of eight for the CPU's vectorised element passes: shape gradients of
+  // corners 1-3 (the passes form H from edges and f_0 = -(f_1 + f_2 + f_3): grad[0] is never
+  // read), volume and Lame coefficients, in float64 and (for the float32 pass) rounded to float; the
   // last batch repeats the last tetrahedron.
   const size_t batches = (nt + 7) / 8;
   auto fill_batches = [&](auto* data, size_t stride) {
@@ -244,11 +245,12 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
         const size_t t = std::min(8 * b + l, nt - 1);
         T* out = data + b * stride + l;
         const TetShape<double>& shape = model.tet_shape[t];
-        for (int j = 0; j < 4; ++j)
-          for (int i = 0; i < 3; ++i) out[8 * (3 * j + i)] = static_cast<T>(shape.grad[j][i]);
-        out[8 * 12] = static_cast<T>(shape.volume);
-        out[8 * 13] = static_cast<T>(model.tet_lame(t).lambda);
-        out[8 * 14] = static_cast<T>(model.tet_lame(t).mu);
+        for (int j = 1; j < 4; ++j)
+          for (int i = 0; i < 3; ++i)
+            out[8 * (3 * (j - 1) + i)] = static_cast<T>(shape.grad[j][i]);
+        out[8 * 9] = static_cast<T>(shape.volume);
+        out[8 * 10] = static_cast<T>(model.tet_lame(t).lambda);
+        out[8 * 11] = static_cast<T>(model.tet_lame(t).mu);
       }
   };
   model.cpu_tet_batches.assign(batches * kCpuTetBatchStride, 0.0);

@@ -91,9 +91,9 @@ struct ModelDesc {
 };
 
 /// Doubles per batch of eight tetrahedra in Model::cpu_tet_batches.
-inline constexpr int kCpuTetBatchStride = 120;
+inline constexpr int kCpuTetBatchStride = 96;
 /// Floats per batch of eight tetrahedra in Model::cpu_tet_batches_f32.
-inline constexpr int kCpuTetBatchStrideF32 = 120;
+inline constexpr int kCpuTetBatchStrideF32 = 96;
 /// Offsets per batch of eight tetrahedra in Model::cpu_tet_corner_offsets.
 inline constexpr int kCpuTetOffsetStride = 32;
 
@@ -126,9 +126,11 @@ struct Model {
   std::vector<TetShape<double>> tet_shape;  ///< shape gradients [1/m] and volume [m^3], (tet_count)
   MassTensors tensors;  ///< stored tensors, filled only for Formulation::kTensorStored
   /// The CPU backend's copy of the gradient-form data in batches of eight tetrahedra, lane-major
-  /// so that one load fills eight lanes (AVX-512) or four (half a batch): per batch 15 x 8
-  /// doubles (grad[0..3] x/y/z, volume, lambda, mu; lane l = tetrahedron 8 b + l, the last one
-  /// repeated past the end), (ceil(tet_count / 8) x 120). Same numbers as tet_shape and tet_lame.
+  /// so that one load fills eight lanes (AVX-512) or four (half a batch): per batch 12 x 8
+  /// doubles (grad[1..3] x/y/z, volume, lambda, mu; lane l = tetrahedron 8 b + l, the last one
+  /// repeated past the end), (ceil(tet_count / 8) x 96). Same numbers as tet_shape and tet_lame;
+  /// grad[0] = -(grad[1] + grad[2] + grad[3]) is left out: the element functions never read it
+  /// (H from edge differences, f_0 = -(f_1 + f_2 + f_3)).
   CacheAlignedVector<double> cpu_tet_batches;
   /// Where each corner's displacement starts in State::u, in doubles (3 x vertex index), in the
   /// same batches: per batch 4 corners x 8 lanes, (ceil(tet_count / 8) x 32). The element pass
@@ -137,7 +139,7 @@ struct Model {
   /// CPU element math precision (ModelDesc::element_precision).
   ElementPrecision element_precision = ElementPrecision::kFloat64;
   /// kFloat32 only: the same numbers rounded to float in batches of eight (lane l = tetrahedron
-  /// 8 b + l, the last one repeated past the end), (ceil(tet_count / 8) x 120); empty otherwise.
+  /// 8 b + l, the last one repeated past the end), (ceil(tet_count / 8) x 96); empty otherwise.
   CacheAlignedVector<float> cpu_tet_batches_f32;
 
   // Masses and boundary conditions.

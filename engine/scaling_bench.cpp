@@ -309,13 +309,15 @@ double step_bytes(BackendKind backend, ConstitutiveModel model, Formulation form
     }
     return per_tet * nt + per_vertex * nv;
   }
-  // CPU, element pass (engine/forces_cpu.cpp): vertex indices (16) and corner slots (16) read,
-  // four corner forces written (96), displacements gathered (24 per vertex).
-  per_tet = 16 + 16 + 96;
-  per_vertex = 24;
+  // CPU, element pass (engine/forces_cpu.cpp): corner displacement offsets (16) and assembly
+  // codes (16) read, displacements gathered (24 per vertex), each vertex's force block (32)
+  // accumulated in cache and written back once (AssemblyPlan; the late slots, a few per cent of
+  // the corners, are not counted).
+  per_tet = 16 + 16;
+  per_vertex = 24 + 32;
   switch (formulation) {
-    case Formulation::kGradient:  // Model::cpu_tet_batches: 15 doubles per tetrahedron
-      per_tet += 15 * 8;
+    case Formulation::kGradient:  // Model::cpu_tet_batches: 12 doubles per tetrahedron
+      per_tet += 12 * 8;
       break;
     case Formulation::kTensorRebuilt:  // TetShape (13 doubles) and the material index
       per_tet += 13 * 8 + 4;
@@ -324,11 +326,10 @@ double step_bytes(BackendKind backend, ConstitutiveModel model, Formulation form
       per_tet += 8.0 * (svk ? kSvkTensorSize : kTensorBSize) + 13 * 8;
       break;
   }
-  // Vertex pass (engine/integrator.cpp): corner forces read (96 per tet); offsets, u, u_prev,
+  // Vertex pass (engine/integrator.cpp): force block (32) and late offsets (4), u, u_prev,
   // external force, update coefficients, constraint kind and mass read; force and u_next
   // written.
-  per_tet += 96;
-  per_vertex += 4 + 24 + 24 + 24 + 24 + 1 + 8 + 24 + 24;
+  per_vertex += 32 + 4 + 24 + 24 + 24 + 24 + 1 + 8 + 24 + 24;
   return per_tet * nt + per_vertex * nv;
 }
 
@@ -339,13 +340,14 @@ double estimate_row_bytes(BackendKind backend, ConstitutiveModel model, Formulat
   // The mesh (kept for the size's rows): positions, tetrahedra, regions.
   double bytes = 24 * nv + 20 * nt;
   // The model: positions, masses, coefficients, flags, build temporaries; tetrahedra,
-  // adjacency, corner slots, materials, shapes, the CPU batches.
-  bytes += 150 * nv + (16 + 20 + 16 + 4 + 104 + 120) * nt;
+  // adjacency, corner offsets, materials, shapes, the CPU batches.
+  bytes += 150 * nv + (16 + 20 + 16 + 4 + 104 + 96) * nt;
   const bool gpu = backend == BackendKind::kCuda;
   if (formulation == Formulation::kTensorStored && !gpu)
     bytes += 8.0 * (svk ? kSvkTensorSize : kTensorBSize) * nt;
-  // Two states (the benchmark's and the backend's): five vertex arrays, corner forces.
-  bytes += 2 * (121 * nv + 96 * nt);
+  // Two states (the benchmark's and the backend's): five vertex arrays and the force blocks;
+  // assembly codes, late slots (~10 % of the corners) and the plan's build temporaries.
+  bytes += 2 * (153 * nv + 48 * nt);
   // GPU: the host copy of the device layout while it is built and uploaded.
   if (gpu) bytes += 60 * nv + 120 * nt;
   return bytes;
