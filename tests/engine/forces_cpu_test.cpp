@@ -145,6 +145,12 @@ TEST(ForcesCpu, ForcesAreBitwiseTheOrderedSumForAnySegmentCount) {
       SCOPED_TRACE(::testing::Message() << threads << " threads, " << segments << " segments");
       State s = make_state(model, threads);
       make_assembly_plan(model, s, segments == 0 ? 1 : segments, /*all_late=*/segments == 0);
+      // Segments (balanced by cost) cover the chunks in order, none empty.
+      const std::vector<int64_t>& bounds = s.assembly.segment_chunk;
+      ASSERT_EQ(static_cast<int64_t>(bounds.size()), s.assembly.segment_count + 1);
+      EXPECT_EQ(bounds.front(), 0);
+      EXPECT_EQ(bounds.back(), chunks);
+      for (size_t k = 0; k + 1 < bounds.size(); ++k) EXPECT_LT(bounds[k], bounds[k + 1]);
       if (segments == 1) {
         EXPECT_EQ(s.assembly.late_count, 0);
       } else if (segments == 0) {
