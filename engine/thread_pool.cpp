@@ -69,8 +69,10 @@ int64_t ThreadPool::drain(int self) {
     const int r = (self + k) % thread_count_;
     for (;;) {
       // Announce the claim first: once it succeeds, run() cannot return (and the job's fn_ and
-      // context_ cannot change) until active_ drops again.
-      active_.fetch_add(1, std::memory_order_acq_rel);
+      // context_ cannot change) until this thread's count drops again. (A thread that sees the
+      // claimed word, acquire, sees this count too: the claim's CAS releases it.)
+      std::atomic<int32_t>& active = slices_[static_cast<size_t>(self)].active;
+      active.fetch_add(1, std::memory_order_acq_rel);
       int64_t begin = 0, end = 0;
       const bool claimed = claim(r, &begin, &end);
       if (claimed) {
@@ -80,9 +82,9 @@ int64_t ThreadPool::drain(int self) {
       // Wake run() only when it sleeps: notify_all is a futex system call, and a step's two
       // runs make dozens of claims (seq_cst pairs with run()'s store of caller_sleeping_, so
       // one of the two sides always sees the other).
-      if (active_.fetch_sub(1, std::memory_order_seq_cst) == 1 &&
+      if (active.fetch_sub(1, std::memory_order_seq_cst) == 1 &&
           caller_sleeping_.load(std::memory_order_seq_cst))
-        active_.notify_all();
+        active.notify_all();
       if (!claimed) break;
     }
   }
@@ -108,16 +110,22 @@ void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
   // Only sleeping workers need the system call; spinning ones see the new generation.
   if (sleepers_.load(std::memory_order_seq_cst) > 0) generation_.notify_all();
   drain(0);
-  // Every chunk is claimed; wait for the ones other threads are still running.
-  for (int spin = 0; spin < kSpinIterations; ++spin) {
-    if (active_.load(std::memory_order_acquire) == 0) return;
-    ZONA_CPU_RELAX();
+  // Every chunk is claimed; wait for the ones other threads are still running. A thread whose
+  // count reads zero now has finished its pieces and can claim no more (none is left).
+  int spin = 0;
+  for (int i = 1; i < thread_count_; ++i) {
+    std::atomic<int32_t>& active = slices_[static_cast<size_t>(i)].active;
+    while (spin < kSpinIterations && active.load(std::memory_order_acquire) != 0) {
+      ZONA_CPU_RELAX();
+      ++spin;
+    }
+    if (active.load(std::memory_order_acquire) == 0) continue;
+    caller_sleeping_.store(true, std::memory_order_seq_cst);
+    for (int32_t a = active.load(std::memory_order_seq_cst); a != 0;
+         a = active.load(std::memory_order_seq_cst))
+      active.wait(a, std::memory_order_acquire);
+    caller_sleeping_.store(false, std::memory_order_relaxed);
   }
-  caller_sleeping_.store(true, std::memory_order_seq_cst);
-  for (int32_t a = active_.load(std::memory_order_seq_cst); a != 0;
-       a = active_.load(std::memory_order_seq_cst))
-    active_.wait(a, std::memory_order_acquire);
-  caller_sleeping_.store(false, std::memory_order_relaxed);
 }
 
 void ThreadPool::worker_main(int index) {

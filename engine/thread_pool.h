@@ -50,7 +50,7 @@ class ThreadPool {
   std::vector<std::thread> workers_;
   // The current job. fn_ and context_ are written before the job's claim word is published
   // (release) and read only by a thread whose claim on that word succeeded (acquire); they are
-  // rewritten only after every claimed chunk has finished (active_ == 0).
+  // rewritten only after every claimed chunk has finished (every Slice::active == 0).
   ChunkFn fn_ = nullptr;
   void* context_ = nullptr;
   // One claim word per slice, each on its own cache line: job (16 bits) | slice end (24 bits)
@@ -58,14 +58,16 @@ class ThreadPool {
   // past the end of a job it did not see start.
   struct alignas(64) Slice {
     std::atomic<uint64_t> word{0};
+    // Thread i's count of "about to claim or running a claimed piece" (slice i's owner only
+    // writes it): run() returns only when every one is zero, which keeps fn_ and context_
+    // valid for every claimed chunk. One per thread, beside its own claim word, so that claims
+    // do not bounce a shared counter between cores (two per claim).
+    std::atomic<int32_t> active{0};
   };
   std::unique_ptr<Slice[]> slices_;
-  // Threads between "about to claim" and "finished the claimed chunk": run() returns only when
-  // it is zero, which keeps fn_ and context_ valid for every claimed chunk.
-  std::atomic<int32_t> active_{0};
   std::atomic<uint32_t> generation_{0};  // wake-up signal for sleeping workers
   std::atomic<int32_t> sleepers_{0};          // workers asleep on generation_
-  std::atomic<bool> caller_sleeping_{false};  // run() asleep on active_
+  std::atomic<bool> caller_sleeping_{false};  // run() asleep on a Slice::active
   std::atomic<bool> stop_{false};
   uint32_t job_ = 0;
 };
