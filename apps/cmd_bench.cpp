@@ -19,6 +19,31 @@
 namespace zona::cli {
 namespace {
 
+// The "cpu" line of /proc/stat, in clock ticks: the sum of all fields and the steal field
+// (zeros where the file is missing).
+struct CpuTimes {
+  uint64_t total = 0;
+  uint64_t steal = 0;
+};
+
+CpuTimes read_cpu_times() {
+  CpuTimes t;
+  std::ifstream stat("/proc/stat");
+  std::string label;
+  if (!(stat >> label) || label != "cpu") return t;
+  for (int field = 0; field < 10; ++field) {
+    uint64_t v = 0;
+    if (!(stat >> v)) break;
+    t.total += v;
+    if (field == 7) t.steal = v;
+  }
+  return t;
+}
+
+}  // namespace
+
+namespace {
+
 struct BenchArgs {
   std::string backend = "cpu";
   std::string model = "svk";
@@ -273,8 +298,16 @@ void add_bench_command(CLI::App& app) {
     };
     hooks.notice = [&printer](const std::string& text) { printer.notice(text); };
 
+    const CpuTimes before = read_cpu_times();
     Result<ScalingBenchResult> result = run_scaling_bench(cfg, hooks, machine);
+    const CpuTimes after = read_cpu_times();
     printer.finish();
+    // On a virtual machine the host may run other guests on this one's vCPUs ("steal"); a
+    // timing taken then is slower for reasons that are not the code.
+    if (result && after.total > before.total)
+      std::fprintf(csv, "# host steal time during the run: %.1f %% of CPU time (/proc/stat)\n",
+                   100.0 * static_cast<double>(after.steal - before.steal) /
+                       static_cast<double>(after.total - before.total));
     if (csv != stdout) std::fclose(csv);
     if (!result) return fail(result.error().message);
     if (csv != stdout) {
