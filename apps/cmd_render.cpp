@@ -48,7 +48,10 @@ struct RenderArgs {
 
 #if defined(ZONA_HAVE_VULKAN)
 
-Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scene* scene_out) {
+// The scene's simulation; its setup notes (e.g. the backend it fell back to) go to stderr as
+// `zona COMMAND: note: ...`, as `zona run` prints them.
+Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scene* scene_out,
+                                                    const char* command) {
   Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
   if (!path.ok()) return path.error();
   Result<Scene> scene = load_scene(*path, args.sets);
@@ -63,7 +66,11 @@ Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scen
       return make_backend(k, BackendOptions{}, notice);
     };
   }
-  return Simulation::create(*scene, options);
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene, options);
+  if (sim.ok())
+    for (const std::string& note : (*sim)->notes())
+      std::fprintf(stderr, "zona %s: note: %s\n", command, note.c_str());
+  return sim;
 }
 
 // CUDA-Vulkan interop (docs/rendering.md): when the simulation runs on the CUDA backend, its
@@ -143,7 +150,7 @@ void run_render(const RenderArgs& args) {
   if (!field.ok()) return fail("--color: " + field.error().message);
   if (args.out.empty() && args.frames_dir.empty()) return fail("render: give --out or --frames");
   Scene scene;
-  Result<std::unique_ptr<Simulation>> sim = make_simulation(args, &scene);
+  Result<std::unique_ptr<Simulation>> sim = make_simulation(args, &scene, "render");
   if (!sim.ok()) return fail(sim.error().message);
   Simulation& s = **sim;
 
@@ -202,7 +209,7 @@ void run_view(const RenderArgs& args) {
   Result<ColorField> field = parse_color_field(args.color);
   if (!field.ok()) return fail("--color: " + field.error().message);
   Scene scene;
-  Result<std::unique_ptr<Simulation>> sim = make_simulation(args, &scene);
+  Result<std::unique_ptr<Simulation>> sim = make_simulation(args, &scene, "view");
   if (!sim.ok()) return fail(sim.error().message);
   ViewOptions options;
   options.width = args.width;

@@ -58,6 +58,12 @@ TEST(CmdRender, BackendChoiceAndTheCopyPathFallback) {
   EXPECT_TRUE(r.out.find("interop path") != std::string::npos ||
               r.out.find("copy path") != std::string::npos)
       << r.out;
+  // The copy path without an interop notice means the simulation fell back to the CPU: the
+  // simulation's note says so, as `zona run` prints it.
+  if (r.out.find("copy path") != std::string::npos &&
+      r.err.find("interop unavailable") == std::string::npos) {
+    EXPECT_NE(r.err.find("zona render: note: "), std::string::npos) << r.err;
+  }
   // --copy-path always copies.
   r = run_zona(base + " --backend auto --copy-path");
   ASSERT_EQ(r.exit_code, 0) << r.err;
