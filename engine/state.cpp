@@ -119,6 +119,8 @@ int64_t assembly_segment_count(const Model& model, int thread_count) {
   const int64_t nt = static_cast<int64_t>(model.tet_count());
   const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
   const int64_t threads = std::max(1, thread_count);
+  // One thread: one segment (no late corners; nobody to take work over).
+  if (threads == 1) return 1;
   // Segments of at least ~250k tetrahedra beyond one per thread: a vertex's tetrahedra span
   // about one lattice layer of the generator's numbering (~5 % of a 1M-vertex mesh), so
   // shorter segments would make most corners late.

@@ -148,7 +148,7 @@ State make_state(const Model& model, int thread_count = 0);
 
 /// Segments make_state's plan uses for `thread_count` threads: one per thread, up to four per
 /// thread on large meshes (so that a descheduled thread's work can be taken over), never fewer
-/// than one chunk each.
+/// than one chunk each; one for one thread.
 int64_t assembly_segment_count(const Model& model, int thread_count);
 
 /// Builds state.assembly for `segment_count` segments (clamped to [1, chunks]); `all_late` gives
