@@ -275,6 +275,20 @@ inline const int32_t* batch_offsets(const Model& m, int64_t t0) {
   return m.cpu_tet_corner_offsets.data() + (t0 / 8) * kCpuTetOffsetStride + t0 % 8;
 }
 
+// The shape, volume and Lame rows of one batch (Model::cpu_tet_batches layout) through a pack's
+// `load` (P4, P8d or P8f from double or float rows). grad[0] is not stored: no element
+// function reads it.
+template <class P, class T, class Load>
+[[gnu::always_inline]] inline void load_batch_shape(const T* b, Load load, TetShape<P>& shape,
+                                                    P& lambda, P& mu) {
+  shape.grad[0] = Vec3<P>{P(0.0f), P(0.0f), P(0.0f)};
+  for (int j = 1; j < 4; ++j)
+    for (int i = 0; i < 3; ++i) shape.grad[j][i] = load(b + 8 * (3 * (j - 1) + i));
+  shape.volume = load(b + 8 * 9);
+  lambda = load(b + 8 * 10);
+  mu = load(b + 8 * 11);
+}
+
 // Float64, four tetrahedra per P4 (AVX2 or baseline): half a batch of eight.
 struct Lanes4d {
   using Pack = P4;
@@ -283,12 +297,7 @@ struct Lanes4d {
                                           TetShape<P4>& shape, P4& lambda, P4& mu,
                                           Vec3<P4> du[3]) {
     const double* b = batch_shape(m, t0);
-    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
-    for (int j = 1; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load4(b + 8 * (3 * (j - 1) + i));
-    shape.volume = load4(b + 8 * 9);
-    lambda = load4(b + 8 * 10);
-    mu = load4(b + 8 * 11);
+    load_batch_shape(b, [](const auto* p) { return load4(p); }, shape, lambda, mu);
     load_edges4(u, batch_offsets(m, t0), du);
   }
   [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* blocks,
@@ -315,12 +324,7 @@ struct Lanes8f {
                                           TetShape<P8f>& shape, P8f& lambda, P8f& mu,
                                           Vec3<P8f> du[3]) {
     const float* b = m.cpu_tet_batches_f32.data() + (t0 / 8) * kCpuTetBatchStrideF32;
-    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
-    for (int j = 1; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8f(b + 8 * (3 * (j - 1) + i));
-    shape.volume = load8f(b + 8 * 9);
-    lambda = load8f(b + 8 * 10);
-    mu = load8f(b + 8 * 11);
+    load_batch_shape(b, [](const auto* p) { return load8f(p); }, shape, lambda, mu);
     const int32_t* o = batch_offsets(m, t0);
     Vec3<P4> lo[3], hi[3];
     load_edges4(u, o, lo);
@@ -444,12 +448,7 @@ struct Lanes8d {
                                           TetShape<P8d>& shape, P8d& lambda, P8d& mu,
                                           Vec3<P8d> du[3]) {
     const double* b = batch_shape(m, t0);
-    shape.grad[0] = Vec3<Pack>{Pack(0.0f), Pack(0.0f), Pack(0.0f)};  // never read
-    for (int j = 1; j < 4; ++j)
-      for (int i = 0; i < 3; ++i) shape.grad[j][i] = load8d(b + 8 * (3 * (j - 1) + i));
-    shape.volume = load8d(b + 8 * 9);
-    lambda = load8d(b + 8 * 10);
-    mu = load8d(b + 8 * 11);
+    load_batch_shape(b, [](const auto* p) { return load8d(p); }, shape, lambda, mu);
     const int32_t* o = batch_offsets(m, t0);
     Vec3<P4> lo[3], hi[3];
     load_edges4(u, o, lo);
@@ -574,12 +573,8 @@ void gather_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   const int64_t end = std::min(nv, chunk_end * kVertexChunk);
   double* b = s.assembly.blocks.data();
   const int32_t* late = s.assembly.late_offsets.data();
-  for (int64_t vi = chunk_begin * kVertexChunk; vi < end; ++vi) {
-    const size_t v = static_cast<size_t>(vi);
-    s.force[v] = gather_vertex_force(s, v);
-    std::fill(b + 4 * v, b + 4 * v + 4, 0.0);
-    std::fill(b + 4 * static_cast<size_t>(late[v]), b + 4 * static_cast<size_t>(late[v + 1]), -0.0);
-  }
+  for (int64_t v = chunk_begin * kVertexChunk; v < end; ++v)
+    store_xyz(take_vertex_force(b, late, static_cast<size_t>(v)), s.force[static_cast<size_t>(v)]);
 }
 
 // The element pass over segments [segment_begin, segment_end) of State::assembly: each segment's
@@ -662,12 +657,12 @@ void set_cpu_simd_bits(int bits) {
 void compute_tet_forces(const Model& model, State& state) {
   if (state.assembly.dirty) reset_assembly_blocks(state);
   SegmentContext context{{&model, &state}, select_tet_pass(model)};
-  state.pool->run(state.assembly.segment_count, &run_segments, &context);
+  state.pool->run(state.assembly.segment_count(), &run_segments, &context);
   state.assembly.dirty = true;
 }
 
 Vec3d corner_force(const State& state, size_t t, int c) {
-  ZONA_ASSERT(state.assembly.all_late);
+  ZONA_ASSERT(state.assembly.all_late());
   const double* b =
       state.assembly.blocks.data() + 4 * static_cast<size_t>(state.assembly.corner_block[4 * t +
                                                                   static_cast<size_t>(c)]);

@@ -13,6 +13,7 @@
 #include <span>
 
 #include "engine/model.h"
+#include "engine/simd_pack.h"
 #include "engine/state.h"
 
 namespace zona {
@@ -56,13 +57,19 @@ Vec3d corner_force(const State& state, size_t t, int c);
 /// Sums the element-pass chunks into diag: elastic energy, health bits, counts, first indices.
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
-/// Elastic force on vertex v [N] after compute_tet_forces: its block (the sum of its corners in
-/// its owning segment) plus its late slots, in ascending tetrahedron order. Reads only.
-inline Vec3d gather_vertex_force(const State& state, size_t v) {
-  const double* b = state.assembly.blocks.data();
-  Vec3d f{b[4 * v], b[4 * v + 1], b[4 * v + 2]};
-  for (int32_t k = state.assembly.late_offsets[v]; k < state.assembly.late_offsets[v + 1]; ++k)
-    f += Vec3d{b[4 * k], b[4 * k + 1], b[4 * k + 2]};
+/// Consumes vertex v's sum after compute_tet_forces: its elastic force [N], its block (the sum
+/// of its corners in its owning segment) plus its late slots in ascending tetrahedron order,
+/// x, y, z in the lanes of a pack (lane 3 is 0); v's blocks go back to their start values
+/// (+0.0, late slots -0.0) for the next element pass. The step's vertex pass and
+/// compute_elastic_forces read the sums through it.
+[[gnu::always_inline]] inline P4 take_vertex_force(double* blocks, const int32_t* late_offsets,
+                                                   size_t v) {
+  P4 f = load4(blocks + 4 * v);
+  store4(zero4(), blocks + 4 * v);
+  for (int32_t k = late_offsets[v]; k < late_offsets[v + 1]; ++k) {
+    f += load4(blocks + 4 * k);
+    store4(P4(-0.0), blocks + 4 * k);
+  }
   return f;
 }
 

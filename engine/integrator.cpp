@@ -24,20 +24,6 @@ inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) &
   return (p.v[0] + p.v[1]) + p.v[2];
 }
 
-// The elastic force of vertex v, as gather_vertex_force sums it (the same bits): its block, then
-// its late slots in order (AssemblyPlan), with x, y, z in the lanes of one pack (lane 3 is 0).
-// Puts the blocks back at their start values (+0.0, late slots -0.0) for the next element pass.
-[[gnu::always_inline]] inline P4 gather_force(double* blocks, const int32_t* late_offsets,
-                                              size_t v) {
-  P4 f = load4(blocks + 4 * v);
-  store4(zero4(), blocks + 4 * v);
-  for (int32_t k = late_offsets[v]; k < late_offsets[v + 1]; ++k) {
-    f += load4(blocks + 4 * k);
-    store4(P4(-0.0), blocks + 4 * k);
-  }
-  return f;
-}
-
 // What the vertex pass reads and writes, as plain pointers: the pass stores through memcpy
 // (store_xyz), which may alias anything, so pointers read from the Model and State on every
 // vertex would be reloaded on every vertex.
@@ -104,7 +90,7 @@ ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64
     P4 probe = zero4();
     for (int64_t vi = begin; vi < end; ++vi) {
       const size_t v = static_cast<size_t>(vi);
-      const P4 f = gather_force(a.blocks, a.late_offsets, v);
+      const P4 f = take_vertex_force(a.blocks, a.late_offsets, v);
       update_vertex(a, v, f, half_inv_dt, r, probe);
     }
     if (!(probe.v[0] == 0 && probe.v[1] == 0 && probe.v[2] == 0)) {

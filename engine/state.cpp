@@ -134,9 +134,8 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   const int64_t nv = static_cast<int64_t>(model.vertex_count());
   const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
   AssemblyPlan& plan = state.assembly;
-  plan.segment_count = std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks));
-  plan.all_late = all_late;
-  plan.segment_chunk = balanced_segments(model, plan.segment_count, all_late);
+  plan.segment_chunk = balanced_segments(
+      model, std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks)), all_late);
   const auto segment_of = [&](int64_t t) {
     // The last segment whose first chunk is <= t's chunk.
     const int64_t chunk = t / kTetChunk;
@@ -167,7 +166,6 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     }
   }
   plan.late_offsets[static_cast<size_t>(nv)] = static_cast<int32_t>(late_base + late);
-  plan.late_count = late;
   ZONA_ASSERT(4 * (late_base + late) <= INT32_MAX);
   // Codes in the batch layout; lanes past the end repeat the last tetrahedron's offsets but are
   // never stored (batch_pass drops them).

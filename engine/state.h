@@ -57,7 +57,6 @@ struct alignas(64) TetChunkResult {
 /// compute_elastic_forces) puts those values back as it reads them; compute_tet_forces resets
 /// every block first when `dirty` says the last pass's sums were not consumed.
 struct AssemblyPlan {
-  int64_t segment_count = 0;
   std::vector<int64_t> segment_chunk;  ///< first tetrahedron chunk of each segment, (segments + 1)
   /// Where each corner's force is added, in the layout of Model::cpu_tet_corner_offsets (per
   /// batch of eight tetrahedra: corner c of lane l at 8 c + l): 4 x its block index, a double
@@ -68,14 +67,21 @@ struct AssemblyPlan {
   /// tetrahedron order. Four doubles per block (x, y, z, 0).
   CacheAlignedVector<double> blocks;
   std::vector<int32_t> late_offsets;  ///< (vertex_count + 1), block indices
-  int64_t late_count = 0;             ///< late corners
   /// The blocks hold an element pass's sums that nobody has consumed (and reset) yet.
   bool dirty = false;
-  /// Every corner is late (each has a slot of its own), so that the corner forces can be read
-  /// one by one (corner_force, for tests); same bits.
-  bool all_late = false;
-  /// all_late only: the block of corner 4 t + c, (4 tet_count).
+  /// Only in a plan where every corner is late (each has a slot of its own, so that the corner
+  /// forces can be read one by one: corner_force, for tests; same bits): the block of corner
+  /// 4 t + c, (4 tet_count). Empty otherwise.
   std::vector<int32_t> corner_block;
+
+  int64_t segment_count() const { return static_cast<int64_t>(segment_chunk.size()) - 1; }
+  /// Late corners (slots after the vertex blocks).
+  int64_t late_count() const {
+    return late_offsets.empty()
+               ? 0
+               : late_offsets.back() - static_cast<int64_t>(late_offsets.size() - 1);
+  }
+  bool all_late() const { return !corner_block.empty(); }
 };
 
 /// Partial results of one chunk of vertices (scratch).

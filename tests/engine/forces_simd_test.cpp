@@ -53,7 +53,7 @@ std::vector<Vec3d> wavy(const Mesh& mesh, double strain) {
 // With every corner in a slot of its own (an all-late plan), so that corner_force reads them.
 State loaded_state(const Model& model, const std::vector<Vec3d>& u, int threads) {
   State s = make_state(model, threads);
-  make_assembly_plan(model, s, s.assembly.segment_count, /*all_late=*/true);
+  make_assembly_plan(model, s, s.assembly.segment_count(), /*all_late=*/true);
   set_displacement(s, u);
   return s;
 }

@@ -23,8 +23,8 @@ TEST(State, MakeStateSizesEverything) {
   EXPECT_EQ(s.u_prev.size(), m.vertex_count());
   EXPECT_EQ(s.u_next.size(), m.vertex_count());
   // One segment per thread; blocks: one per vertex, one per late corner.
-  EXPECT_EQ(s.assembly.segment_count, std::min<int64_t>(2, s.tet_chunks.size()));
-  EXPECT_EQ(s.assembly.blocks.size(), 4 * (m.vertex_count() + s.assembly.late_count));
+  EXPECT_EQ(s.assembly.segment_count(), std::min<int64_t>(2, s.tet_chunks.size()));
+  EXPECT_EQ(s.assembly.blocks.size(), 4 * (m.vertex_count() + s.assembly.late_count()));
   EXPECT_EQ(s.tet_chunks.size(), (m.tet_count() + kTetChunk - 1) / kTetChunk);
   EXPECT_EQ(s.vertex_constraint[0], kVertexFixed);
   EXPECT_EQ(s.vertex_constraint[2], kVertexFree);
