@@ -29,6 +29,14 @@ int cpu_simd_bits();
 /// pass.
 void set_cpu_simd_bits(int bits);
 
+/// Vector registers the fused four-lane (256-bit) element pass may use: 32 on CPUs with
+/// AVX-512VL (the pass is then encoded with it: same vectors, same bits, no spills), else 16; 16
+/// when the environment sets ZONA_CPU_SIMD_REGISTERS=16. For benchmarks and tests.
+int cpu_simd_registers();
+/// 32 where the CPU has AVX-512VL and the environment allows it, else 16. Not thread-safe
+/// against a running pass.
+void set_cpu_simd_registers(int registers);
+
 /// Whether the float64 gradient-form element pass fuses multiply-adds (~half the operations):
 /// true on CPUs with AVX2 and FMA unless the environment sets ZONA_CPU_FMA=0. With FMA its corner
 /// forces differ from the scalar fem_element.h functions in the last bits (relative 1e-13 of the

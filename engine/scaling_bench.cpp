@@ -15,6 +15,7 @@
 #include <sstream>
 #include <thread>
 
+#include "engine/forces_cpu.h"
 #include "engine/integrator.h"
 #include "engine/mesh_generate.h"
 #include "engine/model.h"
@@ -748,7 +749,9 @@ std::string scaling_csv_comments(const ScalingBenchResult& result,
       << m.zona_version << ", commit " << (m.commit.empty() ? "unknown" : m.commit) << "\n";
   out << "# date: " << m.date << " (UTC)\n";
   if (!m.command.empty()) out << "# command: " << m.command << "\n";
-  out << "# cpu: " << m.cpu_model << ", " << m.hardware_threads << " hardware threads\n";
+  out << "# cpu: " << m.cpu_model << ", " << m.hardware_threads << " hardware threads"
+      << "; float64 element pass: " << (cpu_element_fma() ? "fused" : "unfused") << ", "
+      << cpu_simd_bits() << "-bit packs, " << cpu_simd_registers() << " vector registers\n";
   out << "# gpu: " << (m.gpu_name.empty() ? "none" : m.gpu_name);
   if (m.gpu_copy_gb_per_s > 0)
     out << ", device-to-device copy " << format_double(m.gpu_copy_gb_per_s, "%.0f")
