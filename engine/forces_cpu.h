@@ -29,9 +29,10 @@ int cpu_simd_bits();
 /// pass.
 void set_cpu_simd_bits(int bits);
 
-/// Vector registers the fused four-lane (256-bit) element pass may use: 32 on CPUs with
-/// AVX-512VL (the pass is then encoded with it: same vectors, same bits, no spills), else 16; 16
-/// when the environment sets ZONA_CPU_SIMD_REGISTERS=16. For benchmarks and tests.
+/// Vector registers the fused four-lane (256-bit) element pass and the step's vertex pass may
+/// use: 32 on CPUs with AVX-512VL (both are then encoded with it: same vectors, same bits, no
+/// spills, one-instruction two-source shuffles), else 16; 16 when the environment sets
+/// ZONA_CPU_SIMD_REGISTERS=16. For benchmarks and tests.
 int cpu_simd_registers();
 /// 32 where the CPU has AVX-512VL and the environment allows it, else 16. Not thread-safe
 /// against a running pass.

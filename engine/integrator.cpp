@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <vector>
 
 #include "engine/forces_cpu.h"
@@ -18,85 +19,166 @@ struct PassContext {
 
 inline bool finite3(Vec3d a) { return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z); }
 
-// (a0 b0 + a1 b1) + a2 b2: dot() of the x, y, z lanes, in dot()'s order (the same bits).
-[[gnu::always_inline]] inline double dot3(P4 a, P4 b) {
-  const P4 p = a * b;
-  return (p.v[0] + p.v[1]) + p.v[2];
-}
-
-// What the vertex pass reads and writes, as plain pointers: the pass stores through memcpy
-// (store_xyz), which may alias anything, so pointers read from the Model and State on every
-// vertex would be reloaded on every vertex.
+// What the vertex pass reads and writes, as plain pointers: the pass stores through memcpy,
+// which may alias anything, so pointers read from the Model and State on every vertex would be
+// reloaded on every vertex.
 struct VertexPassArrays {
   double* blocks;                         // State::assembly.blocks (read, then reset)
   const int32_t* late_offsets;            // State::assembly.late_offsets
-  const Vec3d* u;                         // u_n
-  const Vec3d* u_prev;                    // u_{n-1}
-  const Vec3d* external_force;
+  const double* u;                        // u_n, 3 per vertex
+  const double* u_prev;                   // u_{n-1}
+  const double* external_force;
   const uint8_t* constraint;              // VertexConstraint per vertex
-  const VertexCoefficients* coefficients;
+  const double* coefficients;             // VertexCoefficients (a, b, c) per vertex
   const double* mass;
-  Vec3d* force;                           // out: elastic force
-  Vec3d* u_next;                          // out: u_{n+1}
+  double* force;                          // out: elastic force
+  double* u_next;                         // out: u_{n+1}
+};
+static_assert(sizeof(VertexCoefficients) == 3 * sizeof(double));
+static_assert(sizeof(Vec3d) == 3 * sizeof(double));
+
+// A chunk's sums, lane l holding those of its vertices 4 k + l (reduced by lane_sum).
+struct VertexSums {
+  P4 kinetic = zero4(), work = zero4(), residual = zero4(), reference = zero4();
+  P4 probe = zero4();  // next - next summed: 0 where every update was finite, NaN otherwise
 };
 
-// The centred-difference update u+ = a u - b u- + c (f_el + f_ext) of vertex v with elastic force
-// f (DESIGN.md section 3); fixed vertices go to zero; prescribed ones are written by
-// apply_prescribed_vertices. Vectors are (x, y, z, -) packs: lane by lane the Vec3d operations in
-// their order, so the same bits; lane 3 is never stored or summed (dot3, store_xyz and the probe
-// read lanes 0-2). Adds the vertex's terms to the chunk's sums and its next - next (0 for finite
-// lanes, NaN otherwise) to `probe`.
-[[gnu::always_inline]] inline void update_vertex(const VertexPassArrays& a, size_t v, P4 f,
-                                                 P4 half_inv_dt, VertexChunkResult& r,
-                                                 P4& probe) {
-  const P4 f_ext = load_xyzz(a.external_force[v]);
-  store_xyz(f, a.force[v]);
-  P4 next = load_xyzz(a.u[v]);  // prescribed: overwritten by the next stage
-  if (a.constraint[v] == kVertexFree) {
-    const VertexCoefficients& k = a.coefficients[v];
-    const P4 f_total = f + f_ext;
-    const P4 up = load_xyzz(a.u_prev[v]);
-    next = P4(k.a) * next - P4(k.b) * up + P4(k.c) * f_total;
-    const P4 du = next - up;  // = 2 dt v_n
-    const P4 vel = half_inv_dt * du;
-    r.kinetic_energy += 0.5 * a.mass[v] * dot3(vel, vel);
-    r.input_work += 0.5 * dot3(f_ext, du);
-    r.residual_sq += dot3(f_total, f_total);
-  } else {
-    if (a.constraint[v] == kVertexFixed) next = zero4();
-    r.reference_sq += dot3(f, f);
-  }
-  r.reference_sq += dot3(f_ext, f_ext);
-  probe += next - next;
-  store_xyz(next, a.u_next[v]);
+// (l0 + l1) + (l2 + l3).
+[[gnu::always_inline]] inline double lane_sum(P4 a) {
+  return (a.v[0] + a.v[1]) + (a.v[2] + a.v[3]);
 }
 
-// Stage 2, per chunk of vertices: gather the elastic force, then the centred-difference update.
-ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
+// (x x' + y y') + z z' per lane: dot() of four vectors, in dot()'s order (the same bits).
+[[gnu::always_inline]] inline P4 dot3(P4 x, P4 y, P4 z, P4 x2, P4 y2, P4 z2) {
+  return (x * x2 + y * y2) + z * z2;
+}
+
+// Lanes of `a` where `m` holds, +0 elsewhere.
+[[gnu::always_inline]] inline P4 select(M4 m, P4 a) {
+  P4 r;
+  r.v = reinterpret_cast<V4>(m & reinterpret_cast<M4>(a.v));
+  return r;
+}
+
+// The centred-difference update u+ = a u - b u- + c (f_el + f_ext) (DESIGN.md section 3) of four
+// consecutive vertices, one per lane, whose arrays start at the pointers given; f holds their
+// elastic forces as (x, y, z, 0). Fixed vertices go to zero; prescribed ones keep u_n here and
+// are written by apply_prescribed_vertices. Each lane performs the Vec3d operations of one vertex
+// in their order, so the displacements are those of a vertex-by-vertex update bit for bit; the
+// chunk sums add per lane (VertexSums).
+[[gnu::always_inline]] inline void update_four(const double* u, const double* u_prev,
+                                               const double* external_force,
+                                               const uint8_t* constraint,
+                                               const double* coefficients, const double* mass,
+                                               P4 f[4], P4 half_inv_dt, double* force_out,
+                                               double* next_out, VertexSums& s) {
+  transpose4(f);  // f[0..2]: x, y, z of the four vertices
+  store_aos3(f[0], f[1], f[2], force_out);
+  P4 ux, uy, uz, px, py, pz, ex, ey, ez, ka, kb, kc;
+  load_soa3(u, ux, uy, uz);
+  load_soa3(u_prev, px, py, pz);
+  load_soa3(external_force, ex, ey, ez);
+  load_soa3(coefficients, ka, kb, kc);
+  const P4 tx = f[0] + ex, ty = f[1] + ey, tz = f[2] + ez;  // f_el + f_ext
+  P4 nx = ka * ux - kb * px + kc * tx;
+  P4 ny = ka * uy - kb * py + kc * ty;
+  P4 nz = ka * uz - kb * pz + kc * tz;
+  const P4 dx = nx - px, dy = ny - py, dz = nz - pz;  // = 2 dt v_n
+  const P4 vx = half_inv_dt * dx, vy = half_inv_dt * dy, vz = half_inv_dt * dz;
+  const P4 kinetic = P4(0.5) * load4(mass) * dot3(vx, vy, vz, vx, vy, vz);
+  const P4 work = P4(0.5) * dot3(ex, ey, ez, dx, dy, dz);
+  const P4 residual = dot3(tx, ty, tz, tx, ty, tz);
+  const P4 reference = dot3(ex, ey, ez, ex, ey, ez);
+  uint32_t kinds;
+  std::memcpy(&kinds, constraint, sizeof kinds);
+  if (kinds == 0) {  // all four free (kVertexFree == 0)
+    s.kinetic += kinetic;
+    s.work += work;
+    s.residual += residual;
+  } else {
+    M4 free, fixed;
+    for (int l = 0; l < 4; ++l) {
+      free[l] = constraint[l] == kVertexFree ? -1 : 0;
+      fixed[l] = constraint[l] == kVertexFixed ? -1 : 0;
+    }
+    // Free: the update; fixed: 0; prescribed: u_n (overwritten by the next stage).
+    const M4 keep = ~free & ~fixed;
+    nx = select(free, nx) + select(keep, ux);  // exact: one of the two terms is +0
+    ny = select(free, ny) + select(keep, uy);
+    nz = select(free, nz) + select(keep, uz);
+    s.kinetic += select(free, kinetic);
+    s.work += select(free, work);
+    s.residual += select(free, residual);
+    s.reference += select(~free, dot3(f[0], f[1], f[2], f[0], f[1], f[2]));
+  }
+  s.reference += reference;
+  s.probe += (nx - nx) + (ny - ny) + (nz - nz);
+  store_aos3(nx, ny, nz, next_out);
+}
+
+// Stage 2, per chunk of vertices: take the elastic force, then the centred-difference update,
+// four vertices at a time (a last group of fewer goes through copies padded with fixed vertices
+// at rest, which add +0 to every sum).
+[[gnu::always_inline]] inline void integrate_chunks_body(void* context, int64_t chunk_begin,
+                                                         int64_t chunk_end) {
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nv = static_cast<int64_t>(m.vertex_count());
   const P4 half_inv_dt(0.5 / m.dt);
-  const VertexPassArrays a{s.assembly.blocks.data(), s.assembly.late_offsets.data(),
-                           s.u.data(), s.u_prev.data(), s.external_force.data(),
-                           s.vertex_constraint.data(), m.vertex_coefficients.data(),
-                           m.vertex_mass.data(), s.force.data(), s.u_next.data()};
+  const VertexPassArrays a{s.assembly.blocks.data(),
+                           s.assembly.late_offsets.data(),
+                           &s.u.data()->x,
+                           &s.u_prev.data()->x,
+                           &s.external_force.data()->x,
+                           s.vertex_constraint.data(),
+                           &m.vertex_coefficients.data()->a,
+                           m.vertex_mass.data(),
+                           &s.force.data()->x,
+                           &s.u_next.data()->x};
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
-    VertexChunkResult r;
     const int64_t begin = chunk * kVertexChunk;
     const int64_t end = std::min(nv, begin + kVertexChunk);
-    // Summed over the chunk, one test at the end finds out whether to look for the first
-    // non-finite vertex.
-    P4 probe = zero4();
-    for (int64_t vi = begin; vi < end; ++vi) {
-      const size_t v = static_cast<size_t>(vi);
-      const P4 f = take_vertex_force(a.blocks, a.late_offsets, v);
-      update_vertex(a, v, f, half_inv_dt, r, probe);
+    VertexSums sums;
+    int64_t v = begin;
+    for (; v + 4 <= end; v += 4) {
+      P4 f[4];
+#pragma GCC unroll 4
+      for (int l = 0; l < 4; ++l)
+        f[l] = take_vertex_force(a.blocks, a.late_offsets, static_cast<size_t>(v + l));
+      const size_t o = 3 * static_cast<size_t>(v);
+      update_four(a.u + o, a.u_prev + o, a.external_force + o, a.constraint + v,
+                  a.coefficients + o, a.mass + v, f, half_inv_dt, a.force + o, a.u_next + o,
+                  sums);
     }
-    if (!(probe.v[0] == 0 && probe.v[1] == 0 && probe.v[2] == 0)) {
-      for (int64_t v = begin; v < end; ++v)
-        if (!finite3(a.u_next[static_cast<size_t>(v)])) {
-          r.first_nonfinite = v;
+    if (v < end) {
+      const int n = static_cast<int>(end - v);
+      const size_t o = 3 * static_cast<size_t>(v);
+      const size_t n3 = 3 * static_cast<size_t>(n);
+      double u[12] = {}, up[12] = {}, ext[12] = {}, coef[12] = {}, mass[4] = {};
+      double force[12], next[12];
+      uint8_t kind[4] = {kVertexFixed, kVertexFixed, kVertexFixed, kVertexFixed};
+      P4 f[4] = {zero4(), zero4(), zero4(), zero4()};
+      std::copy_n(a.u + o, n3, u);
+      std::copy_n(a.u_prev + o, n3, up);
+      std::copy_n(a.external_force + o, n3, ext);
+      std::copy_n(a.coefficients + o, n3, coef);
+      std::copy_n(a.mass + v, n, mass);
+      std::copy_n(a.constraint + v, n, kind);
+      for (int l = 0; l < n; ++l)
+        f[l] = take_vertex_force(a.blocks, a.late_offsets, static_cast<size_t>(v + l));
+      update_four(u, up, ext, kind, coef, mass, f, half_inv_dt, force, next, sums);
+      std::copy_n(force, n3, a.force + o);
+      std::copy_n(next, n3, a.u_next + o);
+    }
+    VertexChunkResult r;
+    r.kinetic_energy = lane_sum(sums.kinetic);
+    r.input_work = lane_sum(sums.work);
+    r.residual_sq = lane_sum(sums.residual);
+    r.reference_sq = lane_sum(sums.reference);
+    if (!(lane_sum(sums.probe) == 0)) {
+      for (int64_t w = begin; w < end; ++w)
+        if (!finite3(s.u_next[static_cast<size_t>(w)])) {
+          r.first_nonfinite = w;
           break;
         }
     }
@@ -104,10 +186,30 @@ ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64
   }
 }
 
+ZONA_SIMD_CLONES void integrate_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  integrate_chunks_body(context, chunk_begin, chunk_end);
+}
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && \
+    !defined(__SANITIZE_THREAD__)
+// The same pass encoded with AVX-512VL where cpu_simd_registers() says 32: still 256-bit vectors,
+// but one-instruction two-source shuffles (vpermt2pd) for the 3-vector to pack conversions and 32
+// registers. Contraction off: the same operations, the same bits.
+__attribute__((target("avx2,avx512f,avx512vl"), optimize("fp-contract=off"), flatten)) void
+integrate_chunks_vl(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  integrate_chunks_body(context, chunk_begin, chunk_end);
+}
+#define ZONA_HAVE_VL_VERTEX_PASS 1
+#endif
+
 // Stage 2: the vertex pass over the pool.
 void integrate_vertices(const Model& model, State& state) {
   PassContext context{&model, &state};
-  state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &integrate_chunks, &context);
+  ThreadPool::ChunkFn pass = &integrate_chunks;
+#ifdef ZONA_HAVE_VL_VERTEX_PASS
+  if (cpu_simd_registers() >= 32) pass = &integrate_chunks_vl;
+#endif
+  state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), pass, &context);
   state.assembly.dirty = false;
 }
 

@@ -107,6 +107,30 @@ typedef double V2 __attribute__((vector_size(16)));
   z = P4(a0[2], a1[2], a2[2], a3[2]);
 }
 
+/// The x, y and z packs of the four consecutive 3-vectors of doubles at p (twelve doubles, x0
+/// y0 z0 x1 ...): three 32-byte loads and two-source shuffles.
+[[gnu::always_inline]] inline void load_soa3(const double* p, P4& x, P4& y, P4& z) {
+  const V4 a = load4(p).v;      // x0 y0 z0 x1
+  const V4 b = load4(p + 4).v;  // y1 z1 x2 y2
+  const V4 c = load4(p + 8).v;  // z2 x3 y3 z3
+  x.v = __builtin_shufflevector(__builtin_shufflevector(a, b, 0, 3, 6, 6), c, 0, 1, 2, 5);
+  y.v = __builtin_shufflevector(__builtin_shufflevector(a, b, 1, 4, 7, 7), c, 0, 1, 2, 6);
+  z.v = __builtin_shufflevector(__builtin_shufflevector(a, b, 2, 5, 5, 5), c, 0, 1, 4, 7);
+}
+
+/// Stores packs x, y, z as four consecutive 3-vectors of doubles at p (load_soa3's inverse).
+[[gnu::always_inline]] inline void store_aos3(P4 x, P4 y, P4 z, double* p) {
+  const V4 xy = __builtin_shufflevector(x.v, y.v, 0, 4, 1, 5);                    // x0 y0 x1 y1
+  const V4 a = __builtin_shufflevector(xy, z.v, 0, 1, 4, 2);                      // x0 y0 z0 x1
+  const V4 yz = __builtin_shufflevector(y.v, z.v, 1, 5, 2, 6);                    // y1 z1 y2 z2
+  const V4 b = __builtin_shufflevector(yz, x.v, 0, 1, 6, 2);                      // y1 z1 x2 y2
+  const V4 zx = __builtin_shufflevector(z.v, x.v, 2, 7, 3, 3);                    // z2 x3 z3 z3
+  const V4 c = __builtin_shufflevector(zx, y.v, 0, 1, 7, 2);                      // z2 x3 y3 z3
+  std::memcpy(p, &a, sizeof a);
+  std::memcpy(p + 4, &b, sizeof b);
+  std::memcpy(p + 8, &c, sizeof c);
+}
+
 /// 4 x 4 transpose in place: afterwards r[i] holds lane i of the packs r[0..3] as given.
 [[gnu::always_inline]] inline void transpose4(P4 r[4]) {
   const V4 t0 = __builtin_shufflevector(r[0].v, r[1].v, 0, 4, 2, 6);
