@@ -9,6 +9,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "kernels/backend_info.h"
@@ -85,6 +86,48 @@ TEST(BenchCli, TinyRunWritesTheCsvAndOneNoticeForAMissingGpu) {
   }
   // The summary table goes to stdout when the CSV goes to a file.
   EXPECT_NE(r.out.find("step_ms"), std::string::npos);
+}
+
+// Output of a shell command (stdout) and its exit status.
+std::pair<std::string, int> shell(const std::string& cmd) {
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return {out, -1};
+  char buf[4096];
+  while (size_t n = fread(buf, 1, sizeof buf, p)) out.append(buf, n);
+  const int status = pclose(p);
+  return {out, WIFEXITED(status) ? WEXITSTATUS(status) : -1};
+}
+
+// bench/repeat_bench.sh: every run's rows under one header with the run index and the host's
+// steal time in front, and a median / range line per row on stdout; usage errors exit 2.
+TEST(BenchCli, RepeatScriptCollectsEveryRunAndSummarises) {
+  const std::string script = std::string(ZONA_SOURCE_DIR) + "/bench/repeat_bench.sh";
+  const std::string path =
+      (std::filesystem::temp_directory_path() / "zona_repeat_bench_tiny.csv").string();
+  const auto [out, code] =
+      shell("bash " + script + " " + ZONA_CLI_PATH + " 3 0 " + path +
+            " --backend cpu --vertices 150 --steps 2 --repeats 1 --threads 1 --copy-mib 4 2>/dev/null");
+  ASSERT_EQ(code, 0) << out;
+  std::ifstream f(path);
+  std::string header, line;
+  std::vector<std::string> rows;
+  while (std::getline(f, line)) {
+    if (line.rfind("#", 0) == 0) continue;
+    if (header.empty())
+      header = line;
+    else
+      rows.push_back(line);
+  }
+  std::filesystem::remove(path);
+  EXPECT_EQ(header.rfind("run,host_steal_pct,backend,model,formulation,", 0), 0u) << header;
+  ASSERT_EQ(rows.size(), 3u);
+  for (int i = 0; i < 3; ++i)
+    EXPECT_EQ(rows[static_cast<size_t>(i)].rfind(std::to_string(i + 1) + ",", 0), 0u)
+        << rows[static_cast<size_t>(i)];
+  EXPECT_EQ(out.rfind("cpu 1 threads, ", 0), 0u) << out;  // (the generator's vertex count)
+  EXPECT_NE(out.find(" vertices: step_ms_median over 3 runs: median "), std::string::npos) << out;
+  EXPECT_EQ(shell("bash " + script + " 2>/dev/null").second, 2);
 }
 
 }  // namespace
