@@ -60,6 +60,13 @@ struct VertexSums {
   return r;
 }
 
+// Lanes of `a` where `m` holds, of `b` elsewhere, bit for bit (a -0.0 stays -0.0).
+[[gnu::always_inline]] inline P4 blend(M4 m, P4 a, P4 b) {
+  P4 r;
+  r.v = reinterpret_cast<V4>((m & reinterpret_cast<M4>(a.v)) | (~m & reinterpret_cast<M4>(b.v)));
+  return r;
+}
+
 // The centred-difference update u+ = a u - b u- + c (f_el + f_ext) (DESIGN.md section 3) of four
 // consecutive vertices, one per lane, whose arrays start at the pointers given; f holds their
 // elastic forces as (x, y, z, 0). Fixed vertices go to zero; prescribed ones keep u_n here and
@@ -101,11 +108,10 @@ struct VertexSums {
       free[l] = constraint[l] == kVertexFree ? -1 : 0;
       fixed[l] = constraint[l] == kVertexFixed ? -1 : 0;
     }
-    // Free: the update; fixed: 0; prescribed: u_n (overwritten by the next stage).
-    const M4 keep = ~free & ~fixed;
-    nx = select(free, nx) + select(keep, ux);  // exact: one of the two terms is +0
-    ny = select(free, ny) + select(keep, uy);
-    nz = select(free, nz) + select(keep, uz);
+    // Free: the update; fixed: +0; prescribed: u_n (overwritten by the next stage).
+    nx = blend(free, nx, select(~fixed, ux));
+    ny = blend(free, ny, select(~fixed, uy));
+    nz = blend(free, nz, select(~fixed, uz));
     s.kinetic += select(free, kinetic);
     s.work += select(free, work);
     s.residual += select(free, residual);
