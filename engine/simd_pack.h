@@ -120,12 +120,12 @@ typedef double V2 __attribute__((vector_size(16)));
 
 /// Stores packs x, y, z as four consecutive 3-vectors of doubles at p (load_soa3's inverse).
 [[gnu::always_inline]] inline void store_aos3(P4 x, P4 y, P4 z, double* p) {
-  const V4 xy = __builtin_shufflevector(x.v, y.v, 0, 4, 1, 5);                    // x0 y0 x1 y1
-  const V4 a = __builtin_shufflevector(xy, z.v, 0, 1, 4, 2);                      // x0 y0 z0 x1
-  const V4 yz = __builtin_shufflevector(y.v, z.v, 1, 5, 2, 6);                    // y1 z1 y2 z2
-  const V4 b = __builtin_shufflevector(yz, x.v, 0, 1, 6, 2);                      // y1 z1 x2 y2
-  const V4 zx = __builtin_shufflevector(z.v, x.v, 2, 7, 3, 3);                    // z2 x3 z3 z3
-  const V4 c = __builtin_shufflevector(zx, y.v, 0, 1, 7, 2);                      // z2 x3 y3 z3
+  const V4 xy = __builtin_shufflevector(x.v, y.v, 0, 4, 1, 5);  // x0 y0 x1 y1
+  const V4 a = __builtin_shufflevector(xy, z.v, 0, 1, 4, 2);  // x0 y0 z0 x1
+  const V4 yz = __builtin_shufflevector(y.v, z.v, 1, 5, 2, 6);  // y1 z1 y2 z2
+  const V4 b = __builtin_shufflevector(yz, x.v, 0, 1, 6, 2);  // y1 z1 x2 y2
+  const V4 zx = __builtin_shufflevector(z.v, x.v, 2, 7, 3, 3);  // z2 x3 z3 z3
+  const V4 c = __builtin_shufflevector(zx, y.v, 0, 1, 7, 2);  // z2 x3 y3 z3
   std::memcpy(p, &a, sizeof a);
   std::memcpy(p + 4, &b, sizeof b);
   std::memcpy(p + 8, &c, sizeof c);
