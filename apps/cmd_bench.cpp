@@ -40,10 +40,6 @@ CpuTimes read_cpu_times() {
   return t;
 }
 
-}  // namespace
-
-namespace {
-
 struct BenchArgs {
   std::string backend = "cpu";
   std::string model = "svk";

@@ -276,14 +276,6 @@ __attribute__((target("avx512f"))) inline P8d fmadd(P8d a, P8d b, P8d c) {
 }
 #endif
 
-/// (x, y, z, 0) of a Vec3d: a 16-byte and an 8-byte load, never past the vector's end.
-[[gnu::always_inline]] inline P4 load_xyz0(const Vec3d& a) { return P4(a.x, a.y, a.z, 0.0); }
-
-/// (x, y, z, z) of a Vec3d, for code that ignores lane 3: no zeroing instruction (valgrind 3.19,
-/// which the instruction counts in docs/performance.md come from, cannot decode the register
-/// form of vmovq that zeroing compiles to).
-[[gnu::always_inline]] inline P4 load_xyzz(const Vec3d& a) { return P4(a.x, a.y, a.z, a.z); }
-
 /// Stores lanes 0-2 of `a` into a Vec3d (24 bytes, never past its end).
 /// From registers (a 16-byte store and an 8-byte one): a memcpy from the pack's own bytes makes
 /// GCC keep the pack, and the loop that accumulates it, in memory.
