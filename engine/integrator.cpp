@@ -208,14 +208,31 @@ integrate_chunks_vl(void* context, int64_t chunk_begin, int64_t chunk_end) {
 #define ZONA_HAVE_VL_VERTEX_PASS 1
 #endif
 
-// Stage 2: the vertex pass over the pool.
+// The vertex pass over positions [begin, end) of AssemblyPlan::vertex_chunk_order.
+struct OrderedContext {
+  PassContext pass;
+  ThreadPool::ChunkFn chunks;
+};
+
+void integrate_in_order(void* context, int64_t begin, int64_t end) {
+  OrderedContext& c = *static_cast<OrderedContext*>(context);
+  const int32_t* order = c.pass.state->assembly.vertex_chunk_order.data();
+  for (int64_t i = begin; i < end;) {  // runs of consecutive chunks in one call
+    int64_t j = i + 1;
+    while (j < end && order[j] == order[j - 1] + 1) ++j;
+    c.chunks(&c.pass, order[i], order[j - 1] + 1);
+    i = j;
+  }
+}
+
+// Stage 2: the vertex pass over the pool, in the plan's chunk order.
 void integrate_vertices(const Model& model, State& state) {
-  PassContext context{&model, &state};
-  ThreadPool::ChunkFn pass = &integrate_chunks;
+  OrderedContext context{{&model, &state}, &integrate_chunks};
 #ifdef ZONA_HAVE_VL_VERTEX_PASS
-  if (cpu_simd_registers() >= 32) pass = &integrate_chunks_vl;
+  if (cpu_simd_registers() >= 32) context.chunks = &integrate_chunks_vl;
 #endif
-  state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), pass, &context);
+  state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &integrate_in_order,
+                  &context);
   state.assembly.dirty = false;
 }
 

@@ -2,6 +2,7 @@
 #include "engine/state.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <thread>
 
 namespace zona {
@@ -183,6 +184,77 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     plan.corner_block.clear();
   plan.blocks.resize(static_cast<size_t>(4 * (late_base + late)));
   reset_assembly_blocks(state);
+
+  // The vertex pass's chunk order: each thread's home slice of it (ThreadPool: equal slices)
+  // gets the chunks whose sums its own segments wrote, as far as the equal slices allow. A
+  // vertex's sums are its block, written by the home thread of its owner segment, and its late
+  // slots, each written by the home thread of its tetrahedron's segment; a chunk that runs on
+  // another thread reads those across cores. Greedy: chunks with the most to lose first, each
+  // to the thread that wrote most of its sums among those with room left.
+  const int64_t threads = state.pool ? state.pool->thread_count() : 1;
+  const int64_t segments = plan.segment_count();
+  const auto home_thread = [&](int64_t segment) {  // ThreadPool's slice holding `segment`
+    int64_t i = 0;
+    while (i + 1 < threads && segments * (i + 1) / threads <= segment) ++i;
+    return i;
+  };
+  const int64_t vertex_chunks = (nv + kVertexChunk - 1) / kVertexChunk;
+  std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
+  for (int64_t v = 0; v < nv; ++v) {
+    const int32_t begin = adj.offsets[static_cast<size_t>(v)];
+    const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
+    if (begin == end) continue;
+    int64_t* w = written.data() + (v / kVertexChunk) * threads;
+    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
+    ++w[home_thread(owner)];
+    for (int32_t i = begin; i < end; ++i) {
+      const int64_t segment = segment_of(adj.tets[static_cast<size_t>(i)]);
+      if (all_late || segment != owner) ++w[home_thread(segment)];
+    }
+  }
+  const auto best_two = [&](int64_t c) {  // the largest and second largest counts of chunk c
+    int64_t a = -1, b = -1;
+    for (int64_t t = 0; t < threads; ++t) {
+      const int64_t x = written[static_cast<size_t>(c * threads + t)];
+      if (x > a) {
+        b = a;
+        a = x;
+      } else if (x > b) {
+        b = x;
+      }
+    }
+    return std::pair<int64_t, int64_t>{a, b};
+  };
+  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
+  for (int64_t c = 0; c < vertex_chunks; ++c) by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
+  std::stable_sort(by_loss.begin(), by_loss.end(), [&](int32_t x, int32_t y) {
+    const auto [xa, xb] = best_two(x);
+    const auto [ya, yb] = best_two(y);
+    return xa - xb > ya - yb;
+  });
+  std::vector<std::vector<int32_t>> home(static_cast<size_t>(threads));
+  for (int32_t c : by_loss) {
+    int64_t pick = -1;
+    for (int64_t t = 0; t < threads; ++t) {
+      const int64_t room = vertex_chunks * (t + 1) / threads - vertex_chunks * t / threads -
+                           static_cast<int64_t>(home[static_cast<size_t>(t)].size());
+      if (room > 0 && (pick < 0 || written[static_cast<size_t>(c * threads + t)] >
+                                       written[static_cast<size_t>(c * threads + pick)]))
+        pick = t;
+    }
+    home[static_cast<size_t>(pick)].push_back(c);
+  }
+  plan.vertex_chunk_order.clear();
+  // ZONA_CPU_VERTEX_ORDER=0: chunk order, for comparisons (docs/performance.md).
+  if (const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER"); env && std::atoi(env) == 0) {
+    for (int64_t c = 0; c < vertex_chunks; ++c)
+      plan.vertex_chunk_order.push_back(static_cast<int32_t>(c));
+    return;
+  }
+  for (std::vector<int32_t>& slice : home) {
+    std::sort(slice.begin(), slice.end());  // ascending within a slice: runs of neighbours
+    plan.vertex_chunk_order.insert(plan.vertex_chunk_order.end(), slice.begin(), slice.end());
+  }
 }
 
 void reset_assembly_blocks(State& state) {

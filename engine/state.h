@@ -82,6 +82,13 @@ struct AssemblyPlan {
                : late_offsets.back() - static_cast<int64_t>(late_offsets.size() - 1);
   }
   bool all_late() const { return !corner_block.empty(); }
+
+  /// The order in which the vertex pass's pool run claims vertex chunks (a permutation of
+  /// [0, vertex chunks)): sorted by which thread wrote the chunk's sums, so that each thread's
+  /// home slice (ThreadPool) holds the chunks whose blocks and late slots its own element
+  /// segments wrote and are still in its cache. Results do not depend on it. The environment
+  /// variable ZONA_CPU_VERTEX_ORDER=0 keeps chunk order (for comparisons).
+  std::vector<int32_t> vertex_chunk_order;
 };
 
 /// Partial results of one chunk of vertices (scratch).
