@@ -5,6 +5,8 @@
 #include <cstdlib>
 #include <thread>
 
+#include <unistd.h>
+
 namespace zona {
 
 State make_state(const Model& model, int thread_count) {
@@ -256,12 +258,21 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   remote_chunk_order += total;
   remote_new += total;
   plan.vertex_chunk_order.clear();
-  // Chunk order where the new one saves less than a tenth of the sums (large meshes, whose
-  // segments' sums leave the caches before the vertex pass anyway: there a measured 1M-vertex
-  // run was no faster with it), and with ZONA_CPU_VERTEX_ORDER=0 (for comparisons,
-  // docs/performance.md).
+  // The order only pays where a thread's share of the step's data stays in its private cache
+  // from the element pass to the vertex pass (per tetrahedron ~128 bytes of shape, material and
+  // corner codes; per vertex ~192 of displacements, loads, coefficients and sums; 32 per late
+  // slot) and where it saves at least a tenth of the sums: measured faster at 1101 vertices,
+  // slower at 16k (docs/performance.md). Chunk order elsewhere. ZONA_CPU_VERTEX_ORDER=0 asks
+  // for chunk order and =1 for the new order everywhere (comparisons and tests).
+  const long cache = sysconf(_SC_LEVEL2_CACHE_SIZE);
+  const double thread_bytes =
+      (128.0 * static_cast<double>(nt) + 192.0 * static_cast<double>(nv) +
+       32.0 * static_cast<double>(late)) / static_cast<double>(threads);
+  const bool fits = thread_bytes <= (cache > 0 ? static_cast<double>(cache) : 1048576.0);
   const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER");
-  if ((env && std::atoi(env) == 0) || 10 * (remote_chunk_order - remote_new) < total) {
+  const bool wanted = env ? std::atoi(env) != 0
+                          : fits && 10 * (remote_chunk_order - remote_new) >= total;
+  if (!wanted) {
     for (int64_t c = 0; c < vertex_chunks; ++c)
       plan.vertex_chunk_order.push_back(static_cast<int32_t>(c));
     return;

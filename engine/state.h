@@ -87,8 +87,9 @@ struct AssemblyPlan {
   /// [0, vertex chunks)): sorted by which thread wrote the chunk's sums, so that each thread's
   /// home slice (ThreadPool) holds the chunks whose blocks and late slots its own element
   /// segments wrote and are still in its cache. Results do not depend on it. Chunk order where
-  /// that saves less than a tenth of the sums read across cores (large meshes), or where the
-  /// environment sets ZONA_CPU_VERTEX_ORDER=0 (for comparisons).
+  /// a thread's share of the step's data exceeds its L2 cache or the order would save less than
+  /// a tenth of the sums read across cores; ZONA_CPU_VERTEX_ORDER=0 or 1 forces chunk order or
+  /// the new order (comparisons, tests).
   std::vector<int32_t> vertex_chunk_order;
 };
 

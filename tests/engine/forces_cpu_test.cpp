@@ -8,7 +8,9 @@
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 #include <vector>
 
 #include "engine/integrator.h"
@@ -234,14 +236,25 @@ int64_t remote_sums(const Model& model, const State& s, const std::vector<int32_
 // The vertex pass claims its chunks in AssemblyPlan::vertex_chunk_order: a permutation (every
 // chunk once), the identity for one thread, and one that leaves fewer sums to be read across
 // cores than chunk order does (on the bench mesh, where two segments write 2316 late slots).
+// Forced on with ZONA_CPU_VERTEX_ORDER=1: by default the plan also asks whether the data fits
+// in this machine's L2 cache.
 TEST(ForcesCpu, VertexChunkOrderKeepsSumsOnTheThreadThatWroteThem) {
   const Mesh mesh = generate_cell_mesh(table2_spec(1093)).value();
   ModelDesc d;
   d.fixed_vertices = bench_fixed_vertices(mesh);
   const Model model = build_model(mesh, d).value();
-  for (int threads : {1, 2, 3}) {
+  const char* saved = std::getenv("ZONA_CPU_VERTEX_ORDER");
+  const std::string restore = saved ? saved : "";
+  ::setenv("ZONA_CPU_VERTEX_ORDER", "1", 1);
+  std::vector<State> states;
+  for (int threads : {1, 2, 3}) states.push_back(make_state(model, threads));
+  if (saved)
+    ::setenv("ZONA_CPU_VERTEX_ORDER", restore.c_str(), 1);
+  else
+    ::unsetenv("ZONA_CPU_VERTEX_ORDER");
+  for (const State& s : states) {
+    const int threads = s.pool->thread_count();
     SCOPED_TRACE(::testing::Message() << threads << " threads");
-    const State s = make_state(model, threads);
     const std::vector<int32_t>& order = s.assembly.vertex_chunk_order;
     std::vector<int32_t> identity(s.vertex_chunks.size());
     for (size_t i = 0; i < identity.size(); ++i) identity[i] = static_cast<int32_t>(i);
