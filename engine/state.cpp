@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cstdlib>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include <unistd.h>
 
@@ -116,6 +118,114 @@ std::vector<int64_t> balanced_segments(const Model& model, int64_t segments, boo
   return bounds;
 }
 
+// AssemblyPlan::vertex_chunk_order for `plan` (its segments and late slots set) and `threads`.
+std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& plan,
+                                        int64_t threads, bool all_late) {
+  const int64_t nt = static_cast<int64_t>(model.tet_count());
+  const int64_t nv = static_cast<int64_t>(model.vertex_count());
+  const int64_t late = plan.late_count();
+  const VertexTetAdjacency& adj = model.adjacency;
+  const auto segment_of = [&](int64_t t) {  // as in make_assembly_plan
+    return static_cast<int64_t>(std::upper_bound(plan.segment_chunk.begin(),
+                                                 plan.segment_chunk.end() - 1, t / kTetChunk) -
+                                plan.segment_chunk.begin() - 1);
+  };
+  // The vertex pass's chunk order: each thread's home slice of it (ThreadPool: equal slices)
+  // gets the chunks whose sums its own segments wrote, as far as the equal slices allow. A
+  // vertex's sums are its block, written by the home thread of its owner segment, and its late
+  // slots, each written by the home thread of its tetrahedron's segment; a chunk that runs on
+  // another thread reads those across cores. Greedy: chunks with the most to lose first, each
+  // to the thread that wrote most of its sums among those with room left.
+  const int64_t segments = plan.segment_count();
+  const auto home_thread = [&](int64_t segment) {  // ThreadPool's slice holding `segment`
+    int64_t i = 0;
+    while (i + 1 < threads && segments * (i + 1) / threads <= segment) ++i;
+    return i;
+  };
+  const int64_t vertex_chunks = (nv + kVertexChunk - 1) / kVertexChunk;
+  std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
+  for (int64_t v = 0; v < nv; ++v) {
+    const int32_t begin = adj.offsets[static_cast<size_t>(v)];
+    const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
+    if (begin == end) continue;
+    int64_t* w = written.data() + (v / kVertexChunk) * threads;
+    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
+    ++w[home_thread(owner)];
+    for (int32_t i = begin; i < end; ++i) {
+      const int64_t segment = segment_of(adj.tets[static_cast<size_t>(i)]);
+      if (all_late || segment != owner) ++w[home_thread(segment)];
+    }
+  }
+  const auto best_two = [&](int64_t c) {  // the largest and second largest counts of chunk c
+    int64_t a = -1, b = -1;
+    for (int64_t t = 0; t < threads; ++t) {
+      const int64_t x = written[static_cast<size_t>(c * threads + t)];
+      if (x > a) {
+        b = a;
+        a = x;
+      } else if (x > b) {
+        b = x;
+      }
+    }
+    return std::pair<int64_t, int64_t>{a, b};
+  };
+  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
+  for (int64_t c = 0; c < vertex_chunks; ++c) by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
+  std::stable_sort(by_loss.begin(), by_loss.end(), [&](int32_t x, int32_t y) {
+    const auto [xa, xb] = best_two(x);
+    const auto [ya, yb] = best_two(y);
+    return xa - xb > ya - yb;
+  });
+  std::vector<std::vector<int32_t>> home(static_cast<size_t>(threads));
+  for (int32_t c : by_loss) {
+    int64_t pick = -1;
+    for (int64_t t = 0; t < threads; ++t) {
+      const int64_t room = vertex_chunks * (t + 1) / threads - vertex_chunks * t / threads -
+                           static_cast<int64_t>(home[static_cast<size_t>(t)].size());
+      if (room > 0 && (pick < 0 || written[static_cast<size_t>(c * threads + t)] >
+                                       written[static_cast<size_t>(c * threads + pick)]))
+        pick = t;
+    }
+    home[static_cast<size_t>(pick)].push_back(c);
+  }
+  // Sums read across cores: chunk c on thread t reads those the other threads wrote.
+  int64_t total = 0, remote_chunk_order = 0, remote_new = 0;
+  for (int64_t t = 0; t < threads; ++t) {
+    for (int64_t c = vertex_chunks * t / threads; c < vertex_chunks * (t + 1) / threads; ++c)
+      remote_chunk_order -= written[static_cast<size_t>(c * threads + t)];
+    for (int32_t c : home[static_cast<size_t>(t)])
+      remote_new -= written[static_cast<size_t>(c * threads + t)];
+  }
+  for (int64_t w : written) total += w;
+  remote_chunk_order += total;
+  remote_new += total;
+  std::vector<int32_t> order;
+  order.reserve(static_cast<size_t>(vertex_chunks));
+  // The order only pays where a thread's share of the step's data stays in its private cache
+  // from the element pass to the vertex pass (per tetrahedron ~128 bytes of shape, material and
+  // corner codes; per vertex ~192 of displacements, loads, coefficients and sums; 32 per late
+  // slot) and where it saves at least a tenth of the sums: measured faster at 1101 vertices,
+  // slower at 16k (docs/performance.md). Chunk order elsewhere. ZONA_CPU_VERTEX_ORDER=0 asks
+  // for chunk order and =1 for the new order everywhere (comparisons and tests).
+  const long cache = sysconf(_SC_LEVEL2_CACHE_SIZE);
+  const double thread_bytes =
+      (128.0 * static_cast<double>(nt) + 192.0 * static_cast<double>(nv) +
+       32.0 * static_cast<double>(late)) / static_cast<double>(threads);
+  const bool fits = thread_bytes <= (cache > 0 ? static_cast<double>(cache) : 1048576.0);
+  const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER");
+  const bool wanted = env ? std::atoi(env) != 0
+                          : fits && 10 * (remote_chunk_order - remote_new) >= total;
+  if (!wanted) {
+    for (int64_t c = 0; c < vertex_chunks; ++c) order.push_back(static_cast<int32_t>(c));
+    return order;
+  }
+  for (std::vector<int32_t>& slice : home) {
+    std::sort(slice.begin(), slice.end());  // ascending within a slice: runs of neighbours
+    order.insert(order.end(), slice.begin(), slice.end());
+  }
+  return order;
+}
+
 }  // namespace
 
 int64_t assembly_segment_count(const Model& model, int thread_count) {
@@ -187,100 +297,8 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   plan.blocks.resize(static_cast<size_t>(4 * (late_base + late)));
   reset_assembly_blocks(state);
 
-  // The vertex pass's chunk order: each thread's home slice of it (ThreadPool: equal slices)
-  // gets the chunks whose sums its own segments wrote, as far as the equal slices allow. A
-  // vertex's sums are its block, written by the home thread of its owner segment, and its late
-  // slots, each written by the home thread of its tetrahedron's segment; a chunk that runs on
-  // another thread reads those across cores. Greedy: chunks with the most to lose first, each
-  // to the thread that wrote most of its sums among those with room left.
-  const int64_t threads = state.pool ? state.pool->thread_count() : 1;
-  const int64_t segments = plan.segment_count();
-  const auto home_thread = [&](int64_t segment) {  // ThreadPool's slice holding `segment`
-    int64_t i = 0;
-    while (i + 1 < threads && segments * (i + 1) / threads <= segment) ++i;
-    return i;
-  };
-  const int64_t vertex_chunks = (nv + kVertexChunk - 1) / kVertexChunk;
-  std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
-  for (int64_t v = 0; v < nv; ++v) {
-    const int32_t begin = adj.offsets[static_cast<size_t>(v)];
-    const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
-    if (begin == end) continue;
-    int64_t* w = written.data() + (v / kVertexChunk) * threads;
-    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
-    ++w[home_thread(owner)];
-    for (int32_t i = begin; i < end; ++i) {
-      const int64_t segment = segment_of(adj.tets[static_cast<size_t>(i)]);
-      if (all_late || segment != owner) ++w[home_thread(segment)];
-    }
-  }
-  const auto best_two = [&](int64_t c) {  // the largest and second largest counts of chunk c
-    int64_t a = -1, b = -1;
-    for (int64_t t = 0; t < threads; ++t) {
-      const int64_t x = written[static_cast<size_t>(c * threads + t)];
-      if (x > a) {
-        b = a;
-        a = x;
-      } else if (x > b) {
-        b = x;
-      }
-    }
-    return std::pair<int64_t, int64_t>{a, b};
-  };
-  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
-  for (int64_t c = 0; c < vertex_chunks; ++c) by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
-  std::stable_sort(by_loss.begin(), by_loss.end(), [&](int32_t x, int32_t y) {
-    const auto [xa, xb] = best_two(x);
-    const auto [ya, yb] = best_two(y);
-    return xa - xb > ya - yb;
-  });
-  std::vector<std::vector<int32_t>> home(static_cast<size_t>(threads));
-  for (int32_t c : by_loss) {
-    int64_t pick = -1;
-    for (int64_t t = 0; t < threads; ++t) {
-      const int64_t room = vertex_chunks * (t + 1) / threads - vertex_chunks * t / threads -
-                           static_cast<int64_t>(home[static_cast<size_t>(t)].size());
-      if (room > 0 && (pick < 0 || written[static_cast<size_t>(c * threads + t)] >
-                                       written[static_cast<size_t>(c * threads + pick)]))
-        pick = t;
-    }
-    home[static_cast<size_t>(pick)].push_back(c);
-  }
-  // Sums read across cores: chunk c on thread t reads those the other threads wrote.
-  int64_t total = 0, remote_chunk_order = 0, remote_new = 0;
-  for (int64_t t = 0; t < threads; ++t) {
-    for (int64_t c = vertex_chunks * t / threads; c < vertex_chunks * (t + 1) / threads; ++c)
-      remote_chunk_order -= written[static_cast<size_t>(c * threads + t)];
-    for (int32_t c : home[static_cast<size_t>(t)])
-      remote_new -= written[static_cast<size_t>(c * threads + t)];
-  }
-  for (int64_t w : written) total += w;
-  remote_chunk_order += total;
-  remote_new += total;
-  plan.vertex_chunk_order.clear();
-  // The order only pays where a thread's share of the step's data stays in its private cache
-  // from the element pass to the vertex pass (per tetrahedron ~128 bytes of shape, material and
-  // corner codes; per vertex ~192 of displacements, loads, coefficients and sums; 32 per late
-  // slot) and where it saves at least a tenth of the sums: measured faster at 1101 vertices,
-  // slower at 16k (docs/performance.md). Chunk order elsewhere. ZONA_CPU_VERTEX_ORDER=0 asks
-  // for chunk order and =1 for the new order everywhere (comparisons and tests).
-  const long cache = sysconf(_SC_LEVEL2_CACHE_SIZE);
-  const double thread_bytes =
-      (128.0 * static_cast<double>(nt) + 192.0 * static_cast<double>(nv) +
-       32.0 * static_cast<double>(late)) / static_cast<double>(threads);
-  const bool fits = thread_bytes <= (cache > 0 ? static_cast<double>(cache) : 1048576.0);
-  const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER");
-  const bool wanted = env ? std::atoi(env) != 0
-                          : fits && 10 * (remote_chunk_order - remote_new) >= total;
-  if (!wanted) {
-    for (int64_t c = 0; c < vertex_chunks; ++c)
-      plan.vertex_chunk_order.push_back(static_cast<int32_t>(c));
-    return;
-  }
-  for (std::vector<int32_t>& slice : home) {
-    std::sort(slice.begin(), slice.end());  // ascending within a slice: runs of neighbours
-    plan.vertex_chunk_order.insert(plan.vertex_chunk_order.end(), slice.begin(), slice.end());
-  }
+  plan.vertex_chunk_order =
+      vertex_chunk_order(model, plan, state.pool ? state.pool->thread_count() : 1, all_late);
 }
 
 void reset_assembly_blocks(State& state) {
