@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cstdlib>
 #include <thread>
-#include <utility>
 #include <vector>
 
 #include <unistd.h>
@@ -118,6 +117,13 @@ std::vector<int64_t> balanced_segments(const Model& model, int64_t segments, boo
   return bounds;
 }
 
+// The segment of tetrahedron t: the last one whose first chunk is <= t's chunk.
+int64_t segment_of(const std::vector<int64_t>& segment_chunk, int64_t t) {
+  return static_cast<int64_t>(
+      std::upper_bound(segment_chunk.begin(), segment_chunk.end() - 1, t / kTetChunk) -
+      segment_chunk.begin() - 1);
+}
+
 // AssemblyPlan::vertex_chunk_order for `plan` (its segments and late slots set) and `threads`.
 std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& plan,
                                         int64_t threads, bool all_late) {
@@ -125,11 +131,6 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
   const int64_t nv = static_cast<int64_t>(model.vertex_count());
   const int64_t late = plan.late_count();
   const VertexTetAdjacency& adj = model.adjacency;
-  const auto segment_of = [&](int64_t t) {  // as in make_assembly_plan
-    return static_cast<int64_t>(std::upper_bound(plan.segment_chunk.begin(),
-                                                 plan.segment_chunk.end() - 1, t / kTetChunk) -
-                                plan.segment_chunk.begin() - 1);
-  };
   // The vertex pass's chunk order: each thread's home slice of it (ThreadPool: equal slices)
   // gets the chunks whose sums its own segments wrote, as far as the equal slices allow. A
   // vertex's sums are its block, written by the home thread of its owner segment, and its late
@@ -137,50 +138,47 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
   // another thread reads those across cores. Greedy: chunks with the most to lose first, each
   // to the thread that wrote most of its sums among those with room left.
   const int64_t segments = plan.segment_count();
-  const auto home_thread = [&](int64_t segment) {  // ThreadPool's slice holding `segment`
-    int64_t i = 0;
-    while (i + 1 < threads && segments * (i + 1) / threads <= segment) ++i;
-    return i;
-  };
   const int64_t vertex_chunks = (nv + kVertexChunk - 1) / kVertexChunk;
+  const auto home_thread = [&](int64_t segment) {
+    return ThreadPool::home_thread(segment, segments, threads);
+  };
+  const auto slice_begin = [&](int64_t t) {  // of the vertex pass's run
+    return ThreadPool::slice_begin(vertex_chunks, t, threads);
+  };
   std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
   for (int64_t v = 0; v < nv; ++v) {
     const int32_t begin = adj.offsets[static_cast<size_t>(v)];
     const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
     if (begin == end) continue;
     int64_t* w = written.data() + (v / kVertexChunk) * threads;
-    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
+    const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
     ++w[home_thread(owner)];
     for (int32_t i = begin; i < end; ++i) {
-      const int64_t segment = segment_of(adj.tets[static_cast<size_t>(i)]);
+      const int64_t segment = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(i)]);
       if (all_late || segment != owner) ++w[home_thread(segment)];
     }
   }
-  const auto best_two = [&](int64_t c) {  // the largest and second largest counts of chunk c
+  // What a chunk loses on any thread but its best: its largest count minus the second largest.
+  std::vector<int64_t> loss(static_cast<size_t>(vertex_chunks));
+  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
+  for (int64_t c = 0; c < vertex_chunks; ++c) {
+    const int64_t* w = written.data() + c * threads;
     int64_t a = -1, b = -1;
     for (int64_t t = 0; t < threads; ++t) {
-      const int64_t x = written[static_cast<size_t>(c * threads + t)];
-      if (x > a) {
-        b = a;
-        a = x;
-      } else if (x > b) {
-        b = x;
-      }
+      b = std::max(b, std::min(a, w[t]));
+      a = std::max(a, w[t]);
     }
-    return std::pair<int64_t, int64_t>{a, b};
-  };
-  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
-  for (int64_t c = 0; c < vertex_chunks; ++c) by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
+    loss[static_cast<size_t>(c)] = a - b;
+    by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
+  }
   std::stable_sort(by_loss.begin(), by_loss.end(), [&](int32_t x, int32_t y) {
-    const auto [xa, xb] = best_two(x);
-    const auto [ya, yb] = best_two(y);
-    return xa - xb > ya - yb;
+    return loss[static_cast<size_t>(x)] > loss[static_cast<size_t>(y)];
   });
   std::vector<std::vector<int32_t>> home(static_cast<size_t>(threads));
   for (int32_t c : by_loss) {
     int64_t pick = -1;
     for (int64_t t = 0; t < threads; ++t) {
-      const int64_t room = vertex_chunks * (t + 1) / threads - vertex_chunks * t / threads -
+      const int64_t room = slice_begin(t + 1) - slice_begin(t) -
                            static_cast<int64_t>(home[static_cast<size_t>(t)].size());
       if (room > 0 && (pick < 0 || written[static_cast<size_t>(c * threads + t)] >
                                        written[static_cast<size_t>(c * threads + pick)]))
@@ -191,7 +189,7 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
   // Sums read across cores: chunk c on thread t reads those the other threads wrote.
   int64_t total = 0, remote_chunk_order = 0, remote_new = 0;
   for (int64_t t = 0; t < threads; ++t) {
-    for (int64_t c = vertex_chunks * t / threads; c < vertex_chunks * (t + 1) / threads; ++c)
+    for (int64_t c = slice_begin(t); c < slice_begin(t + 1); ++c)
       remote_chunk_order -= written[static_cast<size_t>(c * threads + t)];
     for (int32_t c : home[static_cast<size_t>(t)])
       remote_new -= written[static_cast<size_t>(c * threads + t)];
@@ -249,13 +247,6 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   AssemblyPlan& plan = state.assembly;
   plan.segment_chunk = balanced_segments(
       model, std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks)), all_late);
-  const auto segment_of = [&](int64_t t) {
-    // The last segment whose first chunk is <= t's chunk.
-    const int64_t chunk = t / kTetChunk;
-    return static_cast<int64_t>(
-        std::upper_bound(plan.segment_chunk.begin(), plan.segment_chunk.end() - 1, chunk) -
-        plan.segment_chunk.begin() - 1);
-  };
   // Late corners, vertex by vertex in adjacency (ascending tetrahedron) order.
   const VertexTetAdjacency& adj = model.adjacency;
   plan.late_offsets.assign(static_cast<size_t>(nv + 1), 0);
@@ -267,11 +258,11 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     const int32_t begin = adj.offsets[static_cast<size_t>(v)];
     const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
     if (begin == end) continue;
-    const int64_t owner = segment_of(adj.tets[static_cast<size_t>(begin)]);
+    const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
     for (int32_t i = begin; i < end; ++i) {
       const int64_t t = adj.tets[static_cast<size_t>(i)];
       const size_t k = static_cast<size_t>(4 * t + adj.corner[static_cast<size_t>(i)]);
-      if (all_late || segment_of(t) != owner) {
+      if (all_late || segment_of(plan.segment_chunk, t) != owner) {
         block[k] = static_cast<int32_t>(late_base + late++);
       } else {
         block[k] = static_cast<int32_t>(v);

@@ -101,11 +101,11 @@ void ThreadPool::run(int64_t chunk_count, ChunkFn fn, void* context) {
   fn_ = fn;
   context_ = context;
   ++job_;
-  const uint64_t count = static_cast<uint64_t>(chunk_count);
-  const uint64_t threads = static_cast<uint64_t>(thread_count_);
-  for (uint64_t i = 0; i < threads; ++i)
-    slices_[i].word.store(pack_claim(job_, count * (i + 1) / threads, count * i / threads),
-                          std::memory_order_release);
+  for (int i = 0; i < thread_count_; ++i)
+    slices_[static_cast<size_t>(i)].word.store(
+        pack_claim(job_, static_cast<uint64_t>(slice_begin(chunk_count, i + 1, thread_count_)),
+                   static_cast<uint64_t>(slice_begin(chunk_count, i, thread_count_))),
+        std::memory_order_release);
   generation_.fetch_add(1, std::memory_order_seq_cst);
   // Only sleeping workers need the system call; spinning ones see the new generation.
   if (sleepers_.load(std::memory_order_seq_cst) > 0) generation_.notify_all();

@@ -34,6 +34,19 @@ class ThreadPool {
   /// Number of threads that share the work, the caller included.
   int thread_count() const { return thread_count_; }
 
+  /// First chunk of thread `thread`'s home slice when `chunk_count` chunks are run on `threads`
+  /// threads (slice i is [slice_begin(n, i, T), slice_begin(n, i + 1, T))). For callers that
+  /// place data where a slice's thread will want it.
+  static constexpr int64_t slice_begin(int64_t chunk_count, int64_t thread, int64_t threads) {
+    return chunk_count * thread / threads;
+  }
+  /// The thread whose home slice holds `chunk`.
+  static constexpr int64_t home_thread(int64_t chunk, int64_t chunk_count, int64_t threads) {
+    int64_t i = 0;
+    while (i + 1 < threads && slice_begin(chunk_count, i + 1, threads) <= chunk) ++i;
+    return i;
+  }
+
   /// Runs fn over chunks [0, chunk_count) (at most 2^24 chunks) and returns when all are done.
   /// Not reentrant: one caller at a time (the simulation thread).
   void run(int64_t chunk_count, ChunkFn fn, void* context);
