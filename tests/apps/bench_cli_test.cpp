@@ -130,4 +130,75 @@ TEST(BenchCli, RepeatScriptCollectsEveryRunAndSummarises) {
   EXPECT_EQ(shell("bash " + script + " 2>/dev/null").second, 2);
 }
 
+
+#ifdef ZONA_VCPU_PROBE_PATH
+// bench/vcpu_pair_bench: one line per round, the combined two-thread rate over the one-thread
+// rate consistent with the rates printed; bad options exit 2. (Its value, ~1 to ~2, depends on
+// the machine and the minute, so only its range is checked.)
+TEST(BenchCli, VcpuPairProbePrintsConsistentRates) {
+  const std::string probe = ZONA_VCPU_PROBE_PATH;
+  const auto [out, code] = shell(probe + " --iterations 2000000 --rounds 3 2>&1");
+  if (code == 1) GTEST_SKIP() << out;  // no AVX2/FMA on this CPU
+  ASSERT_EQ(code, 0) << out;
+  std::istringstream lines(out);
+  std::string line;
+  int rounds = 0;
+  while (std::getline(lines, line)) {
+    std::istringstream row(line);
+    double one = 0, a = 0, b = 0, pair = 0;
+    ASSERT_TRUE(row >> one >> a >> b >> pair) << line;
+    EXPECT_GT(one, 0) << line;
+    EXPECT_GT(a, 0) << line;
+    EXPECT_GT(b, 0) << line;
+    EXPECT_NEAR(pair, (a + b) / one, 0.002 + 1e-3 * pair) << line;
+    EXPECT_LT(pair, 4.0) << line;  // two threads cannot do four threads' work
+    ++rounds;
+  }
+  EXPECT_EQ(rounds, 3);
+  EXPECT_EQ(shell(probe + " --rounds 0 2>/dev/null").second, 2);
+  EXPECT_EQ(shell(probe + " --bogus 2>/dev/null").second, 2);
+}
+
+// VCPU_PROBE adds the probe's readings before and after each run as two more leading columns.
+TEST(BenchCli, RepeatScriptAddsTheProbeColumns) {
+  const std::string script = std::string(ZONA_SOURCE_DIR) + "/bench/repeat_bench.sh";
+  const std::string path =
+      (std::filesystem::temp_directory_path() / "zona_repeat_bench_probe.csv").string();
+  if (shell(std::string(ZONA_VCPU_PROBE_PATH) + " --iterations 1000 --rounds 1 >/dev/null 2>&1")
+          .second == 1)
+    GTEST_SKIP() << "no AVX2/FMA on this CPU";
+  const auto [out, code] =
+      shell(std::string("VCPU_PROBE=") + ZONA_VCPU_PROBE_PATH + " bash " + script + " " +
+            ZONA_CLI_PATH + " 2 0 " + path +
+            " --backend cpu --vertices 150 --steps 2 --repeats 1 --threads 1 --copy-mib 4 2>/dev/null");
+  ASSERT_EQ(code, 0) << out;
+  std::ifstream f(path);
+  std::string line, header;
+  std::vector<std::string> rows;
+  while (std::getline(f, line)) {
+    if (line.rfind("#", 0) == 0) continue;
+    if (header.empty())
+      header = line;
+    else
+      rows.push_back(line);
+  }
+  std::filesystem::remove(path);
+  EXPECT_EQ(header.rfind("run,host_steal_pct,vcpu_pair_before,vcpu_pair_after,backend,", 0), 0u)
+      << header;
+  ASSERT_EQ(rows.size(), 2u);
+  for (const std::string& row : rows) {
+    std::istringstream cells(row);
+    std::string run, steal, before, after, backend;
+    std::getline(cells, run, ',');
+    std::getline(cells, steal, ',');
+    std::getline(cells, before, ',');
+    std::getline(cells, after, ',');
+    std::getline(cells, backend, ',');
+    EXPECT_GT(std::stod(before), 0) << row;
+    EXPECT_GT(std::stod(after), 0) << row;
+    EXPECT_EQ(backend, "cpu") << row;
+  }
+}
+#endif
+
 }  // namespace
