@@ -6,15 +6,21 @@
 // placed both vCPUs on one core at that moment). On a cloud VM the answer can change from one
 // minute to the next (bench/README.md, docs/performance.md "Seventh round"); run it beside a
 // benchmark to tell the machine's state from the code's (bench/repeat_bench.sh, VCPU_PROBE).
+// With --stream-kib K each thread instead sweeps a private array of K KiB (a = 0.999 a + b, two
+// reads and a write per element; cache-resident for small K): the vCPUs of a shared host can be
+// equal for arithmetic and unequal for loads and stores (docs/performance.md, "Seventh round").
 //
-//   vcpu_pair_bench [--iterations N] [--rounds R]
+//   vcpu_pair_bench [--iterations N] [--rounds R] [--stream-kib K]
 //
-// One line per round: fma_per_ns_one fma_per_ns_two_a fma_per_ns_two_b pair_scaling.
+// One line per round: rate_one rate_two_a rate_two_b pair_scaling, where a rate is FMA
+// instructions per ns, or GB/s with --stream-kib.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <thread>
+#include <vector>
 
 namespace {
 
@@ -49,6 +55,22 @@ double fma_rate(long iterations) {
   return static_cast<double>(iterations) * 10.0 / s / 1e9;
 }
 
+// GB/s of `sweeps` sweeps of a = 0.999 a + b over private arrays of `kib` KiB in all.
+double stream_rate(long kib, long sweeps) {
+  const size_t n = static_cast<size_t>(kib) * 1024 / (2 * sizeof(double));
+  std::vector<double> a(n, 1.0), b(n, 1e-9);
+  const auto start = std::chrono::steady_clock::now();
+  for (long r = 0; r < sweeps; ++r) {
+    double* __restrict pa = a.data();
+    const double* __restrict pb = b.data();
+    for (size_t i = 0; i < n; ++i) pa[i] = 0.999 * pa[i] + pb[i];
+    asm volatile("" : : "r"(pa) : "memory");
+  }
+  const double s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return 3.0 * sizeof(double) * static_cast<double>(n) * static_cast<double>(sweeps) / s / 1e9;
+}
+
 long parse_positive(const char* text, const char* flag) {
   char* end = nullptr;
   const long v = std::strtol(text, &end, 10);
@@ -64,13 +86,17 @@ long parse_positive(const char* text, const char* flag) {
 int main(int argc, char** argv) {
   long iterations = 30'000'000;
   long rounds = 4;
+  long stream_kib = 0;  // 0: the FMA kernel
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--iterations") == 0 && i + 1 < argc) {
       iterations = parse_positive(argv[++i], "--iterations");
     } else if (std::strcmp(argv[i], "--rounds") == 0 && i + 1 < argc) {
       rounds = parse_positive(argv[++i], "--rounds");
+    } else if (std::strcmp(argv[i], "--stream-kib") == 0 && i + 1 < argc) {
+      stream_kib = parse_positive(argv[++i], "--stream-kib");
     } else {
-      std::fprintf(stderr, "usage: vcpu_pair_bench [--iterations N] [--rounds R]\n");
+      std::fprintf(stderr,
+                   "usage: vcpu_pair_bench [--iterations N] [--rounds R] [--stream-kib K]\n");
       return 2;
     }
   }
@@ -84,11 +110,17 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "vcpu_pair_bench: x86-64 only; nothing to measure\n");
   return 1;
 #endif
+  // The stream kernel moves ~3 * 8 bytes per FMA instruction of the other; scale its sweeps so
+  // that both take a similar time for the same --iterations.
+  const long sweeps = std::max(1L, iterations * 10 / std::max(1L, stream_kib * 1024 / 16));
+  const auto rate = [&] {
+    return stream_kib > 0 ? stream_rate(stream_kib, sweeps) : fma_rate(iterations);
+  };
   for (long r = 0; r < rounds; ++r) {
-    const double one = fma_rate(iterations);
+    const double one = rate();
     double two[2] = {0, 0};
-    std::thread other([&] { two[1] = fma_rate(iterations); });
-    two[0] = fma_rate(iterations);
+    std::thread other([&] { two[1] = rate(); });
+    two[0] = rate();
     other.join();
     std::printf("%.3f %.3f %.3f %.3f\n", one, two[0], two[1], (two[0] + two[1]) / one);
     std::fflush(stdout);
