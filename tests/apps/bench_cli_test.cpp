@@ -99,6 +99,24 @@ std::pair<std::string, int> shell(const std::string& cmd) {
   return {out, WIFEXITED(status) ? WEXITSTATUS(status) : -1};
 }
 
+// The header and data rows of a CSV (comment lines skipped); the file is removed.
+std::pair<std::string, std::vector<std::string>> read_and_remove_csv(const std::string& path) {
+  std::string header, line;
+  std::vector<std::string> rows;
+  {
+    std::ifstream f(path);
+    while (std::getline(f, line)) {
+      if (line.rfind("#", 0) == 0) continue;
+      if (header.empty())
+        header = line;
+      else
+        rows.push_back(line);
+    }
+  }
+  std::filesystem::remove(path);
+  return {header, rows};
+}
+
 // bench/repeat_bench.sh: every run's rows under one header with the run index and the host's
 // steal time in front, and a median / range line per row on stdout; usage errors exit 2.
 TEST(BenchCli, RepeatScriptCollectsEveryRunAndSummarises) {
@@ -109,17 +127,7 @@ TEST(BenchCli, RepeatScriptCollectsEveryRunAndSummarises) {
       shell("bash " + script + " " + ZONA_CLI_PATH + " 3 0 " + path +
             " --backend cpu --vertices 150 --steps 2 --repeats 1 --threads 1 --copy-mib 4 2>/dev/null");
   ASSERT_EQ(code, 0) << out;
-  std::ifstream f(path);
-  std::string header, line;
-  std::vector<std::string> rows;
-  while (std::getline(f, line)) {
-    if (line.rfind("#", 0) == 0) continue;
-    if (header.empty())
-      header = line;
-    else
-      rows.push_back(line);
-  }
-  std::filesystem::remove(path);
+  const auto [header, rows] = read_and_remove_csv(path);
   EXPECT_EQ(header.rfind("run,host_steal_pct,backend,model,formulation,", 0), 0u) << header;
   ASSERT_EQ(rows.size(), 3u);
   for (int i = 0; i < 3; ++i)
@@ -129,7 +137,6 @@ TEST(BenchCli, RepeatScriptCollectsEveryRunAndSummarises) {
   EXPECT_NE(out.find(" vertices: step_ms_median over 3 runs: median "), std::string::npos) << out;
   EXPECT_EQ(shell("bash " + script + " 2>/dev/null").second, 2);
 }
-
 
 #ifdef ZONA_VCPU_PROBE_PATH
 // bench/vcpu_pair_bench, both kernels: one line per round, the combined two-thread rate over the
@@ -176,17 +183,7 @@ TEST(BenchCli, RepeatScriptAddsTheProbeColumns) {
             ZONA_CLI_PATH + " 2 0 " + path +
             " --backend cpu --vertices 150 --steps 2 --repeats 1 --threads 1 --copy-mib 4 2>/dev/null");
   ASSERT_EQ(code, 0) << out;
-  std::ifstream f(path);
-  std::string line, header;
-  std::vector<std::string> rows;
-  while (std::getline(f, line)) {
-    if (line.rfind("#", 0) == 0) continue;
-    if (header.empty())
-      header = line;
-    else
-      rows.push_back(line);
-  }
-  std::filesystem::remove(path);
+  const auto [header, rows] = read_and_remove_csv(path);
   EXPECT_EQ(header.rfind("run,host_steal_pct,vcpu_pair_before,vcpu_pair_after,backend,", 0), 0u)
       << header;
   ASSERT_EQ(rows.size(), 2u);
