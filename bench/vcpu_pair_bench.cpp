@@ -22,11 +22,14 @@
 #include <thread>
 #include <vector>
 
-namespace {
-
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define ZONA_PROBE_X86 1
+#endif
+
+namespace {
+
+#ifdef ZONA_PROBE_X86
 __attribute__((target("avx2,fma"), noinline)) double fma_chains(long iterations) {
   __m256d a[10];
   for (__m256d& x : a) x = _mm256_set1_pd(1.0);
