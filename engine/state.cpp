@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <numeric>
 #include <thread>
 #include <vector>
 
@@ -139,13 +140,31 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
   // to the thread that wrote most of its sums among those with room left.
   const int64_t segments = plan.segment_count();
   const int64_t vertex_chunks = (nv + kVertexChunk - 1) / kVertexChunk;
+  std::vector<int32_t> order(static_cast<size_t>(vertex_chunks));
+  std::iota(order.begin(), order.end(), 0);  // chunk order
+  // The order only pays where a thread's share of the step's data stays in its private cache
+  // from the element pass to the vertex pass (per tetrahedron ~128 bytes of shape, material and
+  // corner codes; per vertex ~192 of displacements, loads, coefficients and sums; 32 per late
+  // slot) and where it saves at least a tenth of the sums (below): measured faster at 1101
+  // vertices, slower at 16k (docs/performance.md). Chunk order elsewhere. ZONA_CPU_VERTEX_ORDER=0
+  // asks for chunk order and =1 for the new order everywhere (comparisons and tests).
+  const long cache = sysconf(_SC_LEVEL2_CACHE_SIZE);
+  const double thread_bytes =
+      (128.0 * static_cast<double>(nt) + 192.0 * static_cast<double>(nv) +
+       32.0 * static_cast<double>(late)) / static_cast<double>(threads);
+  const bool fits = thread_bytes <= (cache > 0 ? static_cast<double>(cache) : 1048576.0);
+  const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER");
+  if (threads <= 1 || (env ? std::atoi(env) == 0 : !fits)) return order;
+
   const auto home_thread = [&](int64_t segment) {
     return ThreadPool::home_thread(segment, segments, threads);
   };
   const auto slice_begin = [&](int64_t t) {  // of the vertex pass's run
     return ThreadPool::slice_begin(vertex_chunks, t, threads);
   };
+  // written[c * threads + t]: the sums of chunk c that thread t wrote.
   std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
+  int64_t total = 0;
   for (int64_t v = 0; v < nv; ++v) {
     const int32_t begin = adj.offsets[static_cast<size_t>(v)];
     const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
@@ -153,14 +172,17 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
     int64_t* w = written.data() + (v / kVertexChunk) * threads;
     const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
     ++w[home_thread(owner)];
+    ++total;
     for (int32_t i = begin; i < end; ++i) {
       const int64_t segment = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(i)]);
-      if (all_late || segment != owner) ++w[home_thread(segment)];
+      if (all_late || segment != owner) {
+        ++w[home_thread(segment)];
+        ++total;
+      }
     }
   }
   // What a chunk loses on any thread but its best: its largest count minus the second largest.
   std::vector<int64_t> loss(static_cast<size_t>(vertex_chunks));
-  std::vector<int32_t> by_loss(static_cast<size_t>(vertex_chunks));
   for (int64_t c = 0; c < vertex_chunks; ++c) {
     const int64_t* w = written.data() + c * threads;
     int64_t a = -1, b = -1;
@@ -169,8 +191,8 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
       a = std::max(a, w[t]);
     }
     loss[static_cast<size_t>(c)] = a - b;
-    by_loss[static_cast<size_t>(c)] = static_cast<int32_t>(c);
   }
+  std::vector<int32_t> by_loss = order;
   std::stable_sort(by_loss.begin(), by_loss.end(), [&](int32_t x, int32_t y) {
     return loss[static_cast<size_t>(x)] > loss[static_cast<size_t>(y)];
   });
@@ -186,37 +208,17 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
     }
     home[static_cast<size_t>(pick)].push_back(c);
   }
-  // Sums read across cores: chunk c on thread t reads those the other threads wrote.
-  int64_t total = 0, remote_chunk_order = 0, remote_new = 0;
+  // Sums read on the thread that wrote them, in chunk order and in the new order; the new
+  // order reads that many fewer across cores.
+  int64_t local_chunk_order = 0, local_new = 0;
   for (int64_t t = 0; t < threads; ++t) {
     for (int64_t c = slice_begin(t); c < slice_begin(t + 1); ++c)
-      remote_chunk_order -= written[static_cast<size_t>(c * threads + t)];
+      local_chunk_order += written[static_cast<size_t>(c * threads + t)];
     for (int32_t c : home[static_cast<size_t>(t)])
-      remote_new -= written[static_cast<size_t>(c * threads + t)];
+      local_new += written[static_cast<size_t>(c * threads + t)];
   }
-  for (int64_t w : written) total += w;
-  remote_chunk_order += total;
-  remote_new += total;
-  std::vector<int32_t> order;
-  order.reserve(static_cast<size_t>(vertex_chunks));
-  // The order only pays where a thread's share of the step's data stays in its private cache
-  // from the element pass to the vertex pass (per tetrahedron ~128 bytes of shape, material and
-  // corner codes; per vertex ~192 of displacements, loads, coefficients and sums; 32 per late
-  // slot) and where it saves at least a tenth of the sums: measured faster at 1101 vertices,
-  // slower at 16k (docs/performance.md). Chunk order elsewhere. ZONA_CPU_VERTEX_ORDER=0 asks
-  // for chunk order and =1 for the new order everywhere (comparisons and tests).
-  const long cache = sysconf(_SC_LEVEL2_CACHE_SIZE);
-  const double thread_bytes =
-      (128.0 * static_cast<double>(nt) + 192.0 * static_cast<double>(nv) +
-       32.0 * static_cast<double>(late)) / static_cast<double>(threads);
-  const bool fits = thread_bytes <= (cache > 0 ? static_cast<double>(cache) : 1048576.0);
-  const char* env = std::getenv("ZONA_CPU_VERTEX_ORDER");
-  const bool wanted = env ? std::atoi(env) != 0
-                          : fits && 10 * (remote_chunk_order - remote_new) >= total;
-  if (!wanted) {
-    for (int64_t c = 0; c < vertex_chunks; ++c) order.push_back(static_cast<int32_t>(c));
-    return order;
-  }
+  if (!env && 10 * (local_new - local_chunk_order) < total) return order;
+  order.clear();
   for (std::vector<int32_t>& slice : home) {
     std::sort(slice.begin(), slice.end());  // ascending within a slice: runs of neighbours
     order.insert(order.end(), slice.begin(), slice.end());
