@@ -111,12 +111,18 @@ template <bool kSvk, class P>
   return h_sq;
 }
 
-// The same element math with fused multiply-adds (P4 or P8d only; inside the FMA passes): ~155
+// The same element math with fused multiply-adds (P4 or P8d only; inside the FMA passes): ~145
 // packed operations per batch instead of ~300. Not bit-identical to fem_element.h (each fused
-// a * b + c rounds once, and the stress is scaled by -V before P = S + H S so that the corner
-// forces are P' g_j directly), but the same operations in the same order for four and eight
-// lanes, so the AVX2 and AVX-512 FMA passes agree bit for bit, and with any thread count.
-// E, S and P' are symmetric where the scalar code's are (E and S formed once per pair).
+// a * b + c rounds once, and the algebra is rearranged to save operations), but the same
+// operations in the same order for four and eight lanes, so the AVX2 and AVX-512 FMA passes
+// agree bit for bit, and with any thread count. The rearrangement, with E2 = 2 E = H + H^T +
+// H^T H (SVK; H + H^T for the linear model):
+//   -V S = k_mu E2 + k_lam tr(E2) I,  k_mu = -V mu, k_lam = -V lambda / 2;
+//   V psi = V (mu E:E + lambda/2 tr(E)^2) = -(k_mu E2:E2 + k_lam tr(E2)^2) / 4;
+// P' = -V P = Q + H Q with Q = -V S, and f_j = P' g_j. For SVK the health filter |H|^2 comes
+// from the trace already formed: tr(E2) = 2 tr(H) + |H|^2 (its rounding, a few ulp of |H|^2 +
+// 4 |tr H|, is far inside the margins of kHealthCheckSkipBelowGradientSq; a NaN or an
+// infinity in H still gives a NaN, which the filter does not pass). E2 and Q are symmetric.
 template <bool kSvk, class P>
 [[gnu::always_inline]] inline P batch_element_math_fma(const TetShape<P>& shape, P lambda, P mu,
                                                        const Vec3<P> du[3], Vec3<P> f[4], P* w) {
@@ -125,29 +131,34 @@ template <bool kSvk, class P>
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       h[r][c] = fmadd(du[2][r], g[3][c], fmadd(du[1][r], g[2][c], du[0][r] * g[1][c]));
-  P h_sq = h[0][0] * h[0][0];
-  for (int k = 1; k < 9; ++k) h_sq = fmadd(h[k / 3][k % 3], h[k / 3][k % 3], h_sq);
-  P e[3][3];
+  P e[3][3];  // E2
   for (int r = 0; r < 3; ++r)
     for (int c = r; c < 3; ++c) {
       P sum = h[r][c] + h[c][r];
       if constexpr (kSvk)  // H + H^T + H^T H
         sum = fmadd(h[2][r], h[2][c], fmadd(h[1][r], h[1][c], fmadd(h[0][r], h[0][c], sum)));
-      e[r][c] = e[c][r] = P(0.5) * sum;
+      e[r][c] = e[c][r] = sum;
     }
   const P tr = e[0][0] + e[1][1] + e[2][2];
+  P h_sq;
+  if constexpr (kSvk) {
+    h_sq = fmadd(P(-2.0), h[0][0] + h[1][1] + h[2][2], tr);
+  } else {
+    h_sq = h[0][0] * h[0][0];
+    for (int k = 1; k < 9; ++k) h_sq = fmadd(h[k / 3][k % 3], h[k / 3][k % 3], h_sq);
+  }
   const P diag_sq = fmadd(e[2][2], e[2][2], fmadd(e[1][1], e[1][1], e[0][0] * e[0][0]));
   const P off_sq = fmadd(e[1][2], e[1][2], fmadd(e[0][2], e[0][2], e[0][1] * e[0][1]));
-  const P ee = fmadd(P(2.0), off_sq, diag_sq);  // E : E
-  *w = shape.volume * fmadd(mu, ee, (P(0.5) * lambda * tr) * tr);
-  // Q = -V S = -V (lambda tr(E) I + 2 mu E).
+  const P ee = fmadd(P(2.0), off_sq, diag_sq);  // E2 : E2
   const P neg_v = -shape.volume;
-  const P two_mu_v = P(2.0) * mu * neg_v;
-  const P lambda_tr_v = lambda * tr * neg_v;
-  P q[3][3];
+  const P k_mu = neg_v * mu;
+  const P k_lam = (neg_v * lambda) * P(0.5);
+  const P lam_tr = k_lam * tr;
+  *w = P(-0.25) * fmadd(k_mu, ee, lam_tr * tr);
+  P q[3][3];  // -V S
   for (int r = 0; r < 3; ++r) {
-    q[r][r] = fmadd(two_mu_v, e[r][r], lambda_tr_v);
-    for (int c = r + 1; c < 3; ++c) q[r][c] = q[c][r] = two_mu_v * e[r][c];
+    q[r][r] = fmadd(k_mu, e[r][r], lam_tr);
+    for (int c = r + 1; c < 3; ++c) q[r][c] = q[c][r] = k_mu * e[r][c];
   }
   // P' = -V P: Q + H Q (SVK) or Q (linear).
   P pm[3][3];

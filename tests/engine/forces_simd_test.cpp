@@ -272,6 +272,50 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
   set_cpu_simd_bits(512);
 }
 
+// A mirror image of the box (x -> -x: F = diag(-1, 1, 1)) is strain-free for SVK (C = I, E = 0:
+// no force, no energy) yet every element is inverted. The fused SVK pass forms the health filter's
+// |H|^2 from tr(2E) - 2 tr(H) instead of summing squares: it must still see |H|^2 = 4 and flag
+// every element, as must every other pass (a filter on E alone would pass them all).
+TEST(SimdElementPass, MirroredMeshIsStrainFreeAndEveryElementInverted) {
+  const Mesh mesh = test_box();
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) u[v] = Vec3d{-2.0 * mesh.rest_positions[v].x, 0, 0};
+  for (ConstitutiveModel law : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear}) {
+    const std::pair<bool, int> passes[] = {{true, 256}, {true, 512}, {false, 256}, {false, 512}};
+    for (const auto& [fused, simd_bits] : passes) {
+      set_cpu_element_fma(fused);
+      set_cpu_simd_bits(simd_bits);
+      SCOPED_TRACE(::testing::Message() << "law " << static_cast<int>(law) << " fma "
+                                        << cpu_element_fma() << " simd bits " << cpu_simd_bits());
+      const Model m = build(mesh, law, ElementPrecision::kFloat64);
+      State s = loaded_state(m, u, 2);
+      compute_tet_forces(m, s);
+      StepDiagnostics d;
+      reduce_tet_chunks(s, d);
+      EXPECT_EQ(d.inverted_count, static_cast<int64_t>(m.tet_count()));
+      EXPECT_EQ(d.first_inverted, 0);
+      EXPECT_TRUE(d.element_health & kElementInverted);
+      if (law == ConstitutiveModel::kSvk) {
+        // E = 0 up to the rounding of H: forces and energy below 1e-9 of a 1 % stretch's.
+        std::vector<Vec3d> stretch(u.size());
+        for (size_t v = 0; v < u.size(); ++v)
+          stretch[v] = Vec3d{0.01 * mesh.rest_positions[v].x, 0, 0};
+        State ref = loaded_state(m, stretch, 2);
+        compute_tet_forces(m, ref);
+        StepDiagnostics dr;
+        reduce_tet_chunks(ref, dr);
+        double f_ref = 0;
+        for (const Vec3d& f : corner_forces(m, ref)) f_ref = std::max(f_ref, norm(f));
+        ASSERT_GT(f_ref, 0);
+        EXPECT_LE(std::abs(d.elastic_energy), 1e-9 * dr.elastic_energy);
+        for (const Vec3d& f : corner_forces(m, s)) EXPECT_LE(norm(f), 1e-9 * f_ref);
+      }
+    }
+  }
+  set_cpu_simd_bits(512);
+  set_cpu_element_fma(true);
+}
+
 // The batched passes skip the exact health checks where every lane has |H|^2 below
 // kHealthCheckSkipBelowGradientSq: the scalar checks must pass for every such H, in both
 // precisions, in the worst directions (uniaxial and uniform compression, shear) and in random
