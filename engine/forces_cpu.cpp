@@ -112,7 +112,8 @@ template <bool kSvk, class P>
 }
 
 // The same element math with fused multiply-adds (P4 or P8d only; inside the FMA passes): ~145
-// packed operations per batch instead of ~300. Not bit-identical to fem_element.h (each fused
+// packed operations per batch instead of ~300. *w is -4 times the elements' energy (batch_pass
+// multiplies the chunk's sum by -1/4, exactly). Not bit-identical to fem_element.h (each fused
 // a * b + c rounds once, and the algebra is rearranged to save operations), but the same
 // operations in the same order for four and eight lanes, so the AVX2 and AVX-512 FMA passes
 // agree bit for bit, and with any thread count. The rearrangement, with E2 = 2 E = H + H^T +
@@ -154,8 +155,8 @@ template <bool kSvk, class P>
   const P k_mu = neg_v * mu;
   const P k_lam = (neg_v * lambda) * P(0.5);
   const P lam_tr = k_lam * tr;
-  *w = P(-0.25) * fmadd(k_mu, ee, lam_tr * tr);
-  P q[3][3];  // -V S
+  *w = fmadd(k_mu, ee, lam_tr * tr);  // -4 V psi: batch_pass scales the chunk's sum by -1/4
+  P q[3][3];  // Q = -V S
   for (int r = 0; r < 3; ++r) {
     q[r][r] = fmadd(k_mu, e[r][r], lam_tr);
     for (int c = r + 1; c < 3; ++c) q[r][c] = q[c][r] = k_mu * e[r][c];
@@ -323,6 +324,7 @@ struct Lanes4d {
   [[gnu::always_inline]] static bool below(const P4& x, double bound) {
     return lanes_below(x, bound);
   }
+  [[gnu::always_inline]] static void add_energy4(const P4& w, P4& sum) { sum += w; }
 };
 
 // Float32 element math, eight tetrahedra per P8f: edge differences formed in float64 and rounded,
@@ -380,6 +382,11 @@ template <bool kSvk, class L, bool kFma = false>
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     double energy = 0;  // r.elastic_energy, in a register
+    // kFma: the -4 V psi of full groups of four lanes summed per lane (tetrahedra t, t + 4, ...
+    // of the chunk in lane t % 4), and of lanes past the last full group in `energy`; the chunk's
+    // energy is -1/4 of ((l0 + l1) + (l2 + l3)) + energy. The eight-lane pass adds its two halves
+    // in order, so it sums exactly as the four-lane passes do.
+    P4 energy4 = zero4();
     const int64_t begin = chunk * kTetChunk;
     const int64_t end = std::min(nt, begin + kTetChunk);
     for (int64_t t0 = begin; t0 < end; t0 += kLanes) {
@@ -400,15 +407,25 @@ template <bool kSvk, class L, bool kFma = false>
       const int32_t* code = codes + (t0 / 8) * kCpuTetOffsetStride + t0 % 8;
       if (lanes == kLanes) {
         L::store(f, blocks, code);
-        // A fixed trip count: the energy stays in a register.
-        for (int l = 0; l < kLanes; ++l) energy += static_cast<double>(w.v[l]);
+        if constexpr (kFma) {
+          L::add_energy4(w, energy4);
+        } else {
+          // A fixed trip count: the energy stays in a register.
+          for (int l = 0; l < kLanes; ++l) energy += static_cast<double>(w.v[l]);
+        }
       } else {
+        int first_single = 0;  // kFma: lanes below it are a full group of four, in energy4
+        if constexpr (kFma && kLanes == 8)
+          if (lanes >= 4) {
+            energy4 += L::low_half(w);
+            first_single = 4;
+          }
         for (int l = 0; l < lanes; ++l) {
           for (int c = 0; c < 4; ++c)
             scatter_corner(blocks, code[8 * c + l],
                            P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
                               static_cast<double>(f[c].z.v[l]), 0.0));
-          energy += static_cast<double>(w.v[l]);
+          if (l >= first_single) energy += static_cast<double>(w.v[l]);
         }
       }
       // Health by lane masks (repeated lanes past the end copy a valid lane). Where every lane
@@ -426,7 +443,11 @@ template <bool kSvk, class L, bool kFma = false>
           batch_health_slow<kSvk>(det_f, m1, m2, det_a, t0, lanes, r);
       }
     }
-    r.elastic_energy = energy;
+    if constexpr (kFma)
+      r.elastic_energy =
+          -0.25 * (((energy4.v[0] + energy4.v[1]) + (energy4.v[2] + energy4.v[3])) + energy);
+    else
+      r.elastic_energy = energy;
     s.tet_chunks[static_cast<size_t>(chunk)] = r;
   }
 }
@@ -489,6 +510,12 @@ struct Lanes8d {
   __attribute__((target("avx512f"))) static bool below(const P8d& x, double bound) {
     return all_lanes(x.v < bound);
   }
+  // Lanes 0-3, then 4-7: the four-lane passes' two batches in their order.
+  [[gnu::always_inline]] static void add_energy4(const P8d& w, P4& sum) {
+    sum += half_of(w, 0);
+    sum += half_of(w, 1);
+  }
+  [[gnu::always_inline]] static P4 low_half(const P8d& w) { return half_of(w, 0); }
 };
 
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, so that a * b + c
