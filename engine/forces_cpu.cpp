@@ -119,7 +119,7 @@ template <bool kSvk, class P>
 // agree bit for bit, and with any thread count. The rearrangement, with E2 = 2 E = H + H^T +
 // H^T H (SVK; H + H^T for the linear model):
 //   -V S = k_mu E2 + k_lam tr(E2) I,  k_mu = -V mu, k_lam = -V lambda / 2;
-//   V psi = V (mu E:E + lambda/2 tr(E)^2) = -(k_mu E2:E2 + k_lam tr(E2)^2) / 4;
+//   V psi = V (mu E:E + lambda/2 tr(E)^2) = -(k_mu E2:E2 + k_lam tr(E2)^2) / 4 = -(Q : E2) / 4;
 // P' = -V P = Q + H Q with Q = -V S, and f_j = P' g_j. For SVK the health filter |H|^2 comes
 // from the trace already formed: tr(E2) = 2 tr(H) + |H|^2 (its rounding, a few ulp of |H|^2 +
 // 4 |tr H|, is far inside the margins of kHealthCheckSkipBelowGradientSq; a NaN or an
@@ -148,19 +148,19 @@ template <bool kSvk, class P>
     h_sq = h[0][0] * h[0][0];
     for (int k = 1; k < 9; ++k) h_sq = fmadd(h[k / 3][k % 3], h[k / 3][k % 3], h_sq);
   }
-  const P diag_sq = fmadd(e[2][2], e[2][2], fmadd(e[1][1], e[1][1], e[0][0] * e[0][0]));
-  const P off_sq = fmadd(e[1][2], e[1][2], fmadd(e[0][2], e[0][2], e[0][1] * e[0][1]));
-  const P ee = fmadd(P(2.0), off_sq, diag_sq);  // E2 : E2
   const P neg_v = -shape.volume;
   const P k_mu = neg_v * mu;
   const P k_lam = (neg_v * lambda) * P(0.5);
   const P lam_tr = k_lam * tr;
-  *w = fmadd(k_mu, ee, lam_tr * tr);  // -4 V psi: batch_pass scales the chunk's sum by -1/4
   P q[3][3];  // Q = -V S
   for (int r = 0; r < 3; ++r) {
     q[r][r] = fmadd(k_mu, e[r][r], lam_tr);
     for (int c = r + 1; c < 3; ++c) q[r][c] = q[c][r] = k_mu * e[r][c];
   }
+  // -4 V psi = Q : E2 (batch_pass scales the chunk's sum by -1/4).
+  const P q_diag = fmadd(q[2][2], e[2][2], fmadd(q[1][1], e[1][1], q[0][0] * e[0][0]));
+  const P q_off = fmadd(q[1][2], e[1][2], fmadd(q[0][2], e[0][2], q[0][1] * e[0][1]));
+  *w = fmadd(P(2.0), q_off, q_diag);
   // P' = -V P: Q + H Q (SVK) or Q (linear).
   P pm[3][3];
   for (int i = 0; i < 3; ++i)
@@ -171,8 +171,9 @@ template <bool kSvk, class P>
   for (int k = 1; k < 4; ++k)
     for (int i = 0; i < 3; ++i)
       f[k][i] = fmadd(pm[i][2], g[k][2], fmadd(pm[i][1], g[k][1], pm[i][0] * g[k][0]));
-  // The element's forces sum to zero exactly, as in tet_forces_from_stress.
-  f[0] = -(f[1] + f[2] + f[3]);
+  // The element's forces sum to zero exactly, as in tet_forces_from_stress: -(f1 + f2) - f3 is
+  // -((f1 + f2) + f3) bit for bit (rounding to nearest is symmetric), one operation less.
+  for (int i = 0; i < 3; ++i) f[0][i] = fnmsub(f[1][i] + f[2][i], P(1.0), f[3][i]);
   return h_sq;
 }
 

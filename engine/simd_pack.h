@@ -266,6 +266,24 @@ __attribute__((target("fma"))) inline P4 fmadd(P4 a, P4 b, P4 c) {
   return r;
 }
 
+/// -(a * b) - c per lane with one rounding (FMA3).
+__attribute__((target("fma"))) inline P4 fnmsub(P4 a, P4 b, P4 c) {
+  P4 r;
+  r.v = reinterpret_cast<V4>(_mm256_fnmsub_pd(reinterpret_cast<__m256d>(a.v),
+                                              reinterpret_cast<__m256d>(b.v),
+                                              reinterpret_cast<__m256d>(c.v)));
+  return r;
+}
+
+/// -(a * b) - c per lane with one rounding (AVX-512F).
+__attribute__((target("avx512f"))) inline P8d fnmsub(P8d a, P8d b, P8d c) {
+  P8d r;
+  r.v = reinterpret_cast<V8>(_mm512_fnmsub_pd(reinterpret_cast<__m512d>(a.v),
+                                              reinterpret_cast<__m512d>(b.v),
+                                              reinterpret_cast<__m512d>(c.v)));
+  return r;
+}
+
 /// a * b + c per lane with one rounding (AVX-512F).
 __attribute__((target("avx512f"))) inline P8d fmadd(P8d a, P8d b, P8d c) {
   P8d r;
