@@ -1,8 +1,8 @@
 // Four-lane double and eight-lane float packs (GCC vector extensions) for the CPU backend's
 // batched loops, and the attribute that builds an AVX2 clone beside the baseline one. Each lane
 // performs exactly the scalar operations in the scalar order, so packed results are
-// bit-identical to scalar code of the same precision; `fmadd` (one rounding) is the exception,
-// for the FMA element passes only.
+// bit-identical to scalar code of the same precision; `fmadd` and `fnmsub` (one rounding) are the
+// exception, for the FMA element passes only.
 #pragma once
 
 #include <cstring>
