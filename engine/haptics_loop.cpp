@@ -72,16 +72,18 @@ void HapticLoop::run() {
   int64_t previous_ns = -1;
   while (k < total_ticks && !stop_.load(std::memory_order_relaxed)) {
     sleep_until_ns(epoch_ns_ + k * period_ns);
+    // 1. Newest simulation sample (never waits), taken before the tick's clock reading so that
+    // a sample is never received before it was published, however the thread is scheduled.
+    HapticSample sample;
+    const bool fresh = channel_.samples.read(sample) && sample.sequence > 0;
     const int64_t now_ns = haptic_clock_ns();
     const double t = static_cast<double>(now_ns - epoch_ns_) * 1e-9;
     if (previous_ns >= 0 && periods_us_.size() < periods_us_.capacity())
       periods_us_.push_back(static_cast<float>(static_cast<double>(now_ns - previous_ns) * 1e-3));
     previous_ns = now_ns;
 
-    // 1. Newest simulation sample (never waits).
-    HapticSample sample;
     const Vec3d sent_before = last_sent_;
-    if (channel_.samples.read(sample) && sample.sequence > 0) {
+    if (fresh) {
       const double published = static_cast<double>(sample.wall_ns - epoch_ns_) * 1e-9;
       renderer_.push_sample(sample, published);
       ++stats_.samples_received;
