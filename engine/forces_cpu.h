@@ -1,12 +1,14 @@
 // CPU internal-force assembly (both formulations, multi-threaded, bitwise deterministic),
 // global tangent stiffness and the largest natural frequency, for tests and quasi-static tools.
 //
-// Determinism: every vertex force is the sum of its corner forces in ascending tetrahedron
-// order, ((0 + f_1) + f_2) + ..., with no shared writes: a vertex's corners in the segment of
-// its first tetrahedron are added into its block by the one thread that runs that segment, in
-// tetrahedron order, and its corners in later segments get slots of their own that the vertex
-// pass adds after them, in order (AssemblyPlan in state.h). Energies and counts are summed per
-// fixed-size chunk and the chunks in order. No result depends on the thread or segment count.
+// Determinism: every vertex force is a sum of its corner forces in ascending tetrahedron order,
+// grouped by segment, with no shared writes: a vertex's corners in the segment of its first
+// tetrahedron are added into its block by the one thread that runs that segment, in
+// tetrahedron order; its corners in each later segment are added, in order, into one slot of
+// that segment's; the vertex pass adds the slots to the block in segment order (AssemblyPlan in
+// state.h). The segments are cut by the mesh alone (assembly_segment_count). Energies and
+// counts are summed per fixed-size chunk and the chunks in order. No result depends on the
+// thread count.
 #pragma once
 
 #include <Eigen/SparseCore>
@@ -67,7 +69,7 @@ Vec3d corner_force(const State& state, size_t t, int c);
 void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
 /// Consumes vertex v's sum after compute_tet_forces: its elastic force [N], its block (the sum
-/// of its corners in its owning segment) plus its late slots in ascending tetrahedron order,
+/// of its corners in its owning segment) plus its late slots in segment order,
 /// x, y, z in the lanes of a pack (lane 3 is 0); v's blocks go back to their start values
 /// (+0.0, late slots -0.0) for the next element pass. The step's vertex pass and
 /// compute_elastic_forces read the sums through it.

@@ -35,86 +35,20 @@ State make_state(const Model& model, int thread_count) {
     thread_count = std::clamp(static_cast<int>(nt / 2048), 1, hardware);
   }
   s.pool = std::make_unique<ThreadPool>(thread_count);
-  make_assembly_plan(model, s, assembly_segment_count(model, thread_count));
+  make_assembly_plan(model, s, assembly_segment_count(model));
   return s;
 }
 
 namespace {
 
-// What a late corner costs the element pass beyond an owned one, in tetrahedra: its add goes to
-// a slot of its own, in a region the segment touches once (measured on the 1101-vertex bench
-// mesh: two segments make 12 % of the corners late and the second segment ~12 % slower).
-constexpr double kLateCornerCost = 0.15;
-
-// Segment boundaries (first chunk of each segment, and the end) that give the segments about
-// the same cost, a chunk costing its tetrahedra plus kLateCornerCost per late corner (a corner
-// whose vertex's first tetrahedron lies before the segment). Bisection on the largest segment
-// cost, filling segments greedily; equal chunk counts where every corner is late anyway and on
-// large meshes.
-std::vector<int64_t> balanced_segments(const Model& model, int64_t segments, bool all_late) {
-  const int64_t nt = static_cast<int64_t>(model.tet_count());
-  const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
+// Segment boundaries (first chunk of each segment, and the end): equal chunk counts. (Until
+// late slots were per segment, a late corner cost ~0.15 tetrahedron more than an owned one and
+// the segments were balanced by that cost; adding into a per-segment slot costs what adding
+// into the vertex's block costs, and the balanced cut measured no faster: docs/performance.md,
+// "Ninth round".)
+std::vector<int64_t> equal_segments(int64_t chunks, int64_t segments) {
   std::vector<int64_t> bounds(static_cast<size_t>(segments + 1));
   for (int64_t k = 0; k <= segments; ++k) bounds[static_cast<size_t>(k)] = chunks * k / segments;
-  // Large meshes: segments of ~250k tetrahedra and more have a few per cent of late corners at
-  // most (their cost differs by < 1 %), and the search below costs ~0.1 s per million corners.
-  if (segments == 1 || all_late || nt > (int64_t{1} << 20)) return bounds;
-  // The chunk of each vertex's first tetrahedron, per corner in tetrahedron order.
-  const VertexTetAdjacency& adj = model.adjacency;
-  std::vector<int32_t> first_chunk(static_cast<size_t>(4 * nt));
-  for (int64_t t = 0; t < nt; ++t)
-    for (int c = 0; c < 4; ++c) {
-      const size_t v = static_cast<size_t>(model.tets[static_cast<size_t>(t)][c]);
-      first_chunk[static_cast<size_t>(4 * t + c)] =
-          static_cast<int32_t>(adj.tets[static_cast<size_t>(adj.offsets[v])] / kTetChunk);
-    }
-  const auto chunk_cost = [&](int64_t chunk, int64_t segment_start) {
-    const int64_t t0 = chunk * kTetChunk, t1 = std::min(nt, t0 + kTetChunk);
-    int64_t late = 0;
-    for (int64_t k = 4 * t0; k < 4 * t1; ++k) late += first_chunk[static_cast<size_t>(k)] < segment_start;
-    return static_cast<double>(t1 - t0) + kLateCornerCost * static_cast<double>(late);
-  };
-  // Greedy fill for a largest cost `limit`: the boundaries, or false if more segments are needed.
-  const auto fill = [&](double limit, std::vector<int64_t>& out) {
-    out.assign(1, 0);
-    int64_t start = 0;
-    double cost = 0;
-    for (int64_t c = 0; c < chunks; ++c) {
-      double add = chunk_cost(c, start);
-      if (cost > 0 && cost + add > limit) {
-        if (static_cast<int64_t>(out.size()) == segments) return false;
-        out.push_back(c);
-        start = c;
-        cost = 0;
-        add = chunk_cost(c, start);
-      }
-      cost += add;
-    }
-    while (static_cast<int64_t>(out.size()) < segments) out.push_back(chunks);  // (tiny meshes)
-    out.push_back(chunks);
-    return true;
-  };
-  double lo = static_cast<double>(nt) / static_cast<double>(segments);
-  double hi = 2.0 * static_cast<double>(nt);
-  std::vector<int64_t> trial;
-  if (!fill(hi, trial)) return bounds;
-  bounds = trial;
-  for (int it = 0; it < 30 && hi - lo > 0.5; ++it) {
-    const double mid = 0.5 * (lo + hi);
-    if (fill(mid, trial)) {
-      hi = mid;
-      bounds = trial;
-    } else {
-      lo = mid;
-    }
-  }
-  // Empty trailing segments (a limit reached early) would leave threads idle: keep the equal
-  // split then.
-  for (int64_t k = 0; k < segments; ++k)
-    if (bounds[static_cast<size_t>(k)] >= bounds[static_cast<size_t>(k) + 1]) {
-      for (int64_t j = 0; j <= segments; ++j) bounds[static_cast<size_t>(j)] = chunks * j / segments;
-      break;
-    }
   return bounds;
 }
 
@@ -173,11 +107,13 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
     const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
     ++w[home_thread(owner)];
     ++total;
+    int64_t open_segment = owner;  // one late slot per later segment (per corner if all late)
     for (int32_t i = begin; i < end; ++i) {
       const int64_t segment = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(i)]);
-      if (all_late || segment != owner) {
+      if (all_late || segment != open_segment) {
         ++w[home_thread(segment)];
         ++total;
+        open_segment = segment;
       }
     }
   }
@@ -228,17 +164,19 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
 
 }  // namespace
 
-int64_t assembly_segment_count(const Model& model, int thread_count) {
+int64_t assembly_segment_count(const Model& model) {
   const int64_t nt = static_cast<int64_t>(model.tet_count());
   const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
-  const int64_t threads = std::max(1, thread_count);
-  // One thread: one segment (no late corners; nobody to take work over).
-  if (threads == 1) return 1;
-  // Segments of at least ~250k tetrahedra beyond one per thread: a vertex's tetrahedra span
-  // about one lattice layer of the generator's numbering (~5 % of a 1M-vertex mesh), so
-  // shorter segments would make most corners late.
-  const int64_t per_thread = std::clamp<int64_t>(nt / (threads * 262144), 1, 4);
-  return std::clamp<int64_t>(threads * per_thread, 1, std::max<int64_t>(1, chunks));
+  // A function of the mesh alone: a vertex force is the owner's partial sum plus one partial
+  // sum per later segment, whose rounding depends on where the segments are cut, so the cut
+  // must not depend on the thread count. A power of two (an even split for two, four, eight
+  // threads) with segments of at least 256k tetrahedra: two up to ~100k vertices (seed 000's
+  // Table II sizes included: 0.18 late slots per vertex at 1101 vertices), 16 at 1M vertices
+  // (0.19 per vertex; 64 segments there would leave 0.76, and the one-thread step measured
+  // ~2 % slower with them, the two-thread one no faster), at most 64.
+  int64_t segments = 2;
+  while (segments < 64 && (2 * segments) * 262144 <= nt) segments *= 2;
+  return std::clamp<int64_t>(segments, 1, std::max<int64_t>(1, chunks));
 }
 
 void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
@@ -247,9 +185,11 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   const int64_t nv = static_cast<int64_t>(model.vertex_count());
   const int64_t chunks = (nt + kTetChunk - 1) / kTetChunk;
   AssemblyPlan& plan = state.assembly;
-  plan.segment_chunk = balanced_segments(
-      model, std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks)), all_late);
-  // Late corners, vertex by vertex in adjacency (ascending tetrahedron) order.
+  plan.segment_chunk =
+      equal_segments(chunks, std::clamp<int64_t>(segment_count, 1, std::max<int64_t>(1, chunks)));
+  // Late slots, vertex by vertex: one per later segment that holds some of the vertex's
+  // tetrahedra (in segment order: the adjacency is in ascending tetrahedron order), which every
+  // corner of the vertex in that segment adds into; one per corner in all-late mode.
   const VertexTetAdjacency& adj = model.adjacency;
   plan.late_offsets.assign(static_cast<size_t>(nv + 1), 0);
   std::vector<int32_t> block(static_cast<size_t>(4 * nt), 0);
@@ -261,11 +201,19 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
     if (begin == end) continue;
     const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
+    int64_t open_segment = owner;
     for (int32_t i = begin; i < end; ++i) {
       const int64_t t = adj.tets[static_cast<size_t>(i)];
       const size_t k = static_cast<size_t>(4 * t + adj.corner[static_cast<size_t>(i)]);
-      if (all_late || segment_of(plan.segment_chunk, t) != owner) {
+      const int64_t segment = segment_of(plan.segment_chunk, t);
+      if (all_late) {
         block[k] = static_cast<int32_t>(late_base + late++);
+      } else if (segment != owner) {
+        if (segment != open_segment) {
+          open_segment = segment;
+          ++late;
+        }
+        block[k] = static_cast<int32_t>(late_base + late - 1);
       } else {
         block[k] = static_cast<int32_t>(v);
       }

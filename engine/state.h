@@ -41,30 +41,35 @@ struct alignas(64) TetChunkResult {
 
 /// How the element pass sums corner forces into vertex forces without shared writes and in a
 /// fixed order (engine/forces_cpu.h). The tetrahedra are cut into `segment_count` contiguous
-/// segments of whole chunks; one thread runs a segment, in tetrahedron order. A vertex is owned
-/// by the segment of its first tetrahedron: there its corner forces are added into its own
-/// block (`blocks`, four doubles per vertex) as they are computed, in ascending tetrahedron
-/// order; its corners in later segments ("late" corners) are added into slots of their own, and
-/// the vertex pass adds those to the block in ascending order. Every vertex force is therefore
-/// the sum ((+0 + f_1) + f_2) + ... over its tetrahedra in ascending order, whatever the
-/// segments: the bits do not depend on the segment or thread count. The blocks of owned vertices
-/// stay in cache between their corners (the generator numbers tetrahedra along a lattice), so
-/// large meshes no longer write and re-read 96 bytes of corner forces per tetrahedron.
+/// segments of whole chunks (assembly_segment_count: a function of the mesh alone); one thread
+/// runs a segment, in tetrahedron order. A vertex is owned by the segment of its first
+/// tetrahedron: there its corner forces are added into its own block (`blocks`, four doubles
+/// per vertex) as they are computed, in ascending tetrahedron order. Its corners in each later
+/// segment are added, in that order, into one late slot of that segment's, and the vertex pass
+/// adds the slots to the block in segment order. Every vertex force is therefore
+/// (((+0 + f_1) + ... + f_a) + (f_a+1 + ... + f_b)) + ...: partial sums over the segments,
+/// which depend on where the segments are cut but not on which thread ran which segment, nor
+/// on how many threads there are. The blocks stay in cache between their corners (the
+/// generator numbers tetrahedra along a lattice), so large meshes do not write and re-read 96
+/// bytes of corner forces per tetrahedron; one slot per (vertex, later segment) instead of one
+/// per late corner keeps the slots few (195 instead of 2316 on the 1101-vertex bench mesh).
 ///
 /// Every corner is one add into its destination (no per-corner case): vertex blocks start each
 /// element pass at +0.0, which is how the ordered sum starts, and late slots at -0.0, to which
 /// adding f gives f exactly. Whoever consumes the sums (the vertex pass of step(),
 /// compute_elastic_forces) puts those values back as it reads them; compute_tet_forces resets
-/// every block first when `dirty` says the last pass's sums were not consumed.
+/// every block first when `dirty` says the last pass's sums were not consumed. In all-late mode
+/// (tests) every corner has a slot of its own and the sum is the plain ordered one.
 struct AssemblyPlan {
   std::vector<int64_t> segment_chunk;  ///< first tetrahedron chunk of each segment, (segments + 1)
   /// Where each corner's force is added, in the layout of Model::cpu_tet_corner_offsets (per
   /// batch of eight tetrahedra: corner c of lane l at 8 c + l): 4 x its block index, a double
   /// offset into `blocks`.
   CacheAlignedVector<int32_t> corner_code;
-  /// Blocks 0 .. vertex_count - 1: the vertex sums; then one block per late corner, those of
-  /// vertex v at late_offsets[v] .. late_offsets[v + 1] (block indices), in ascending
-  /// tetrahedron order. Four doubles per block (x, y, z, 0).
+  /// Blocks 0 .. vertex_count - 1: the vertex sums; then the late slots, those of vertex v at
+  /// late_offsets[v] .. late_offsets[v + 1] (block indices), one per later segment in segment
+  /// order (one per corner, in ascending tetrahedron order, in all-late mode). Four doubles per
+  /// block (x, y, z, 0).
   CacheAlignedVector<double> blocks;
   std::vector<int32_t> late_offsets;  ///< (vertex_count + 1), block indices
   /// The blocks hold an element pass's sums that nobody has consumed (and reset) yet.
@@ -75,7 +80,7 @@ struct AssemblyPlan {
   std::vector<int32_t> corner_block;
 
   int64_t segment_count() const { return static_cast<int64_t>(segment_chunk.size()) - 1; }
-  /// Late corners (slots after the vertex blocks).
+  /// Late slots (blocks after the vertex blocks).
   int64_t late_count() const {
     return late_offsets.empty()
                ? 0
@@ -161,10 +166,11 @@ struct State {
 /// Results do not depend on it, bit for bit.
 State make_state(const Model& model, int thread_count = 0);
 
-/// Segments make_state's plan uses for `thread_count` threads: one per thread, up to four per
-/// thread on large meshes (so that a descheduled thread's work can be taken over), never fewer
-/// than one chunk each; one for one thread.
-int64_t assembly_segment_count(const Model& model, int thread_count);
+/// Segments make_state's plan uses: a function of the mesh alone (the bits of the forces depend
+/// on where the segments are cut, and must not depend on the thread count): two, doubling while
+/// every segment keeps at least 256k tetrahedra, at most 64, never more than the chunks. Threads
+/// beyond the segment count do not help the element pass.
+int64_t assembly_segment_count(const Model& model);
 
 /// Builds state.assembly for `segment_count` segments (clamped to [1, chunks]); `all_late` gives
 /// every corner a slot of its own (corner_force). Allocates; the forces' bits are the same for
