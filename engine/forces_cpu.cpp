@@ -418,7 +418,7 @@ template <bool kSvk, class L, bool kFma = false>
         int first_single = 0;  // kFma: lanes below it are a full group of four, in energy4
         if constexpr (kFma && kLanes == 8)
           if (lanes >= 4) {
-            energy4 += L::low_half(w);
+            energy4 += half_of(w, 0);
             first_single = 4;
           }
         for (int l = 0; l < lanes; ++l) {
@@ -516,7 +516,6 @@ struct Lanes8d {
     sum += half_of(w, 0);
     sum += half_of(w, 1);
   }
-  [[gnu::always_inline]] static P4 low_half(const P8d& w) { return half_of(w, 0); }
 };
 
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, so that a * b + c

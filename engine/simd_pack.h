@@ -252,46 +252,28 @@ ZONA_PACK_OPS(P8d)
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-// Fused multiply-add a * b + c, rounded once (vfmadd). Plain `inline` with the instruction set
-// as target: they are inlined only into functions built for it (the FMA element passes of
+// Fused multiply-adds per pack type: fmadd = a * b + c and fnmsub = -(a * b) - c per lane, each
+// rounded once (FMA3 for P4, AVX-512F for P8d). Plain `inline` with the instruction set as
+// target: they are inlined only into functions built for it (the FMA element passes of
 // forces_cpu.cpp, through `flatten`); a call from anywhere else would not compile to FMA code
 // and must not exist.
+#define ZONA_FMA_PAIR(T, V, R, isa, fmadd_, fnmsub_)                                       \
+  __attribute__((target(isa))) inline T fmadd(T a, T b, T c) {                             \
+    T r;                                                                                   \
+    r.v = reinterpret_cast<V>(fmadd_(reinterpret_cast<R>(a.v), reinterpret_cast<R>(b.v),   \
+                                     reinterpret_cast<R>(c.v)));                           \
+    return r;                                                                              \
+  }                                                                                        \
+  __attribute__((target(isa))) inline T fnmsub(T a, T b, T c) {                            \
+    T r;                                                                                   \
+    r.v = reinterpret_cast<V>(fnmsub_(reinterpret_cast<R>(a.v), reinterpret_cast<R>(b.v),  \
+                                      reinterpret_cast<R>(c.v)));                          \
+    return r;                                                                              \
+  }
 
-/// a * b + c per lane with one rounding (FMA3).
-__attribute__((target("fma"))) inline P4 fmadd(P4 a, P4 b, P4 c) {
-  P4 r;
-  r.v = reinterpret_cast<V4>(_mm256_fmadd_pd(reinterpret_cast<__m256d>(a.v),
-                                             reinterpret_cast<__m256d>(b.v),
-                                             reinterpret_cast<__m256d>(c.v)));
-  return r;
-}
-
-/// -(a * b) - c per lane with one rounding (FMA3).
-__attribute__((target("fma"))) inline P4 fnmsub(P4 a, P4 b, P4 c) {
-  P4 r;
-  r.v = reinterpret_cast<V4>(_mm256_fnmsub_pd(reinterpret_cast<__m256d>(a.v),
-                                              reinterpret_cast<__m256d>(b.v),
-                                              reinterpret_cast<__m256d>(c.v)));
-  return r;
-}
-
-/// -(a * b) - c per lane with one rounding (AVX-512F).
-__attribute__((target("avx512f"))) inline P8d fnmsub(P8d a, P8d b, P8d c) {
-  P8d r;
-  r.v = reinterpret_cast<V8>(_mm512_fnmsub_pd(reinterpret_cast<__m512d>(a.v),
-                                              reinterpret_cast<__m512d>(b.v),
-                                              reinterpret_cast<__m512d>(c.v)));
-  return r;
-}
-
-/// a * b + c per lane with one rounding (AVX-512F).
-__attribute__((target("avx512f"))) inline P8d fmadd(P8d a, P8d b, P8d c) {
-  P8d r;
-  r.v = reinterpret_cast<V8>(_mm512_fmadd_pd(reinterpret_cast<__m512d>(a.v),
-                                             reinterpret_cast<__m512d>(b.v),
-                                             reinterpret_cast<__m512d>(c.v)));
-  return r;
-}
+ZONA_FMA_PAIR(P4, V4, __m256d, "fma", _mm256_fmadd_pd, _mm256_fnmsub_pd)        // FMA3
+ZONA_FMA_PAIR(P8d, V8, __m512d, "avx512f", _mm512_fmadd_pd, _mm512_fnmsub_pd)  // AVX-512F
+#undef ZONA_FMA_PAIR
 #endif
 
 /// Stores lanes 0-2 of `a` into a Vec3d (24 bytes, never past its end).
