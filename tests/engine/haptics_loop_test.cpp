@@ -218,16 +218,23 @@ TEST(HapticsLoop, StalledSimulationFadesForceOut) {
   auto device = make_emulated_device(device_profile("touch").value(), hand);
   HapticChannel channel;
   HapticLoopOptions options;
-  options.duration = 0.2;
+  // The simulation's 8 steps take ~40 ms, the stall is seen 20 ms after the last sample and the
+  // fade takes 20 ticks. On a loaded machine the steps' sleeps stretch and the loop skips
+  // deadlines (the fade counts ticks), so the session runs well past all three: 0.5 s.
+  options.duration = 0.5;
   options.try_realtime = false;
   HapticLoop loop(*device, r, channel, options);
   MembranePort port;
   port.stop_after_ = 8;
   const HapticLoopStats s = run_haptic_session(port, loop, channel);
+  const std::string why = "ticks " + std::to_string(s.ticks) + ", missed deadlines " +
+                          std::to_string(s.missed_deadlines) + ", samples " +
+                          std::to_string(s.samples_received) + ", stalled ticks " +
+                          std::to_string(s.stalled_ticks);
   ASSERT_FALSE(loop.log().empty());
-  EXPECT_GT(s.stalled_ticks, 0);
-  EXPECT_EQ(norm(loop.log().back().force), 0.0);  // faded to zero by the end
-  EXPECT_GT(s.max_force, 0.0);                    // it was felt before the stall
+  EXPECT_GT(s.stalled_ticks, 0) << why;
+  EXPECT_EQ(norm(loop.log().back().force), 0.0) << why;  // faded to zero by the end
+  EXPECT_GT(s.max_force, 0.0) << why;                    // it was felt before the stall
 }
 
 }  // namespace
