@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -250,11 +251,17 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
   const size_t inner = 1 + 4 * (1 + 4 * 1);  // vertex (1, 1, 1)
   u[inner] = Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
   u[inner + 1] = Vec3d{-0.2 * kL, 0, 0};
-  const std::pair<int, ElementPrecision> cases[] = {{512, ElementPrecision::kFloat64},
-                                                     {256, ElementPrecision::kFloat64},
-                                                     {256, ElementPrecision::kFloat32}};
-  for (const auto& [simd_bits, precision] : cases) {
+  // Bits, precision, vector registers (256-bit fused passes: 32 is the AVX-512VL encoding, whose
+  // scatter and filter differ from the AVX2 one's).
+  const std::tuple<int, ElementPrecision, int> cases[] = {{512, ElementPrecision::kFloat64, 32},
+                                                          {256, ElementPrecision::kFloat64, 32},
+                                                          {256, ElementPrecision::kFloat64, 16},
+                                                          {256, ElementPrecision::kFloat32, 32}};
+  for (const auto& [simd_bits, precision, registers] : cases) {
     set_cpu_simd_bits(simd_bits);
+    set_cpu_simd_registers(registers);
+    SCOPED_TRACE(::testing::Message() << "simd bits " << cpu_simd_bits() << " registers "
+                                      << cpu_simd_registers());
     const Model m = build(mesh, ConstitutiveModel::kSvk, precision);
     State s = loaded_state(m, u, 2);
     compute_tet_forces(m, s);
@@ -281,6 +288,7 @@ TEST(SimdElementPass, HealthBitsMatchTheScalarChecks) {
     EXPECT_EQ(d.element_health, uint32_t{kElementInverted | kElementCollapsing});
   }
   set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
 }
 
 // A mirror image of the box (x -> -x: F = diag(-1, 1, 1)) is strain-free for SVK (C = I, E = 0:
@@ -292,12 +300,15 @@ TEST(SimdElementPass, MirroredMeshIsStrainFreeAndEveryElementInverted) {
   std::vector<Vec3d> u(mesh.vertex_count());
   for (size_t v = 0; v < u.size(); ++v) u[v] = Vec3d{-2.0 * mesh.rest_positions[v].x, 0, 0};
   for (ConstitutiveModel law : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear}) {
-    const std::pair<bool, int> passes[] = {{true, 256}, {true, 512}, {false, 256}, {false, 512}};
-    for (const auto& [fused, simd_bits] : passes) {
+    const std::tuple<bool, int, int> passes[] = {{true, 256, 32}, {true, 256, 16}, {true, 512, 32},
+                                                 {false, 256, 32}, {false, 512, 32}};
+    for (const auto& [fused, simd_bits, registers] : passes) {
       set_cpu_element_fma(fused);
       set_cpu_simd_bits(simd_bits);
+      set_cpu_simd_registers(registers);
       SCOPED_TRACE(::testing::Message() << "law " << static_cast<int>(law) << " fma "
-                                        << cpu_element_fma() << " simd bits " << cpu_simd_bits());
+                                        << cpu_element_fma() << " simd bits " << cpu_simd_bits()
+                                        << " registers " << cpu_simd_registers());
       const Model m = build(mesh, law, ElementPrecision::kFloat64);
       State s = loaded_state(m, u, 2);
       compute_tet_forces(m, s);
@@ -324,6 +335,7 @@ TEST(SimdElementPass, MirroredMeshIsStrainFreeAndEveryElementInverted) {
     }
   }
   set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
   set_cpu_element_fma(true);
 }
 
