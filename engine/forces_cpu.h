@@ -70,7 +70,8 @@ void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 
 /// Consumes vertex v's sum after compute_tet_forces: its elastic force [N], its block (the sum
 /// of its corners in its owning segment) plus its late slots in segment order,
-/// x, y, z in the lanes of a pack (lane 3 is 0); v's blocks go back to their start values
+/// x, y, z in lanes 0-2 of a pack (lane 3 holds no force: 0, or with the AVX-512VL pass a
+/// copy of z; nothing reads it); v's blocks go back to their start values
 /// (+0.0, late slots -0.0) for the next element pass. The step's vertex pass and
 /// compute_elastic_forces read the sums through it.
 [[gnu::always_inline]] inline P4 take_vertex_force(double* blocks, const int32_t* late_offsets,

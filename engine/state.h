@@ -69,7 +69,7 @@ struct AssemblyPlan {
   /// Blocks 0 .. vertex_count - 1: the vertex sums; then the late slots, those of vertex v at
   /// late_offsets[v] .. late_offsets[v + 1] (block indices), one per later segment in segment
   /// order (one per corner, in ascending tetrahedron order, in all-late mode). Four doubles per
-  /// block (x, y, z, 0).
+  /// block (x, y, z, and a fourth lane that nothing reads).
   CacheAlignedVector<double> blocks;
   std::vector<int32_t> late_offsets;  ///< (vertex_count + 1), block indices
   /// The blocks hold an element pass's sums that nobody has consumed (and reset) yet.
