@@ -505,6 +505,32 @@ struct Lanes4dFma : Lanes4d {
 // 4 x 4 transpose's eight. The blocks' fourth lane, which nothing reads (take_vertex_force's
 // consumers use x, y, z), receives a second copy of z rather than 0.
 struct Lanes4dVl : Lanes4dFma {
+  // The corners' displacements by zero-masked 32-byte loads of (x, y, z) (the fourth lane is
+  // neither read from memory nor used: nothing past a vertex is touched) and a transpose of
+  // seven shuffles: 4 loads per corner instead of 4 x (x, y) + 4 z loads, 2 of them with a
+  // shuffle, and the same bits.
+  [[gnu::always_inline]] static void load(const Row* b, const double* u, const int32_t* o,
+                                          TetShape<P4>& shape, P4& lambda, P4& mu,
+                                          Vec3<P4> du[3]) {
+    load_batch_shape(b, [](const auto* p) { return load4(p); }, shape, lambda, mu);
+    Vec3<P4> uc[4];
+    for (int c = 0; c < 4; ++c) load_xyz_masked(u, o + 8 * c, uc[c]);
+    for (int e = 0; e < 3; ++e) du[e] = uc[e + 1] - uc[0];
+  }
+  __attribute__((target("avx2,fma,avx512f,avx512vl"))) static void load_xyz_masked(
+      const double* u, const int32_t* oc, Vec3<P4>& r) {
+    const __m256d l0 = _mm256_maskz_loadu_pd(0x7, u + oc[0]);  // x0 y0 z0 0
+    const __m256d l1 = _mm256_maskz_loadu_pd(0x7, u + oc[1]);
+    const __m256d l2 = _mm256_maskz_loadu_pd(0x7, u + oc[2]);
+    const __m256d l3 = _mm256_maskz_loadu_pd(0x7, u + oc[3]);
+    const __m256d xz01 = _mm256_unpacklo_pd(l0, l1);  // x0 x1 z0 z1
+    const __m256d y01 = _mm256_unpackhi_pd(l0, l1);   // y0 y1 0 0
+    const __m256d xz23 = _mm256_unpacklo_pd(l2, l3);  // x2 x3 z2 z3
+    const __m256d y23 = _mm256_unpackhi_pd(l2, l3);   // y2 y3 0 0
+    r.x.v = _mm256_permute2f128_pd(xz01, xz23, 0x20);
+    r.y.v = _mm256_permute2f128_pd(y01, y23, 0x20);
+    r.z.v = _mm256_permute2f128_pd(xz01, xz23, 0x31);
+  }
   [[gnu::always_inline]] static void store(const Vec3<P4> f[4], double* blocks,
                                            const int32_t* code) {
     P4 corner[4][4];  // [corner][lane]
