@@ -578,8 +578,9 @@ struct Lanes8d {
       scatter_corner_forces4(fd, blocks, code + 4 * half);
     }
   }
-  // lanes_healthy's and lanes_below's comparisons, written out here: in a function without the AVX-512 target GCC
-  // lowers 512-bit comparisons lane by lane before they are inlined into the pass (2x slower).
+  // lanes_healthy's and lanes_below's comparisons, written out here: in a function without the
+  // AVX-512 target GCC lowers 512-bit comparisons lane by lane before they are inlined into the
+  // pass (2x slower).
   template <bool kSvk>
   __attribute__((target("avx512f"))) static bool healthy(const P8d& det_f, const P8d& m1,
                                                          const P8d& m2, const P8d& det_a) {

@@ -69,10 +69,10 @@ struct VertexSums {
 
 // The centred-difference update u+ = a u - b u- + c (f_el + f_ext) (DESIGN.md section 3) of four
 // consecutive vertices, one per lane, whose arrays start at the pointers given; f holds their
-// elastic forces as (x, y, z, *), lane 3 unread. Fixed vertices go to zero; prescribed ones keep u_n here and
-// are written by apply_prescribed_vertices. Each lane performs the Vec3d operations of one vertex
-// in their order, so the displacements are those of a vertex-by-vertex update bit for bit; the
-// chunk sums add per lane (VertexSums).
+// elastic forces as (x, y, z, *), lane 3 unread. Fixed vertices go to zero; prescribed ones keep
+// u_n here and are written by apply_prescribed_vertices. Each lane performs the Vec3d operations
+// of one vertex in their order, so the displacements are those of a vertex-by-vertex update bit
+// for bit; the chunk sums add per lane (VertexSums).
 [[gnu::always_inline]] inline void update_four(const double* u, const double* u_prev,
                                                const double* external_force,
                                                const uint8_t* constraint,
