@@ -59,13 +59,15 @@ int64_t segment_of(const std::vector<int64_t>& segment_chunk, int64_t t) {
       segment_chunk.begin() - 1);
 }
 
-// AssemblyPlan::vertex_chunk_order for `plan` (its segments and late slots set) and `threads`.
+// AssemblyPlan::vertex_chunk_order for `plan` (its segments and late slots set) and `threads`;
+// block_segment[b] is the segment whose thread writes block b (vertex blocks, then late slots;
+// -1 for a vertex no tetrahedron uses), as make_assembly_plan assigned them.
 std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& plan,
-                                        int64_t threads, bool all_late) {
+                                        int64_t threads,
+                                        const std::vector<int32_t>& block_segment) {
   const int64_t nt = static_cast<int64_t>(model.tet_count());
   const int64_t nv = static_cast<int64_t>(model.vertex_count());
   const int64_t late = plan.late_count();
-  const VertexTetAdjacency& adj = model.adjacency;
   // The vertex pass's chunk order: each thread's home slice of it (ThreadPool: equal slices)
   // gets the chunks whose sums its own segments wrote, as far as the equal slices allow. A
   // vertex's sums are its block, written by the home thread of its owner segment, and its late
@@ -100,21 +102,15 @@ std::vector<int32_t> vertex_chunk_order(const Model& model, const AssemblyPlan& 
   std::vector<int64_t> written(static_cast<size_t>(vertex_chunks * threads), 0);
   int64_t total = 0;
   for (int64_t v = 0; v < nv; ++v) {
-    const int32_t begin = adj.offsets[static_cast<size_t>(v)];
-    const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
-    if (begin == end) continue;
+    const int32_t owner = block_segment[static_cast<size_t>(v)];
+    if (owner < 0) continue;
     int64_t* w = written.data() + (v / kVertexChunk) * threads;
-    const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
     ++w[home_thread(owner)];
     ++total;
-    int64_t open_segment = owner;  // one late slot per later segment (per corner if all late)
-    for (int32_t i = begin; i < end; ++i) {
-      const int64_t segment = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(i)]);
-      if (all_late || segment != open_segment) {
-        ++w[home_thread(segment)];
-        ++total;
-        open_segment = segment;
-      }
+    for (int32_t k = plan.late_offsets[static_cast<size_t>(v)];
+         k < plan.late_offsets[static_cast<size_t>(v) + 1]; ++k) {
+      ++w[home_thread(block_segment[static_cast<size_t>(k)])];
+      ++total;
     }
   }
   // What a chunk loses on any thread but its best: its largest count minus the second largest.
@@ -193,6 +189,8 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   const VertexTetAdjacency& adj = model.adjacency;
   plan.late_offsets.assign(static_cast<size_t>(nv + 1), 0);
   std::vector<int32_t> block(static_cast<size_t>(4 * nt), 0);
+  // The segment that writes each block (vertex blocks, then late slots), for vertex_chunk_order.
+  std::vector<int32_t> block_segment(static_cast<size_t>(nv), -1);
   int64_t late = 0;
   const int64_t late_base = nv;
   for (int64_t v = 0; v < nv; ++v) {
@@ -201,6 +199,7 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
     const int32_t end = adj.offsets[static_cast<size_t>(v) + 1];
     if (begin == end) continue;
     const int64_t owner = segment_of(plan.segment_chunk, adj.tets[static_cast<size_t>(begin)]);
+    block_segment[static_cast<size_t>(v)] = static_cast<int32_t>(owner);
     int64_t open_segment = owner;
     for (int32_t i = begin; i < end; ++i) {
       const int64_t t = adj.tets[static_cast<size_t>(i)];
@@ -208,10 +207,12 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
       const int64_t segment = segment_of(plan.segment_chunk, t);
       if (all_late) {
         block[k] = static_cast<int32_t>(late_base + late++);
+        block_segment.push_back(static_cast<int32_t>(segment));
       } else if (segment != owner) {
         if (segment != open_segment) {
           open_segment = segment;
           ++late;
+          block_segment.push_back(static_cast<int32_t>(segment));
         }
         block[k] = static_cast<int32_t>(late_base + late - 1);
       } else {
@@ -239,7 +240,7 @@ void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
   reset_assembly_blocks(state);
 
   plan.vertex_chunk_order =
-      vertex_chunk_order(model, plan, state.pool ? state.pool->thread_count() : 1, all_late);
+      vertex_chunk_order(model, plan, state.pool ? state.pool->thread_count() : 1, block_segment);
 }
 
 void reset_assembly_blocks(State& state) {

@@ -173,8 +173,9 @@ State make_state(const Model& model, int thread_count = 0);
 int64_t assembly_segment_count(const Model& model);
 
 /// Builds state.assembly for `segment_count` segments (clamped to [1, chunks]); `all_late` gives
-/// every corner a slot of its own (corner_force). Allocates; the forces' bits are the same for
-/// any plan.
+/// every corner a slot of its own (corner_force). Allocates. The forces' bits depend on where
+/// the segments are cut (partial sums per segment; all-late: the plain ordered sum), never on the
+/// thread count.
 void make_assembly_plan(const Model& model, State& state, int64_t segment_count,
                         bool all_late = false);
 
