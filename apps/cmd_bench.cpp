@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/bench_job.h"
 #include "apps/commands.h"
 #include "engine/scaling_bench.h"
 #include "kernels/backend_factory.h"
@@ -53,6 +54,10 @@ struct BenchArgs {
   int copy_mib = 256;
   std::string precision = "float64";
   std::string out;
+  bool job = false;
+  std::string scene = "mouse_oocyte";
+  std::vector<std::string> sets;
+  double max_run_seconds = 120;
 };
 
 // The source revision, read from the checkout the binary was built from (no git process):
@@ -250,7 +255,45 @@ void add_bench_command(CLI::App& app) {
                   "tetrahedra per AVX2 pack; displacements and force sums stay float64)")
       ->capture_default_str();
   cmd->add_option("--out", args->out, "Write the CSV here (else to stdout)");
+  cmd->add_flag("--job", args->job,
+                "Time the injection job (zona run of --scene: contact, holding, damping, puncture "
+                "test, recording) per size, beside the bare step");
+  cmd->add_option("--scene", args->scene, "--job: the scene (default mouse_oocyte)")
+      ->capture_default_str();
+  cmd->add_option("--set", args->sets, "--job: override a scene key, key.path=value (repeatable)");
+  cmd->add_option("--max-run-seconds", args->max_run_seconds,
+                  "--job: run to puncture when the estimated run is shorter than this [s]; "
+                  "otherwise the time to puncture is estimated from the measured step")
+      ->capture_default_str();
   cmd->callback([args] {
+    if (args->job) {
+      JobBenchArgs j;
+      j.scene = args->scene;
+      j.sets = args->sets;
+      j.backend = args->backend;
+      j.vertices = args->vertices == "table2" ? "1e3,4e3,16e3" : args->vertices;
+      j.threads = std::atoi(args->threads.c_str());
+      j.steps = args->steps;
+      j.repeats = args->repeats;
+      j.max_run_seconds = args->max_run_seconds;
+      j.commit = source_commit();
+      j.command = "zona bench --job --backend " + args->backend + " --scene " + args->scene +
+                  " --vertices " + j.vertices + " --repeats " + std::to_string(args->repeats);
+      for (const std::string& s : args->sets) j.command += " --set " + s;
+      std::string notice;
+      const std::vector<DeviceInfo> devices = cuda_devices(&notice);
+      if (!devices.empty()) j.device_name = devices.front().name;
+      FILE* csv = stdout;
+      if (!args->out.empty()) {
+        csv = std::fopen(args->out.c_str(), "w");
+        if (!csv) return fail("--out: cannot write " + args->out);
+      }
+      const Status st = run_job_bench(j, csv);
+      if (csv != stdout) std::fclose(csv);
+      if (!st) return fail(st.error().message);
+      if (csv != stdout) std::printf("wrote %s\n", args->out.c_str());
+      return;
+    }
     Result<ScalingBenchConfig> config = make_config(*args);
     if (!config) return fail(config.error().message);
 

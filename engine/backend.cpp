@@ -49,6 +49,10 @@ Result<Assembly> parse_assembly(std::string_view text) {
       std::string(text).c_str());
 }
 
+Result<JobRunner*> Backend::start_job(const JobSetup&) {
+  return make_error("%s backend: the device-resident injection step is not supported", name());
+}
+
 Status Backend::set_external_forces(std::span<const Vec3d>) {
   return make_error("%s backend: set_external_forces is not supported", name());
 }

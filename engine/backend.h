@@ -14,6 +14,7 @@
 
 #include "engine/base.h"
 #include "engine/integrator.h"
+#include "engine/job_runner.h"
 #include "engine/model.h"
 #include "engine/state.h"
 #include "engine/vec.h"
@@ -155,6 +156,12 @@ class Backend {
 
   /// The device-side state for interop (DeviceStateView); empty on the CPU.
   virtual DeviceStateView device_state() const { return {}; }
+
+  /// Starts the injection step's stages (engine/job.h) on the uploaded model and state and
+  /// returns their runner, owned by the backend (valid until the next upload). From then on
+  /// the runner steps the state; step() and set_* are not to be called. The default answers
+  /// "not supported".
+  virtual Result<JobRunner*> start_job(const JobSetup& setup);
 };
 
 }  // namespace zona

@@ -5,50 +5,14 @@
 #include <cmath>
 
 #include "engine/contact.h"
+#include "engine/job.h"
 
 namespace zona {
 
 ToolDistance holding_distance(const HoldingGeometry& h, Vec3d x) {
-  // Work in the (s, rho) half-plane of x: the wall is the strip s >= 0, a <= rho <= b.
-  const Vec3d w = x - h.mouth;
-  const double s = dot(w, h.axis);
-  const Vec3d r = w - s * h.axis;
-  const double rho = norm(r);
-  Vec3d radial = rho > 0 ? r / rho : Vec3d{0, 0, 0};
-  if (rho == 0) {
-    const Vec3d a = std::fabs(h.axis.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
-    radial = cross(h.axis, a);
-    radial = radial / norm(radial);
-  }
-  const double a = h.inner_radius, b = h.outer_radius;
-  ToolDistance out;
-  const bool inside = s > 0 && rho > a && rho < b;
-  if (!inside) {
-    // Closest point of the strip, then the 2D offset mapped back to 3D.
-    const double qs = std::max(s, 0.0);
-    const double qr = std::clamp(rho, a, b);
-    const double ds = s - qs, dr = rho - qr;
-    out.distance = std::sqrt(ds * ds + dr * dr);
-    if (out.distance > 0) {
-      out.normal = (ds / out.distance) * h.axis + (dr / out.distance) * radial;
-    } else {
-      out.normal = -1.0 * h.axis;  // on the mouth face
-    }
-    return out;
-  }
-  // Inside the wall: leave through the nearest face.
-  const double to_mouth = s, to_bore = rho - a, to_outer = b - rho;
-  if (to_mouth <= to_bore && to_mouth <= to_outer) {
-    out.distance = -to_mouth;
-    out.normal = -1.0 * h.axis;
-  } else if (to_bore <= to_outer) {
-    out.distance = -to_bore;
-    out.normal = -1.0 * radial;
-  } else {
-    out.distance = -to_outer;
-    out.normal = radial;
-  }
-  return out;
+  // One distance function for every path: the job's (engine/job.h), host and device.
+  const ToolSdf sdf = holding_sdf(h.mouth, h.axis, h.inner_radius, h.outer_radius, x);
+  return ToolDistance{sdf.distance, sdf.normal};
 }
 
 Result<HoldingSetup> make_holding(const HoldingPipetteDef& def, const ContactSurface& surface,

@@ -1,77 +1,20 @@
 // Needle geometry (signed distance of the tip and shaft) and its scripted motion.
 #include "engine/needle.h"
 
+#include "engine/job.h"
+
 #include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <sstream>
 
 namespace zona {
-namespace {
-
-// A unit vector perpendicular to d (for points exactly on the axis, where any will do).
-Vec3d any_perpendicular(Vec3d d) {
-  const Vec3d a = std::fabs(d.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
-  const Vec3d p = cross(d, a);
-  return p / norm(p);
-}
-
-// Splits the radial part of x - origin off the axis d: returns s = (x - origin).d, writes the
-// radial distance and unit radial direction.
-double axial_split(Vec3d x, Vec3d origin, Vec3d d, double* rho, Vec3d* radial) {
-  const Vec3d w = x - origin;
-  const double s = dot(w, d);
-  const Vec3d r = w - s * d;
-  *rho = norm(r);
-  *radial = *rho > 0 ? r / *rho : any_perpendicular(d);
-  return s;
-}
-
-}  // namespace
 
 ToolDistance needle_distance(const NeedleGeometry& needle, Vec3d tip, Vec3d x) {
-  const Vec3d d = needle.direction;
-  const double radius = needle.tip_radius;
-  ToolDistance out;
-  double rho = 0;
-  Vec3d radial{0, 0, 0};
-  if (needle.shape != NeedleShape::kFlat) {
-    // Hemisphere centred one radius behind the apex, then the shaft.
-    const Vec3d centre = tip - radius * d;
-    const double s = axial_split(x, centre, d, &rho, &radial);
-    if (s > 0) {
-      const Vec3d w = x - centre;
-      const double r = norm(w);
-      out.distance = r - radius;
-      out.normal = r > 0 ? w / r : d;
-    } else {
-      out.distance = rho - radius;
-      out.normal = radial;
-    }
-    return out;
-  }
-  // Flat end: the disk at the tip point, its rim, the shaft.
-  const double s = axial_split(x, tip, d, &rho, &radial);
-  if (s > 0) {
-    if (rho <= radius) {
-      out.distance = s;
-      out.normal = d;
-    } else {
-      const Vec3d w = s * d + (rho - radius) * radial;
-      out.distance = norm(w);
-      out.normal = w / out.distance;
-    }
-  } else if (rho >= radius) {
-    out.distance = rho - radius;
-    out.normal = radial;
-  } else if (-s < radius - rho) {
-    out.distance = s;  // closer to the end face
-    out.normal = d;
-  } else {
-    out.distance = rho - radius;
-    out.normal = radial;
-  }
-  return out;
+  // One distance function for every path: the job's (engine/job.h), host and device.
+  const ToolSdf sdf = needle_sdf(tip, needle.direction, needle.tip_radius,
+                                 needle.shape == NeedleShape::kFlat, x);
+  return ToolDistance{sdf.distance, sdf.normal};
 }
 
 Result<NeedleTrajectory> read_needle_trajectory(const std::string& path) {

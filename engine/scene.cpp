@@ -409,6 +409,16 @@ void read_puncture(Reader& root, Scene& scene) {
   r.quantity("shaft_friction", dim::kStiffness, &p.shaft_friction, Range::non_negative());
 }
 
+void read_contact(Reader& root, Scene& scene) {
+  Reader r = root.object("contact", {"model", "stiffness", "note"});
+  if (!r.present()) return;
+  ContactDef& c = scene.contact;
+  r.choice("model", {Choice<ContactModel>{"penalty", ContactModel::kPenalty},
+                     Choice<ContactModel>{"kinematic", ContactModel::kKinematic}},
+           &c.model);
+  r.number("stiffness", &c.stiffness, Range::positive());
+}
+
 void read_holding_pipette(Reader& root, Scene& scene) {
   Reader r = root.object("holding_pipette", {"enabled", "mode", "inner_radius", "outer_radius",
                                              "suction", "friction", "side", "position"});
@@ -792,8 +802,8 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   scene.name = fs::path(source_name).stem().string();
   Reader root(ctx, &doc, "",
               {"version", "name", "description", "mesh", "model", "materials", "integrator",
-               "boundary", "needle", "puncture", "holding_pipette", "haptics", "output",
-               "particles"});
+               "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
+               "output", "particles"});
   int64_t version = 1;
   root.integer("version", &version, 1, 1);
   root.string("name", &scene.name);
@@ -807,6 +817,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   read_boundary(root, scene);
   read_puncture(root, scene);
   read_holding_pipette(root, scene);
+  read_contact(root, scene);
   read_haptics(root, scene);
   read_output(root, scene);
   check_scene(ctx, scene);

@@ -207,6 +207,25 @@ struct PunctureDef {
   double shaft_friction = 0.0;  ///< axial drag on the needle per inserted length [N/m]
 };
 
+/// How tools touch the cell (docs/injection.md).
+enum class ContactModel {
+  /// Penalty pressure on the tools' signed distance fields with Coulomb friction: the same load
+  /// at every mesh size; runs on every backend inside the device-resident step (engine/job.h).
+  kPenalty,
+  /// Kinematic: touched vertices are held on the tool as prescribed vertices (engine/contact.h);
+  /// the host drives it, one step at a time.
+  kKinematic,
+};
+
+/// Tool-cell contact.
+struct ContactDef {
+  ContactModel model = ContactModel::kPenalty;
+  /// Penalty: contact pressure per penetration as a multiple of E_max / r, with E_max the
+  /// stiffest material's Young's modulus and r the needle's tip radius (the holding pipette's
+  /// inner radius without a needle) [-].
+  double stiffness = 100.0;
+};
+
 enum class HoldingMode {
   kSuction,  ///< suction pressure on the aspirated patch, rim contact with Coulomb friction
   kFixed,    ///< the vertices of the aspirated patch are fixed (the simple option)
@@ -277,6 +296,7 @@ struct Scene {
   NeedleDef needle;
   PunctureDef puncture;
   HoldingPipetteDef holding_pipette;
+  ContactDef contact;
   HapticsDef haptics;
   OutputDef output;
 };

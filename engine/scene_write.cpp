@@ -189,6 +189,11 @@ json scene_to_json(const Scene& scene) {
   puncture["shaft_friction"] = quantity_json(p.shaft_friction, kStiffness);
   j["puncture"] = puncture;
 
+  json contact = json::object();
+  contact["model"] = scene.contact.model == ContactModel::kPenalty ? "penalty" : "kinematic";
+  contact["stiffness"] = scene.contact.stiffness;
+  j["contact"] = contact;
+
   const HoldingPipetteDef& h = scene.holding_pipette;
   json holding = json::object();
   holding["enabled"] = h.enabled;

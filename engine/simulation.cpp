@@ -357,6 +357,14 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     snapshots_ = std::make_unique<TripleBuffer<SurfaceSnapshot>>(initial);
   }
 
+  // The device-resident job (penalty contact): its setup may raise masses for the contact's
+  // stable step, so it comes before the backend takes the model.
+  const bool job_path = scene.contact.model == ContactModel::kPenalty && !particles_ &&
+                        indent_vertices_.empty() &&
+                        (has_needle_ || (holding_ && holding_->mode == HoldingMode::kSuction));
+  if (job_path)
+    if (Status s = prepare_job(); !s) return s;
+
   // Backend: the CPU reference in place, or one behind the Backend interface.
   backend_description_ = "cpu reference in place: " + std::to_string(state_.pool->thread_count()) +
                          " thread(s), float64";
@@ -382,6 +390,8 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
 
   tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   report_.tip = tip_;
+  if (job_path)
+    if (Status s = start_job(); !s) return s;
   return Status::ok_status();
 }
 
@@ -394,9 +404,13 @@ void Simulation::step1() {
   if (has_needle_) tip_next_ = needle_tip_at(script_, state_.time + substeps * model_.dt);
 }
 
-void Simulation::set_needle_tip(Vec3d tip) { tip_next_ = tip; }
+void Simulation::set_needle_tip(Vec3d tip) {
+  tip_next_ = tip;
+  if (job_) job_->set_tip(tip);
+}
 
 StepStatus Simulation::step2() {
+  if (job_) return step_job();
   test_puncture();                       // 2. puncture criterion on the last measurement
   update_contacts();                     // 3. contact sets and prescribed targets
   apply_loads();                         // 4. suction, released tip force, shaft drag
@@ -681,6 +695,9 @@ void Simulation::publish() {
 }
 
 bool Simulation::finished() const {
+  if (job_)
+    return job_halted_ ||
+           static_cast<double>(job_->steps_advanced()) * model_.dt >= end_time_ - 0.5 * model_.dt;
   if (last_status_ & kStepNotAdvanced) return true;
   if ((last_status_ & kStepDtAboveCritical) && !model_.unsafe_allow_dt_above_critical) return true;
   return state_.time >= end_time_ - 0.5 * model_.dt;
@@ -698,6 +715,7 @@ std::span<const Contact> Simulation::holding_contacts() const {
 // The run driver.
 
 RunResult run_simulation(Simulation& sim, const RunOptions& options) {
+  if (sim.job_mode()) return run_job_simulation(sim, options);
   RunResult result;
   const auto wall_start = std::chrono::steady_clock::now();
   auto wall = [&] {

@@ -27,6 +27,7 @@
 #include "engine/contact.h"
 #include "engine/holding.h"
 #include "engine/integrator.h"
+#include "engine/job_runner.h"
 #include "engine/mesh.h"
 #include "engine/model.h"
 #include "engine/needle.h"
@@ -108,6 +109,9 @@ struct SurfaceSnapshot {
   int64_t step = 0;              ///< steps taken
 };
 
+struct RunOptions;
+struct RunResult;
+
 /// One injection experiment. Create with Simulation::create; step with step() or step1/step2.
 class Simulation {
  public:
@@ -144,7 +148,7 @@ class Simulation {
   const ContactSurface& surface() const { return surface_; }
   const NeedleScript& needle_script() const { return script_; }
   const NeedleReport& report() const { return report_; }
-  const PunctureRecord& puncture() const { return puncture_->record(); }
+  const PunctureRecord& puncture() const { return job_ ? job_puncture_ : puncture_->record(); }
   const std::optional<HoldingSetup>& holding() const { return holding_; }
   /// Surface snapshots for one reader thread (acquire() / read_slot()); nullptr unless
   /// SimulationOptions::snapshot_interval > 0.
@@ -164,6 +168,16 @@ class Simulation {
   const Backend* backend() const { return backend_.get(); }
   /// Notes from setup (skipped materials, backend fallback), one line each.
   const std::vector<std::string>& notes() const { return notes_; }
+  /// True when the step runs as the device-resident job (penalty contact, engine/job.h): the
+  /// stages run where the state lives, and state() is brought up to date by sync_state().
+  bool job_mode() const { return job_ != nullptr; }
+  /// The job's runner, or null on the kinematic-contact path.
+  JobRunner* job() { return job_; }
+  /// The job's setup (tool vertices, parameters); empty on the kinematic path.
+  const JobSetup& job_setup() const { return job_setup_; }
+  /// Makes state() current: on the job path waits for the steps in flight and downloads the
+  /// state from where it lives (a frame, a test); otherwise nothing to do. Not on the step path.
+  Status sync_state();
   /// The particle model (scene model "particles"), else null.
   const ParticleModel* particle_model() const { return particles_.get(); }
   /// Particle model: relative change of the enclosed volume at the last step, (V - V0) / V0 [-].
@@ -183,6 +197,11 @@ class Simulation {
   void measure();
   void publish();
   StepStatus mask_budget_flag(StepStatus status) const;
+  // The job path (simulation_job.cpp).
+  Status prepare_job();
+  Status start_job();
+  StepStatus step_job();
+  void report_from_record(const JobRecord& r);
 
   Scene scene_;
   SimulationOptions options_;
@@ -241,6 +260,14 @@ class Simulation {
   bool filter_started_ = false;
   double filter_time_ = 0;
   StepStatus last_status_ = kStepOk;
+
+  // Job path.
+  JobSetup job_setup_;
+  std::unique_ptr<JobRunner> cpu_job_;  // the CPU runner (a GPU backend owns its own)
+  JobRunner* job_ = nullptr;
+  PunctureRecord job_puncture_;
+  bool job_halted_ = false;
+  friend RunResult run_job_simulation(Simulation&, const RunOptions&);
 };
 
 /// A row of force.csv.
@@ -296,6 +323,11 @@ struct RunResult {
 
 /// Runs a built simulation to its end (or stop_after_puncture) and records the curve.
 RunResult run_simulation(Simulation& simulation, const RunOptions& options = {});
+
+/// run_simulation's loop for the job path (engine/simulation_job.cpp): steps are handed to the
+/// runner in batches, samples come back from where the state lives, and the state is brought
+/// to the host only for frames.
+RunResult run_job_simulation(Simulation& simulation, const RunOptions& options);
 
 /// Builds a simulation from `scene` and runs it: the reusable driver behind `zona run` and
 /// calibration.

@@ -325,10 +325,9 @@ struct VertexDiag {
 /// The centred-difference update of device vertex v with elastic force f [force_unit]:
 /// u+ = u + b (u - u-) + c (f + f_ext) for free vertices, 0 for fixed, untouched for
 /// prescribed ones (their block writes them). Non-finite results raise the flag.
-__device__ __forceinline__ void update_vertex(const VertexParams& vp, int v, float4 f, int substep,
-                                              DeviceStatus* st, VertexDiag* d) {
+__device__ __forceinline__ void update_vertex(const VertexParams& vp, int v, float4 f, float4 fe,
+                                              int substep, DeviceStatus* st, VertexDiag* d) {
   const float2 bc = vp.update[v];
-  const float4 fe = vp.external ? vp.external[v] : make_float4(0, 0, 0, 0);
   const double fu2 = vp.force_unit * vp.force_unit;
   if (bc.y == kPrescribedMarker) {
     d->reference_sq += fu2 * (double(f.x) * f.x + double(f.y) * f.y + double(f.z) * f.z +
@@ -362,6 +361,12 @@ __device__ __forceinline__ void update_vertex(const VertexParams& vp, int v, flo
   out[2] = next[2];
   if (!isfinite(next[0] + next[1] + next[2]))
     flag_nonfinite(st, substep, static_cast<long long>(vp.vertex_new_to_old[v]));
+}
+
+/// update_vertex with the loads of vp.external (none when it is null).
+__device__ __forceinline__ void update_vertex(const VertexParams& vp, int v, float4 f, int substep,
+                                              DeviceStatus* st, VertexDiag* d) {
+  update_vertex(vp, v, f, vp.external ? vp.external[v] : make_float4(0, 0, 0, 0), substep, st, d);
 }
 
 /// Sums the per-vertex diagnostics of a block into the status: the loads' work on every
@@ -527,7 +532,7 @@ __global__ void __launch_bounds__(kBlock)
 
 /// Builds the stored tensors of every tetrahedron on the device (svk_mass_tensors or
 /// linear_mass_tensor: the CPU precompute's functions), tet-major, `stride` floats each.
-__global__ void __launch_bounds__(kBlock)
+static __global__ void __launch_bounds__(kBlock)
     build_tensors_kernel(TetParams tp, bool svk, float* tensors, int stride) {
   const int t = blockIdx.x * kBlock + threadIdx.x;
   if (t >= tp.tet_count) return;
@@ -541,7 +546,7 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 /// Per-vertex |u| [m] and kinetic energy [J] (v = (u - u-) / dt) for the on-demand reductions.
-__global__ void __launch_bounds__(kBlock)
+static __global__ void __launch_bounds__(kBlock)
     summary_terms_kernel(VertexParams vp, double inv_dt, double* norm_u, double* kinetic) {
   const int v = blockIdx.x * kBlock + threadIdx.x;
   if (v >= vp.vertex_count) return;

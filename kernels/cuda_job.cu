@@ -1,0 +1,331 @@
+// The device-resident injection step on the CUDA backend (engine/job.h): per step four kernels
+// (tools, element pass, update, record) replayed from captured graphs, state in device memory,
+// only the fixed-size record crossing to the host through mapped pinned memory. The host never
+// synchronises the stream on the step path: it bounds the steps in flight by reading the
+// record's sequence number, and waits for the stream only for a frame (download) or finish().
+#include <atomic>
+#include <chrono>
+#include <climits>
+#include <cstring>
+#include <thread>
+
+#include "kernels/cuda_backend_impl.cuh"
+#include "kernels/job_kernels.cuh"
+
+namespace zona::cuda {
+
+class CudaJob final : public JobRunner {
+ public:
+  explicit CudaJob(CudaBackend& backend) : b_(backend) {}
+
+  Status start(const JobSetup& setup);
+  Status advance(int64_t steps) override;
+  bool latest(JobRecord* out) override;
+  bool take_samples(std::vector<JobRecord>& out) override;
+  Status finish() override;
+  Status download(State& state) override;
+  void set_tip(Vec3d tip) override;
+  int64_t steps_advanced() const override { return advanced_; }
+  uint64_t host_bytes_moved() const override {
+    // Per finished step: the latest record written over the bus, and the pose mailbox read;
+    // per sample: one record.
+    const volatile unsigned long long* count = h_sample_count_.data();
+    return static_cast<uint64_t>(steps_done()) * (sizeof(LatestRecord) + sizeof(TipMailbox)) +
+           static_cast<uint64_t>(*count) * sizeof(JobRecord);
+  }
+  std::string description() const override {
+    return b_.description() + ", device-resident injection step";
+  }
+
+ private:
+  struct Graph {
+    int steps = 0;
+    int phase = 0;
+    GraphExec exec;
+  };
+  Status enqueue_step(int64_t g);
+  Result<cudaGraphExec_t> graph(int steps, int phase);
+  // Steps finished on the device (from the published sequence number; no synchronisation).
+  int64_t steps_done() const {
+    const volatile unsigned long long* seq = &h_latest_.data()->seq;
+    return static_cast<int64_t>(*seq / 2);
+  }
+
+  CudaBackend& b_;
+  JobParams params_;  // device copy: entry vertices in device order
+  ToolParams tl_;
+  float damping_rate_ = 0;
+  DeviceBuffer<int32_t> d_tool_vertex_;
+  DeviceBuffer<double> d_tool_rest_, d_tool_area_, d_tool_mass_, d_tool_suction_;
+  DeviceBuffer<float4> d_tool_force_, d_damp_, d_force_prev_;
+  DeviceBuffer<JobState> d_job_;
+  DeviceBuffer<JobSums> d_sums_;
+  DeviceBuffer<JobCounters> d_counters_;
+  PinnedBuffer<JobRecord> h_samples_;
+  PinnedBuffer<unsigned long long> h_sample_count_;
+  PinnedBuffer<LatestRecord> h_latest_;
+  PinnedBuffer<TipMailbox> h_tip_;
+  JobHostLink link_;
+  std::vector<Graph> graphs_;
+  int64_t advanced_ = 0;
+  unsigned long long taken_ = 0;
+  bool halted_seen_ = false;
+  /// Steps that may be queued ahead of the device: enough to keep it busy between the host's
+  /// launches, few enough that a pose handed in (haptics) acts within a few ms.
+  int64_t max_in_flight_ = 96;
+};
+
+CudaBackend::~CudaBackend() = default;
+
+Result<JobRunner*> CudaBackend::start_job(const JobSetup& setup) {
+  if (!model_) return make_error("cuda backend: nothing uploaded");
+  auto job = std::make_unique<CudaJob>(*this);
+  if (Status s = job->start(setup); !s) return s.error();
+  job_ = std::move(job);
+  return static_cast<JobRunner*>(job_.get());
+}
+
+Status CudaJob::start(const JobSetup& setup) {
+  const Model& m = *b_.model_;
+  if (b_.presc_count_ > 0)
+    return make_error("cuda job: the uploaded state has prescribed vertices (the penalty step "
+                      "has none)");
+  if (b_.options_.assembly != Assembly::kScatterAtomic &&
+      b_.options_.assembly != Assembly::kScatterFixed)
+    return make_error("cuda job: assembly '%s' is not supported by the injection step (use atomic "
+                      "or fixed_point)", assembly_name(b_.options_.assembly));
+  const size_t n = setup.tool_vertices.size();
+  if (setup.tool_area.size() != n || setup.tool_suction.size() != n)
+    return make_error("cuda job: tool arrays of different lengths");
+  params_ = setup.params;
+  if (params_.has_entry)
+    for (int k = 0; k < 3; ++k)
+      params_.entry_vertex[k] = b_.old_to_new_[static_cast<size_t>(params_.entry_vertex[k])];
+
+  // Tool vertices in device order.
+  std::vector<int32_t> vertex(n);
+  std::vector<double> rest(3 * n), area(n), mass(n), suction(3 * n);
+  for (size_t i = 0; i < n; ++i) {
+    const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
+    vertex[i] = b_.old_to_new_[v];
+    for (int c = 0; c < 3; ++c) {
+      rest[3 * i + c] = m.rest_positions[v][c];
+      suction[3 * i + c] = setup.tool_suction[i][c];
+    }
+    area[i] = setup.tool_area[i];
+    mass[i] = m.vertex_mass[v];
+  }
+  if (Status s = d_tool_vertex_.upload(vertex, "tool vertices"); !s) return s;
+  if (Status s = d_tool_rest_.upload(rest, "tool rest positions"); !s) return s;
+  if (Status s = d_tool_area_.upload(area, "tool areas"); !s) return s;
+  if (Status s = d_tool_mass_.upload(mass, "tool masses"); !s) return s;
+  if (Status s = d_tool_suction_.upload(suction, "suction loads"); !s) return s;
+  if (Status s = d_tool_force_.allocate(b_.nv_, "tool loads"); !s) return s;
+  if (Status s = d_tool_force_.fill_bytes(0); !s) return s;
+  damping_rate_ = static_cast<float>(params_.stiffness_damping_rate);
+  if (params_.stiffness_damping_rate > 0) {
+    if (Status s = d_damp_.allocate(b_.nv_, "damping loads"); !s) return s;
+    if (Status s = d_force_prev_.allocate(b_.nv_, "previous forces"); !s) return s;
+    if (Status s = d_damp_.fill_bytes(0); !s) return s;
+    if (Status s = d_force_prev_.fill_bytes(0); !s) return s;
+  }
+  tl_ = ToolParams{};
+  tl_.vertex = d_tool_vertex_.data();
+  tl_.rest = d_tool_rest_.data();
+  tl_.area = d_tool_area_.data();
+  tl_.mass = d_tool_mass_.data();
+  tl_.suction = d_tool_suction_.data();
+  tl_.tool_force = d_tool_force_.data();
+  tl_.count = static_cast<int>(n);
+  tl_.length_unit = b_.length_unit_;
+  tl_.force_unit = b_.force_unit_;
+
+  // The job's scalars: the first pose, as the CPU runner starts.
+  JobState js;
+  js.pose.tip = params_.needle_start;
+  job_set_pose(params_, js, params_.needle_start);
+  if (Status s = d_job_.allocate(1, "job state"); !s) return s;
+  ZONA_CUDA_TRY(cudaMemcpy(d_job_.data(), &js, sizeof js, cudaMemcpyHostToDevice));
+  if (Status s = d_sums_.allocate(1, "job sums"); !s) return s;
+  if (Status s = d_sums_.fill_bytes(0); !s) return s;
+  if (Status s = d_counters_.allocate(1, "job counters"); !s) return s;
+  if (Status s = d_counters_.fill_bytes(0); !s) return s;
+  const DeviceStatus fresh{};
+  ZONA_CUDA_TRY(cudaMemcpy(b_.d_status_.data(), &fresh, sizeof fresh, cudaMemcpyHostToDevice));
+
+  // Mapped pinned memory (unified addressing: the device writes it through the same pointer).
+  const size_t capacity = std::max<size_t>(setup.sample_capacity, 16);
+  if (Status s = h_samples_.allocate(capacity, "job samples"); !s) return s;
+  if (Status s = h_sample_count_.allocate(1, "job sample count"); !s) return s;
+  if (Status s = h_latest_.allocate(1, "job record"); !s) return s;
+  if (Status s = h_tip_.allocate(1, "needle pose"); !s) return s;
+  link_ = JobHostLink{h_samples_.data(), h_sample_count_.data(), capacity, h_latest_.data(),
+                      h_tip_.data()};
+  ZONA_CUDA_TRY(cudaDeviceSynchronize());
+  return {};
+}
+
+// The four kernels of global step g (buffer roles rotate with g, as in the sub-step graphs).
+Status CudaJob::enqueue_step(int64_t g) {
+  const VertexParams vp = b_.vertex_params(g);
+  const cudaStream_t s = b_.stream_.get();
+  const bool pdl = b_.options_.programmatic_launch;
+  const unsigned tb = blocks_for(b_.nt_), vb = blocks_for(b_.nv_);
+  const unsigned toolb = blocks_for(static_cast<size_t>(std::max(tl_.count, 1)));
+  DeviceStatus* st = b_.d_status_.data();
+  // Sub-step index 1 of a one-step window: a job halted by an earlier step sets the status's
+  // failed_substep to 0, which stops every kernel of every later step.
+  constexpr int kSubstep = 1;
+  cudaError_t err = cudaSuccess;
+  auto keep = [&err](cudaError_t e) {
+    if (err == cudaSuccess) err = e;
+  };
+  keep(launch(pdl, job_tool_kernel, toolb, s, params_, tl_, vp.u, vp.u_prev,
+              static_cast<const JobState*>(d_job_.data()), d_sums_.data()));
+  const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
+  with_kind(b_.kind_, [&](auto kc) {
+    constexpr ElementKind K = decltype(kc)::value;
+    with_scatter(mode, [&](auto mc) {
+      constexpr Scatter M = decltype(mc)::value;
+      if constexpr (M != Scatter::kStore)
+        keep(launch(pdl, tet_pass_kernel<K, true, M>, tb, s, b_.tp_, vp.u, vp.force, vp.fixed,
+                    static_cast<float4*>(nullptr), kSubstep, st, true));
+    });
+  });
+  float4* damp = d_damp_.data();
+  float4* prev = d_force_prev_.data();
+  const float4* tool = d_tool_force_.data();
+  if (b_.options_.assembly == Assembly::kScatterFixed)
+    keep(launch(pdl, job_update_kernel<true>, vb, s, vp, tool, damp, prev, damping_rate_,
+                kSubstep, st, d_sums_.data()));
+  else
+    keep(launch(pdl, job_update_kernel<false>, vb, s, vp, tool, damp, prev, damping_rate_,
+                kSubstep, st, d_sums_.data()));
+  keep(launch(pdl, job_record_kernel, 1, s, params_, d_job_.data(), d_sums_.data(), st,
+              static_cast<const double*>(vp.u_next), b_.length_unit_, d_counters_.data(),
+              link_));
+  if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
+  return {};
+}
+
+// A graph of `steps` steps starting at buffer phase `phase` (mod 6), captured on first use.
+Result<cudaGraphExec_t> CudaJob::graph(int steps, int phase) {
+  for (Graph& g : graphs_)
+    if (g.steps == steps && g.phase == phase) return g.exec.get();
+  const cudaStream_t s = b_.stream_.get();
+  ZONA_CUDA_TRY(cudaStreamBeginCapture(s, cudaStreamCaptureModeThreadLocal));
+  int failed = -1;
+  for (int i = 0; i < steps && failed < 0; ++i)
+    if (!enqueue_step(phase + i).ok()) failed = i;
+  cudaGraph_t captured = nullptr;
+  const cudaError_t end = cudaStreamEndCapture(s, &captured);
+  if (failed >= 0) {
+    if (captured) (void)cudaGraphDestroy(captured);
+    return make_error("cuda job: capturing step %d of a %d-step graph failed", failed, steps);
+  }
+  if (end != cudaSuccess) return cuda_error(end, "cudaStreamEndCapture", __FILE__, __LINE__);
+  graphs_.push_back(Graph{steps, phase, GraphExec{}});
+  if (Status st = graphs_.back().exec.instantiate(captured); !st) {
+    graphs_.pop_back();
+    return st.error();
+  }
+  return graphs_.back().exec.get();
+}
+
+Status CudaJob::advance(int64_t steps) {
+  constexpr int kLong = 48;  // steps per long graph: a multiple of the 6 buffer phases
+  const cudaStream_t s = b_.stream_.get();
+  while (steps > 0) {
+    if (halted_seen_) break;
+    // Bound what is queued ahead of the device by its published progress (no synchronisation).
+    const auto wait_start = std::chrono::steady_clock::now();
+    while (advanced_ - steps_done() > max_in_flight_) {
+      JobRecord r;
+      if (latest(&r) && r.halted) {
+        halted_seen_ = true;
+        return {};
+      }
+      const cudaError_t q = cudaStreamQuery(s);
+      if (q != cudaSuccess && q != cudaErrorNotReady)
+        return cuda_error(q, "cudaStreamQuery (job)", __FILE__, __LINE__);
+      if (std::chrono::steady_clock::now() - wait_start > std::chrono::seconds(60))
+        return make_error("cuda job: the device made no progress for 60 s");
+      std::this_thread::yield();
+    }
+    const int chunk = steps >= kLong ? kLong : 1;
+    const int phase = static_cast<int>(b_.phase_step_ % 6);
+    Result<cudaGraphExec_t> exec = graph(chunk, phase);
+    if (!exec) return exec.error();
+    ZONA_CUDA_TRY(cudaGraphLaunch(*exec, s));
+    b_.phase_step_ += chunk;
+    advanced_ += chunk;
+    steps -= chunk;
+  }
+  return {};
+}
+
+bool CudaJob::latest(JobRecord* out) {
+  const LatestRecord* l = h_latest_.data();
+  for (;;) {
+    const unsigned long long s1 = reinterpret_cast<const volatile LatestRecord*>(l)->seq;
+    if (s1 == 0) return false;
+    if (s1 & 1ull) {
+      std::this_thread::yield();
+      continue;
+    }
+    std::atomic_thread_fence(std::memory_order_acquire);
+    std::memcpy(static_cast<void*>(out), static_cast<const void*>(&l->record), sizeof(JobRecord));
+    std::atomic_thread_fence(std::memory_order_acquire);
+    const unsigned long long s2 = reinterpret_cast<const volatile LatestRecord*>(l)->seq;
+    if (s1 == s2) {
+      if (out->halted) halted_seen_ = true;
+      return true;
+    }
+  }
+}
+
+bool CudaJob::take_samples(std::vector<JobRecord>& out) {
+  const unsigned long long count = *reinterpret_cast<const volatile unsigned long long*>(
+      h_sample_count_.data());
+  std::atomic_thread_fence(std::memory_order_acquire);
+  const unsigned long long capacity = link_.capacity;
+  bool complete = true;
+  if (count - taken_ > capacity) {
+    taken_ = count - capacity;
+    complete = false;
+  }
+  for (; taken_ < count; ++taken_) out.push_back(h_samples_[taken_ % capacity]);
+  return complete;
+}
+
+Status CudaJob::finish() {
+  ZONA_CUDA_TRY(cudaStreamSynchronize(b_.stream_.get()));
+  return {};
+}
+
+Status CudaJob::download(State& state) {
+  if (Status s = finish(); !s) return s;
+  JobRecord r;
+  if (latest(&r)) {
+    b_.step_count_ = r.step;
+    b_.time_ = r.time;
+  }
+  return b_.download(state);
+}
+
+void CudaJob::set_tip(Vec3d tip) {
+  // A seqlock the record kernel reads: odd while the three components are written.
+  TipMailbox* m = h_tip_.data();
+  volatile unsigned long long* seq = &m->seq;
+  const unsigned long long s = *seq;
+  *seq = s + 1;
+  std::atomic_thread_fence(std::memory_order_release);
+  volatile double* out = m->tip;
+  out[0] = tip.x;
+  out[1] = tip.y;
+  out[2] = tip.z;
+  std::atomic_thread_fence(std::memory_order_release);
+  *seq = s + 2;
+}
+
+}  // namespace zona::cuda

@@ -1,0 +1,256 @@
+// The injection step's stages (engine/job.h) and the CPU runner: tool distance fields, penalty
+// contact and friction, the record stage's blow-up verdict and puncture, a whole injection on
+// the CPU, the step path without allocation.
+#include "engine/job.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "engine/job_runner.h"
+#include "engine/scene.h"
+#include "engine/simulation.h"
+#include "tests/engine/allocation_counter.h"
+#include "tests/engine/test_scenes.h"
+
+namespace zona {
+namespace {
+
+constexpr Vec3d kX{1, 0, 0};
+
+TEST(NeedleSdf, HemisphereTipAndShaft) {
+  const Vec3d tip{0, 0, 0};
+  // Ahead of the apex on the axis: the distance is the gap, the normal points ahead.
+  ToolSdf s = needle_sdf(tip, kX, 2.0, false, Vec3d{3, 0, 0});
+  EXPECT_NEAR(s.distance, 3.0, 1e-12);
+  EXPECT_NEAR(s.normal.x, 1.0, 1e-12);
+  // Inside the hemisphere, 0.5 behind the apex on the axis.
+  s = needle_sdf(tip, kX, 2.0, false, Vec3d{-0.5, 0, 0});
+  EXPECT_NEAR(s.distance, -0.5, 1e-12);
+  // Beside the shaft, far behind the tip: radial distance minus the radius.
+  s = needle_sdf(tip, kX, 2.0, false, Vec3d{-10, 5, 0});
+  EXPECT_NEAR(s.distance, 3.0, 1e-12);
+  EXPECT_NEAR(s.normal.y, 1.0, 1e-12);
+  // On the hemisphere's rim circle, 45 degrees: exactly on the surface.
+  const double r = 2.0 / std::sqrt(2.0);
+  s = needle_sdf(tip, kX, 2.0, false, Vec3d{-2.0 + r, r, 0});
+  EXPECT_NEAR(s.distance, 0.0, 1e-12);
+}
+
+TEST(NeedleSdf, FlatTip) {
+  const Vec3d tip{0, 0, 0};
+  ToolSdf s = needle_sdf(tip, kX, 2.0, true, Vec3d{0.5, 1.0, 0});
+  EXPECT_NEAR(s.distance, 0.5, 1e-12);  // in front of the disk
+  s = needle_sdf(tip, kX, 2.0, true, Vec3d{-0.25, 0.5, 0});
+  EXPECT_NEAR(s.distance, -0.25, 1e-12);  // just behind the end face
+  s = needle_sdf(tip, kX, 2.0, true, Vec3d{3.0, 6.0, 0});
+  EXPECT_NEAR(s.distance, 5.0, 1e-12);  // off the rim: (3, 4) to the rim circle
+}
+
+TEST(HoldingSdf, WallFacesAndOutside) {
+  const Vec3d mouth{10, 0, 0};
+  // In the bore on the axis: outside the wall, nearest the mouth's inner rim.
+  ToolSdf s = holding_sdf(mouth, kX, 2.0, 5.0, Vec3d{12, 0, 0});
+  EXPECT_NEAR(s.distance, 2.0, 1e-12);
+  // Just into the wall through the mouth face.
+  s = holding_sdf(mouth, kX, 2.0, 5.0, Vec3d{10.1, 3.5, 0});
+  EXPECT_NEAR(s.distance, -0.1, 1e-12);
+  EXPECT_NEAR(s.normal.x, -1.0, 1e-12);
+  // In front of the mouth over the rim.
+  s = holding_sdf(mouth, kX, 2.0, 5.0, Vec3d{9.0, 3.0, 0});
+  EXPECT_NEAR(s.distance, 1.0, 1e-12);
+}
+
+ToolVertexInput vertex_at(Vec3d x, Vec3d velocity, double area = 1.0, double mass = 1.0) {
+  ToolVertexInput in;
+  in.x = x;
+  in.velocity = velocity;
+  in.area = area;
+  in.mass = mass;
+  return in;
+}
+
+TEST(PenaltyContact, PressureTimesAreaAlongTheNormal) {
+  ToolSdf sdf;
+  sdf.distance = -0.2;
+  sdf.normal = kX;
+  const Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 0, 0}, 0.5),
+                                        Vec3d{0, 0, 0}, 1.0);
+  EXPECT_NEAR(f.x, 10.0 * 0.2 * 0.5, 1e-12);
+  EXPECT_EQ(f.y, 0.0);
+  EXPECT_EQ(f.z, 0.0);
+}
+
+TEST(PenaltyContact, FrictionSticksBelowTheConeAndSlidesOnIt) {
+  ToolSdf sdf;
+  sdf.distance = -1.0;
+  sdf.normal = kX;  // normal force 10 x 1 x 1 = 10
+  // Slow slip: stopped in one step (m v / dt = 1 < mu fn = 3).
+  Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 1.0, 0}),
+                                  Vec3d{0, 0, 0}, 1.0);
+  EXPECT_NEAR(f.y, -1.0, 1e-12);
+  // Fast slip: the Coulomb limit, against the slip.
+  f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 0, -50.0}), Vec3d{0, 0, 0},
+                            1.0);
+  EXPECT_NEAR(f.z, 3.0, 1e-12);
+  EXPECT_NEAR(f.x, 10.0, 1e-12);
+  // Moving with the tool: no slip, no friction.
+  f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 2.0, 0}), Vec3d{0, 2.0, 0},
+                            1.0);
+  EXPECT_NEAR(f.y, 0.0, 1e-12);
+}
+
+JobParams needle_params() {
+  JobParams p;
+  p.has_needle = 1;
+  p.needle_direction = kX;
+  p.needle_radius = 1.0;
+  p.needle_pressure_stiffness = 100.0;
+  p.needle_friction = 0.0;
+  p.needle_speed = 1.0;
+  p.dt = 0.01;
+  p.energy_blowup_factor = 10;
+  p.energy_floor = 1e-12;
+  return p;
+}
+
+TEST(ToolVertexForce, NeedleLoadAndSuctionRamp) {
+  JobParams p = needle_params();
+  p.has_rim = 1;
+  p.rim_mouth = Vec3d{100, 0, 0};
+  p.rim_axis = kX;
+  p.rim_inner_radius = 1;
+  p.rim_outer_radius = 2;
+  ToolPose pose;
+  pose.tip = Vec3d{0.5, 0, 0};  // the vertex at the origin is 0.5 inside the hemisphere
+  pose.suction_ramp = 0.25;
+  ToolVertexInput in = vertex_at({0, 0, 0}, {0, 0, 0}, 2.0);
+  in.suction = Vec3d{0, 0, 4.0};
+  const ToolVertexForce f = tool_vertex_force(p, pose, in);
+  EXPECT_EQ(f.needle_contact, 1);
+  EXPECT_EQ(f.rim_contact, 0);
+  EXPECT_NEAR(f.needle.x, 100.0 * 0.5 * 2.0, 1e-9);
+  EXPECT_NEAR(f.rim.z, 1.0, 1e-12);
+  EXPECT_NEAR(f.force.x, f.needle.x, 1e-12);
+}
+
+TEST(JobFinishStep, BlowUpHaltsAndRecordsNoPuncture) {
+  JobParams p = needle_params();
+  p.criterion = kJobCriterionEnergy;
+  p.threshold = 1.0;  // met by the runaway energy below
+  JobState s;
+  JobSums sums;
+  sums.tool_work = 0.01;
+  JobStepTotals tot;
+  tot.elastic_energy = 0.001;
+  JobRecord r;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.halted, 0);
+  // The energy jumps far above the work put in: the state is not a result.
+  tot.elastic_energy = 5.0;
+  sums.tool_work = 0.0;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.halted, 1);
+  EXPECT_TRUE(r.status & 2u);  // kStepEnergyBlowUp
+  EXPECT_EQ(r.puncture.punctured, 0);
+}
+
+TEST(JobFinishStep, NonFiniteHalts) {
+  JobParams p = needle_params();
+  JobState s;
+  JobSums sums;
+  JobStepTotals tot;
+  tot.kinetic_energy = std::nan("");
+  JobRecord r;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.halted, 1);
+  EXPECT_TRUE(r.status & 1u);  // kStepNonFinite
+}
+
+TEST(JobFinishStep, ForcePunctureFreezesTheTipAndReleasesTheLoad) {
+  JobParams p = needle_params();
+  p.criterion = kJobCriterionForce;
+  p.threshold = 2.0;
+  p.force_drop = 0.9;
+  p.drop_time = 0.1;
+  JobState s;
+  job_set_pose(p, s, p.needle_start);
+  JobSums sums;
+  JobStepTotals tot;
+  JobRecord r;
+  sums.needle_force[0] = 1.0;
+  sums.needle_contacts = 3;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.puncture.punctured, 0);
+  const Vec3d tip_at_puncture = s.pose.tip;
+  sums.needle_force[0] = 2.5;
+  job_finish_step(p, s, sums, tot, &r);
+  ASSERT_EQ(r.puncture.punctured, 1);
+  EXPECT_NEAR(r.puncture.force, 2.5, 1e-12);
+  EXPECT_EQ(s.released_contacts, 3);
+  // The tip load stays where it was; the tip itself moves on.
+  EXPECT_EQ(s.pose.tip.x, tip_at_puncture.x);
+  EXPECT_GT(r.tip.x, tip_at_puncture.x);
+  EXPECT_NEAR(s.pose.needle_scale, 1.0, 1e-12);
+  for (int i = 0; i < 20; ++i) job_finish_step(p, s, sums, tot, &r);
+  EXPECT_NEAR(s.pose.needle_scale, 0.1, 1e-12);  // fully released after drop_time
+}
+
+Scene small_scene() {
+  Result<Scene> scene = parse_scene(test::small_cell_scene(), "small_cell");
+  EXPECT_TRUE(scene.ok()) << (scene.ok() ? "" : scene.error().message);
+  return *scene;
+}
+
+TEST(JobSimulation, SmallCellInjectionOnTheCpuRunner) {
+  Scene scene = small_scene();
+  scene.puncture.criterion = PunctureCriterion::kForce;
+  scene.puncture.threshold = 5e-8;  // reached at about 2.5 um of the 6.5 um travel
+  scene.puncture.force_drop = 0.5;
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  ASSERT_TRUE((*sim)->job_mode());
+  const RunResult run = run_simulation(**sim);
+  ASSERT_FALSE(run.stopped_early) << run.stop_reason;
+  ASSERT_GT(run.samples.size(), 10u);
+  // Before contact nothing pushes back; while the needle advances the force rises.
+  EXPECT_NEAR(run.samples[1].force, 0.0, 1e-15);
+  EXPECT_GT(run.peak_force, 5e-8);
+  EXPECT_GT(run.peak_deformation, 3e-7);
+  ASSERT_TRUE(run.puncture.punctured);
+  EXPECT_GE(run.puncture.force, 5e-8);
+  // The deformation measure follows the tip: never ahead of the travel.
+  for (const ForceSample& s : run.samples) EXPECT_LE(s.deformation, s.travel + 1e-7);
+}
+
+TEST(JobSimulation, BlowUpStopsTheRunWithoutAPuncture) {
+  Scene scene = small_scene();
+  // A stiffness damping of 40 steps (beta / dt = 40): the lagged damping term is unstable.
+  scene.integrator.stiffness_damping = 400e-6;
+  scene.puncture.criterion = PunctureCriterion::kEnergy;
+  scene.puncture.threshold = 1e-30;  // any state would "puncture" if a blow-up were a result
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  const RunResult run = run_simulation(**sim);
+  EXPECT_TRUE(run.stopped_early);
+  EXPECT_NE(run.stop_reason.find("step "), std::string::npos) << run.stop_reason;
+  // The tiny threshold is met before the blow-up, at the first healthy contact: what matters
+  // is that nothing after the failed step is recorded.
+  if (run.puncture.punctured) {
+    EXPECT_LT(run.puncture.time, run.simulated_time);
+  }
+  EXPECT_LE(run.samples.back().time, run.simulated_time + 1e-12);
+}
+
+TEST(JobSimulation, TheStepPathDoesNotAllocate) {
+  if (test::allocation_count() < 0) GTEST_SKIP() << "no allocation count in this build";
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(small_scene());
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  for (int i = 0; i < 50; ++i) (*sim)->step();
+  const long long before = test::allocation_count();
+  for (int i = 0; i < 500; ++i) (*sim)->step();
+  EXPECT_EQ(test::allocation_count() - before, 0);
+}
+
+}  // namespace
+}  // namespace zona

@@ -1,0 +1,117 @@
+// The device-resident injection step on the GPU against the CPU runner: a whole mouse injection
+// to puncture (force curve, contacts, puncture step), the blow-up stop, and the step path
+// without allocation. Skips without a usable CUDA device.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "engine/scene.h"
+#include "engine/simulation.h"
+#include "kernels/backend_factory.h"
+#include "kernels/cuda_backend.h"
+#include "tests/engine/allocation_counter.h"
+#include "tests/engine/test_scenes.h"
+
+namespace zona {
+namespace {
+
+bool have_device(std::string* why) {
+  Result<std::unique_ptr<Backend>> probe = make_cuda_backend(BackendOptions{});
+  if (!probe) *why = probe.error().message;
+  return probe.ok();
+}
+
+SimulationOptions gpu_options() {
+  SimulationOptions o;
+  o.backend_factory = [](std::string* notice) {
+    return make_backend(BackendKind::kCuda, BackendOptions{}, notice);
+  };
+  return o;
+}
+
+Scene mouse_scene() {
+  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json",
+                                   {"output.frames=0"});
+  EXPECT_TRUE(scene.ok()) << (scene.ok() ? "" : scene.error().message);
+  return *scene;
+}
+
+TEST(CudaJob, MouseInjectionToPunctureMatchesCpu) {
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  const Scene scene = mouse_scene();
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(scene, gpu_options());
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  ASSERT_TRUE((*gpu)->job_mode());
+  ASSERT_NE((*gpu)->backend_description().find("device-resident"), std::string::npos);
+  RunOptions ro;
+  ro.stop_after_puncture = 1e-3;
+  const RunResult rc = run_simulation(**cpu, ro), rg = run_simulation(**gpu, ro);
+  ASSERT_FALSE(rc.stopped_early) << rc.stop_reason;
+  ASSERT_FALSE(rg.stopped_early) << rg.stop_reason;
+  ASSERT_TRUE(rc.puncture.punctured && rg.puncture.punctured);
+  // Before the puncture the curves agree sample by sample (float32 element forces on the GPU).
+  const size_t n = std::min(rc.samples.size(), rg.samples.size());
+  double worst = 0;
+  size_t contacts_differ = 0, compared = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (rc.samples[i].punctured || rg.samples[i].punctured) break;
+    ASSERT_NEAR(rc.samples[i].time, rg.samples[i].time, 1e-9);
+    worst = std::max(worst, std::fabs(rc.samples[i].force - rg.samples[i].force));
+    contacts_differ += std::abs(rc.samples[i].contacts - rg.samples[i].contacts) > 1;
+    ++compared;
+  }
+  std::printf("[ measured ] cpu vs cuda: puncture at step %lld / %lld, %.4g / %.4g uN; worst "
+              "force difference %.3g of the peak over %zu samples; %zu with contact counts "
+              "apart by more than one\n",
+              static_cast<long long>(rc.puncture.step), static_cast<long long>(rg.puncture.step),
+              rc.puncture.force * 1e6, rg.puncture.force * 1e6, worst / rc.peak_force, compared,
+              contacts_differ);
+  EXPECT_GT(compared, 100u);
+  EXPECT_LT(worst, 1e-2 * rc.peak_force);
+  EXPECT_LE(contacts_differ, compared / 20);
+  // The same puncture, within one sample interval.
+  const double interval = scene.output.sample_interval;
+  EXPECT_NEAR(rg.puncture.time, rc.puncture.time, interval + 1e-12);
+  EXPECT_NEAR(rg.puncture.force, rc.puncture.force, 1e-2 * rc.puncture.force);
+}
+
+TEST(CudaJob, BlowUpStopsWithoutAPuncture) {
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  Result<Scene> scene = parse_scene(test::small_cell_scene(), "small_cell");
+  ASSERT_TRUE(scene.ok());
+  scene->integrator.stiffness_damping = 400e-6;  // unstable lagged damping (job_test.cpp)
+  scene->puncture.criterion = PunctureCriterion::kForce;
+  scene->puncture.threshold = 1e-6;
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(gpu.ok());
+  const RunResult run = run_simulation(**gpu);
+  EXPECT_TRUE(run.stopped_early);
+  EXPECT_NE(run.stop_reason.find("step "), std::string::npos) << run.stop_reason;
+  EXPECT_FALSE(run.puncture.punctured);
+}
+
+TEST(CudaJob, TheStepPathDoesNotAllocate) {
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  if (test::allocation_count() < 0) GTEST_SKIP() << "no allocation count in this build";
+  Result<Scene> scene = parse_scene(test::small_cell_scene(), "small_cell");
+  ASSERT_TRUE(scene.ok());
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(gpu.ok());
+  // The first steps capture the single-step graphs of the six buffer phases.
+  for (int i = 0; i < 12; ++i) (*gpu)->step();
+  ASSERT_TRUE((*gpu)->job()->advance(96).ok());
+  const long long before = test::allocation_count();
+  for (int i = 0; i < 300; ++i) (*gpu)->step();
+  ASSERT_TRUE((*gpu)->job()->advance(96).ok());
+  EXPECT_EQ(test::allocation_count() - before, 0);
+  ASSERT_TRUE((*gpu)->sync_state().ok());
+}
+
+}  // namespace
+}  // namespace zona
