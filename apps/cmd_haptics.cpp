@@ -14,6 +14,7 @@
 #include "engine/haptics_loop.h"
 #include "engine/scene.h"
 #include "engine/simulation.h"
+#include "kernels/backend_factory.h"
 
 namespace zona::cli {
 namespace {
@@ -29,6 +30,7 @@ struct HapticsArgs {
   std::string plugin;
   std::string plugin_config;
   std::vector<std::string> sets;
+  std::string backend = "cpu";
   int threads = 1;
   double hand_speed = 0;  // [m/s]; 0: the scene's needle speed mapped to the hand
   bool no_realtime = false;
@@ -175,9 +177,21 @@ void run_haptics(const HapticsArgs& a) {
                                      info->impedance, period, max_stiffness);
   if (!gains) return fail(scene.source + ": " + gains.error().message);
 
+  auto kind = parse_backend_kind(a.backend);
+  if (!kind) return fail("--backend: " + kind.error().message);
+  // The hand moves the needle: the simulation runs as long as the session, not to the end of
+  // the scene's scripted insertion.
+  if (!(scene.integrator.duration > 0)) scene.integrator.duration = 3600.0;
+
   SimulationOptions so;
   so.threads = a.threads;
   so.stiffness_window = a.stiffness_window;
+  if (*kind != BackendKind::kCpu) {
+    BackendOptions bo;
+    bo.cpu_threads = a.threads;
+    const BackendKind k = *kind;
+    so.backend_factory = [k, bo](std::string* notice) { return make_backend(k, bo, notice); };
+  }
   auto sim = Simulation::create(scene, so);
   if (!sim) return fail(sim.error().message);
   const NeedleScript& script = (*sim)->needle_script();
@@ -291,6 +305,10 @@ void add_haptics_command(CLI::App& app) {
   cmd->add_option("--plugin", args->plugin, "Native driver shared library (C ABI)");
   cmd->add_option("--plugin-config", args->plugin_config, "Text passed to the plug-in");
   cmd->add_option("--set", args->sets, "Override a scene key: key.path=value");
+  cmd->add_option("--backend", args->backend,
+                  "Compute backend: auto, cpu or cuda (the GPU runs the injection step on the "
+                  "device and hands the haptic thread its record)")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Simulation threads (default 1: a core is left "
                                               "to the haptic thread)");
   cmd->add_option("--hand-speed", args->hand_speed, "Hand insertion speed [m/s]");

@@ -1,5 +1,5 @@
-// The device-resident injection step on the CUDA backend (engine/job.h): per step four kernels
-// (tools, element pass, update, record) replayed from captured graphs, state in device memory,
+// The device-resident injection step on the CUDA backend (engine/job.h): per step two kernels
+// (the element pass, then tools, update, measurement and record in one) replayed from captured graphs, state in device memory,
 // only the fixed-size record crossing to the host through mapped pinned memory. The host never
 // synchronises the stream on the step path: it bounds the steps in flight by reading the
 // record's sequence number, and waits for the stream only for a frame (download) or finish().
@@ -57,7 +57,9 @@ class CudaJob final : public JobRunner {
   float damping_rate_ = 0;
   DeviceBuffer<int32_t> d_tool_vertex_;
   DeviceBuffer<double> d_tool_rest_, d_tool_area_, d_tool_mass_, d_tool_suction_;
-  DeviceBuffer<float4> d_tool_force_, d_damp_, d_force_prev_;
+  DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
+  DeviceBuffer<float4> d_damp_, d_force_prev_;
+  DeviceBuffer<JobStepCounters> d_step_counters_;
   DeviceBuffer<JobState> d_job_;
   DeviceBuffer<JobSums> d_sums_;
   DeviceBuffer<JobCounters> d_counters_;
@@ -120,8 +122,11 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = d_tool_area_.upload(area, "tool areas"); !s) return s;
   if (Status s = d_tool_mass_.upload(mass, "tool masses"); !s) return s;
   if (Status s = d_tool_suction_.upload(suction, "suction loads"); !s) return s;
-  if (Status s = d_tool_force_.allocate(b_.nv_, "tool loads"); !s) return s;
-  if (Status s = d_tool_force_.fill_bytes(0); !s) return s;
+  std::vector<int32_t> tool_index(b_.nv_, -1);
+  for (size_t i = 0; i < n; ++i) tool_index[static_cast<size_t>(vertex[i])] = static_cast<int32_t>(i);
+  if (Status s = d_tool_index_.upload(tool_index, "tool index"); !s) return s;
+  if (Status s = d_step_counters_.allocate(1, "job step counters"); !s) return s;
+  if (Status s = d_step_counters_.fill_bytes(0); !s) return s;
   damping_rate_ = static_cast<float>(params_.stiffness_damping_rate);
   if (params_.stiffness_damping_rate > 0) {
     if (Status s = d_damp_.allocate(b_.nv_, "damping loads"); !s) return s;
@@ -135,7 +140,6 @@ Status CudaJob::start(const JobSetup& setup) {
   tl_.area = d_tool_area_.data();
   tl_.mass = d_tool_mass_.data();
   tl_.suction = d_tool_suction_.data();
-  tl_.tool_force = d_tool_force_.data();
   tl_.count = static_cast<int>(n);
   tl_.length_unit = b_.length_unit_;
   tl_.force_unit = b_.force_unit_;
@@ -165,13 +169,13 @@ Status CudaJob::start(const JobSetup& setup) {
   return {};
 }
 
-// The four kernels of global step g (buffer roles rotate with g, as in the sub-step graphs).
+// The two kernels of global step g (buffer roles rotate with g, as in the sub-step graphs):
+// the element pass, then everything else of the step in one kernel (job_step_kernel).
 Status CudaJob::enqueue_step(int64_t g) {
   const VertexParams vp = b_.vertex_params(g);
   const cudaStream_t s = b_.stream_.get();
   const bool pdl = b_.options_.programmatic_launch;
   const unsigned tb = blocks_for(b_.nt_), vb = blocks_for(b_.nv_);
-  const unsigned toolb = blocks_for(static_cast<size_t>(std::max(tl_.count, 1)));
   DeviceStatus* st = b_.d_status_.data();
   // Sub-step index 1 of a one-step window: a job halted by an earlier step sets the status's
   // failed_substep to 0, which stops every kernel of every later step.
@@ -180,8 +184,6 @@ Status CudaJob::enqueue_step(int64_t g) {
   auto keep = [&err](cudaError_t e) {
     if (err == cudaSuccess) err = e;
   };
-  keep(launch(pdl, job_tool_kernel, toolb, s, params_, tl_, vp.u, vp.u_prev,
-              static_cast<const JobState*>(d_job_.data()), d_sums_.data()));
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;
@@ -192,18 +194,12 @@ Status CudaJob::enqueue_step(int64_t g) {
                     static_cast<float4*>(nullptr), kSubstep, st, true));
     });
   });
-  float4* damp = d_damp_.data();
-  float4* prev = d_force_prev_.data();
-  const float4* tool = d_tool_force_.data();
-  if (b_.options_.assembly == Assembly::kScatterFixed)
-    keep(launch(pdl, job_update_kernel<true>, vb, s, vp, tool, damp, prev, damping_rate_,
-                kSubstep, st, d_sums_.data()));
-  else
-    keep(launch(pdl, job_update_kernel<false>, vb, s, vp, tool, damp, prev, damping_rate_,
-                kSubstep, st, d_sums_.data()));
-  keep(launch(pdl, job_record_kernel, 1, s, params_, d_job_.data(), d_sums_.data(), st,
-              static_cast<const double*>(vp.u_next), b_.length_unit_, d_counters_.data(),
-              link_));
+  auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
+                                                                      : job_step_kernel<false>;
+  keep(launch(pdl, step_kernel, vb, s, params_, tl_,
+              static_cast<const int32_t*>(d_tool_index_.data()), vp, d_damp_.data(),
+              d_force_prev_.data(), damping_rate_, kSubstep, st, d_job_.data(), d_sums_.data(),
+              d_step_counters_.data(), d_counters_.data(), link_));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }

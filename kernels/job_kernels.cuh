@@ -19,7 +19,6 @@ struct ToolParams {
   const double* area = nullptr;      ///< rest tributary area [m^2], (count)
   const double* mass = nullptr;      ///< lumped mass [kg], (count)
   const double* suction = nullptr;   ///< full suction load [N], (3 count)
-  float4* tool_force = nullptr;      ///< tool load per device vertex [force_unit], (vertex_count)
   int count = 0;
   double length_unit = 1;  ///< [m]
   double force_unit = 1;   ///< [N]
@@ -53,116 +52,35 @@ struct JobHostLink {
   const TipMailbox* tip = nullptr;
 };
 
-/// Stage 1 (tools), one thread per tool vertex: its load into tool_force, the sums of the
-/// step (needle and rim forces, contacts, the tools' work) into `sums`.
-__global__ void __launch_bounds__(kBlock)
-    job_tool_kernel(JobParams p, ToolParams tl, const double* __restrict__ u,
-                    const double* __restrict__ u_prev, const JobState* job, JobSums* sums) {
-  wait_for_previous_kernel();
-  allow_next_kernel();
-  if (job->halted) return;  // the same for every thread: the last record kernel wrote it
-  const int i = blockIdx.x * kBlock + threadIdx.x;
-  double nf[3] = {0, 0, 0}, rf[3] = {0, 0, 0};
-  double needle_contacts = 0, rim_contacts = 0;
-  if (i < tl.count) {
-    const int v = tl.vertex[i];
-    const double lu = tl.length_unit;
-    const double* un = u + 3 * static_cast<size_t>(v);
-    const double* up = u_prev + 3 * static_cast<size_t>(v);
-    const Vec3d du{(un[0] - up[0]) * lu, (un[1] - up[1]) * lu, (un[2] - up[2]) * lu};
-    ToolVertexInput in;
-    in.x = Vec3d{tl.rest[3 * i] + un[0] * lu, tl.rest[3 * i + 1] + un[1] * lu,
-                 tl.rest[3 * i + 2] + un[2] * lu};
-    in.velocity = (1.0 / p.dt) * du;
-    in.area = tl.area[i];
-    in.mass = tl.mass[i];
-    in.suction = Vec3d{tl.suction[3 * i], tl.suction[3 * i + 1], tl.suction[3 * i + 2]};
-    const ToolVertexForce f = tool_vertex_force(p, job->pose, in);
-    const double inv = 1.0 / tl.force_unit;
-    tl.tool_force[v] = make_float4(float(f.force.x * inv), float(f.force.y * inv),
-                                   float(f.force.z * inv), 0.0f);
-    for (int c = 0; c < 3; ++c) {
-      nf[c] = f.needle[c];
-      rf[c] = f.rim[c];
-    }
-    needle_contacts = f.needle_contact;
-    rim_contacts = f.rim_contact;
-  }
-  // Block sums, one atomic each (the order of the blocks varies: the last bits of the sums do).
-  for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
-  for (int c = 0; c < 3; ++c) block_sum_add(rf[c], &sums->rim_force[c]);
-  using Reduce = cub::BlockReduce<int, kBlock>;
-  __shared__ typename Reduce::TempStorage temp;
-  const int nc = Reduce(temp).Sum(static_cast<int>(needle_contacts));
-  __syncthreads();
-  const int rc = Reduce(temp).Sum(static_cast<int>(rim_contacts));
-  if (threadIdx.x == 0) {
-    if (nc) atomicAdd(&sums->needle_contacts, nc);
-    if (rc) atomicAdd(&sums->rim_contacts, rc);
-  }
+/// Device-side counters of the step kernel.
+struct JobStepCounters {
+  unsigned int blocks_done = 0;  ///< blocks of this step's kernel that finished (ticket)
+};
+
+/// Stage 1 for one tool vertex (tool index i, device vertex v): its load [N] and the parts the
+/// step sums. u, u_prev in device length units.
+__device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const ToolParams& tl,
+                                                     const ToolPose& pose, int i,
+                                                     const double* un, const double* up) {
+  const double lu = tl.length_unit;
+  const Vec3d du{(un[0] - up[0]) * lu, (un[1] - up[1]) * lu, (un[2] - up[2]) * lu};
+  ToolVertexInput in;
+  in.x = Vec3d{tl.rest[3 * i] + un[0] * lu, tl.rest[3 * i + 1] + un[1] * lu,
+               tl.rest[3 * i + 2] + un[2] * lu};
+  in.velocity = (1.0 / p.dt) * du;
+  in.area = tl.area[i];
+  in.mass = tl.mass[i];
+  in.suction = Vec3d{tl.suction[3 * i], tl.suction[3 * i + 1], tl.suction[3 * i + 2]};
+  return tool_vertex_force(p, pose, in);
 }
 
-/// Stages 2 and 4 after the element pass, one thread per vertex: the loads (tool load plus the
-/// stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged one step as on the CPU), the
-/// centred-difference update, the kinetic energy, the tools' work over the step (centred,
-/// f_n . (u_{n+1} - u_{n-1}) / 2, as on the CPU). FIXED: the fixed-point scatter's sums.
-template <bool FIXED>
-__global__ void __launch_bounds__(kBlock)
-    job_update_kernel(VertexParams vp, const float4* __restrict__ tool_force, float4* damp,
-                      float4* force_prev, float damping_rate, int substep, DeviceStatus* st,
-                      JobSums* sums) {
-  wait_for_previous_kernel();
-  allow_next_kernel();
-  if (halted(st, substep)) return;
-  const int v = blockIdx.x * kBlock + threadIdx.x;
-  VertexDiag d;
-  double work = 0;
-  if (v < vp.vertex_count) {
-    const float4 f = scattered_force<FIXED>(vp, v);
-    if constexpr (FIXED) {
-      vp.force[v] = f;
-      unsigned long long* clear = vp.fixed_clear + 3 * static_cast<size_t>(v);
-      clear[0] = clear[1] = clear[2] = 0;
-    } else {
-      vp.force_clear[v] = make_float4(0, 0, 0, 0);
-    }
-    const float4 tool = tool_force[v];
-    float4 fe = tool;
-    if (damp) {
-      const float4 k = damp[v];
-      fe.x += k.x;
-      fe.y += k.y;
-      fe.z += k.z;
-      const float4 fp = force_prev[v];
-      damp[v] = make_float4(damping_rate * (f.x - fp.x), damping_rate * (f.y - fp.y),
-                            damping_rate * (f.z - fp.z), 0.0f);
-      force_prev[v] = f;
-    }
-    update_vertex(vp, v, f, fe, substep, st, &d);
-    if (tool.x != 0 || tool.y != 0 || tool.z != 0) {
-      const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
-      const double* un = vp.u_next + 3 * static_cast<size_t>(v);
-      work = 0.5 * vp.force_unit * vp.length_unit *
-             (double(tool.x) * (un[0] - up[0]) + double(tool.y) * (un[1] - up[1]) +
-              double(tool.z) * (un[2] - up[2]));
-    }
-  }
-  block_sum_add(d.kinetic, &st->kinetic_energy);
-  block_sum_add(work, &sums->tool_work);
-}
-
-/// Stages 5 (the deformation) and 6, one thread: reads the step's sums and status, runs
-/// job_finish_step, publishes the record (latest, and a sample when due) to mapped host memory,
-/// and resets the sums for the next step. A halted job stays halted: every kernel of a later
-/// step returns at once (the status keeps failed_substep at 0).
-__global__ void __launch_bounds__(kBlock)
-    job_record_kernel(JobParams p, JobState* job, JobSums* sums, DeviceStatus* st,
-                      const double* __restrict__ u_next, double length_unit,
-                      JobCounters* counters, JobHostLink link) {
-  wait_for_previous_kernel();
-  allow_next_kernel();
-  if (threadIdx.x != 0 || blockIdx.x != 0) return;
-  if (job->halted) return;
+/// Stages 5 (the deformation) and 6, run by one thread once every vertex of the step is done:
+/// reads the step's sums and status, runs job_finish_step, publishes the record (latest, and a
+/// sample when due) to mapped host memory, and resets the sums for the next step. A halted job
+/// stays halted: the status keeps failed_substep at 0, which stops every later kernel.
+__device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, DeviceStatus* st,
+                             const double* u_next, double length_unit, JobCounters* counters,
+                             const JobHostLink& link) {
   // The pose the host handed in (haptics), when a whole one is there.
   const volatile TipMailbox* mailbox = link.tip;
   const unsigned long long seq = mailbox->seq;
@@ -184,13 +102,24 @@ __global__ void __launch_bounds__(kBlock)
   if (p.has_entry) {
     Vec3d e[3];
     for (int k = 0; k < 3; ++k) {
-      const double* x = u_next + 3 * static_cast<size_t>(p.entry_vertex[k]);
+      const volatile double* x = u_next + 3 * static_cast<size_t>(p.entry_vertex[k]);
       e[k] = Vec3d{x[0] * length_unit, x[1] * length_unit, x[2] * length_unit};
     }
     tot.deformation = job_entry_deformation(p, e[0], e[1], e[2]);
   }
+  // The sums came from other blocks' atomics: read them past any cached copy.
+  JobSums total;
+  const volatile JobSums* vs = sums;
+  for (int c = 0; c < 3; ++c) {
+    total.needle_force[c] = vs->needle_force[c];
+    total.rim_force[c] = vs->rim_force[c];
+  }
+  total.tool_work = vs->tool_work;
+  total.needle_contacts = vs->needle_contacts;
+  total.rim_contacts = vs->rim_contacts;
+  tot.kinetic_energy = static_cast<const volatile DeviceStatus*>(st)->kinetic_energy;
   JobRecord r;
-  const bool sample = job_finish_step(p, *job, *sums, tot, &r);
+  const bool sample = job_finish_step(p, *job, total, tot, &r);
   if (sample) {
     const unsigned long long n = counters->samples;
     link.samples[n % link.capacity] = r;
@@ -211,6 +140,104 @@ __global__ void __launch_bounds__(kBlock)
   DeviceStatus fresh;
   if (job->halted) fresh.failed_substep = 0;
   *st = fresh;
+}
+
+/// Everything of a step after the element pass, one thread per vertex: stage 1 on the tool
+/// vertices (from u_n, u_{n-1}), stage 2 (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged
+/// one step as on the CPU), stage 4 (the centred-difference update), the sums of stage 5
+/// (kinetic energy, the tools' forces and contacts, their centred work f_n . (u_{n+1} -
+/// u_{n-1}) / 2), and, in the block that finishes last, stage 6 (record_stage). One kernel
+/// instead of four: at small meshes a step is a few microseconds and every launch counts.
+/// FIXED: the fixed-point scatter's sums.
+template <bool FIXED>
+__global__ void __launch_bounds__(kBlock)
+    job_step_kernel(JobParams p, ToolParams tl, const int32_t* __restrict__ tool_index,
+                    VertexParams vp, float4* damp, float4* force_prev, float damping_rate,
+                    int substep, DeviceStatus* st, JobState* job, JobSums* sums,
+                    JobStepCounters* step_counters, JobCounters* counters, JobHostLink link) {
+  wait_for_previous_kernel();
+  allow_next_kernel();
+  if (halted(st, substep)) return;  // the same for every block: set by an earlier step
+  const int v = blockIdx.x * kBlock + threadIdx.x;
+  VertexDiag d;
+  double work = 0, nf[3] = {0, 0, 0}, rf[3] = {0, 0, 0};
+  int needle_contacts = 0, rim_contacts = 0;
+  bool tool_block = false;
+  if (v < vp.vertex_count) {
+    const float4 f = scattered_force<FIXED>(vp, v);
+    if constexpr (FIXED) {
+      vp.force[v] = f;
+      unsigned long long* clear = vp.fixed_clear + 3 * static_cast<size_t>(v);
+      clear[0] = clear[1] = clear[2] = 0;
+    } else {
+      vp.force_clear[v] = make_float4(0, 0, 0, 0);
+    }
+    float4 fe = make_float4(0, 0, 0, 0);
+    const int i = tool_index[v];
+    Vec3d tool{0, 0, 0};
+    const double* un = vp.u + 3 * static_cast<size_t>(v);
+    const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
+    if (i >= 0) {
+      const ToolVertexForce t = tool_stage(p, tl, job->pose, i, un, up);
+      tool = t.force;
+      const double inv = 1.0 / tl.force_unit;
+      fe = make_float4(float(tool.x * inv), float(tool.y * inv), float(tool.z * inv), 0.0f);
+      for (int c = 0; c < 3; ++c) {
+        nf[c] = t.needle[c];
+        rf[c] = t.rim[c];
+      }
+      needle_contacts = t.needle_contact;
+      rim_contacts = t.rim_contact;
+      tool_block = true;
+    }
+    if (damp) {
+      const float4 k = damp[v];
+      fe.x += k.x;
+      fe.y += k.y;
+      fe.z += k.z;
+      const float4 fp = force_prev[v];
+      damp[v] = make_float4(damping_rate * (f.x - fp.x), damping_rate * (f.y - fp.y),
+                            damping_rate * (f.z - fp.z), 0.0f);
+      force_prev[v] = f;
+    }
+    update_vertex(vp, v, f, fe, substep, st, &d);
+    if (i >= 0) {
+      const double* next = vp.u_next + 3 * static_cast<size_t>(v);
+      const double lu = vp.length_unit;
+      work = 0.5 * lu * (tool.x * (next[0] - up[0]) + tool.y * (next[1] - up[1]) +
+                         tool.z * (next[2] - up[2]));
+    }
+  }
+  block_sum_add(d.kinetic, &st->kinetic_energy);
+  // Blocks without a tool vertex (the interior) skip the tool sums.
+  if (__syncthreads_or(tool_block)) {
+    block_sum_add(work, &sums->tool_work);
+    for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
+    for (int c = 0; c < 3; ++c) block_sum_add(rf[c], &sums->rim_force[c]);
+    using Reduce = cub::BlockReduce<int, kBlock>;
+    __shared__ typename Reduce::TempStorage temp;
+    const int nc = Reduce(temp).Sum(needle_contacts);
+    __syncthreads();
+    const int rc = Reduce(temp).Sum(rim_contacts);
+    if (threadIdx.x == 0) {
+      if (nc) atomicAdd(&sums->needle_contacts, nc);
+      if (rc) atomicAdd(&sums->rim_contacts, rc);
+    }
+  }
+  // The last block to finish runs the record stage (every other block's sums and u_next are
+  // visible: each fenced before taking its ticket).
+  __shared__ bool last;
+  if (threadIdx.x == 0) {
+    __threadfence();
+    const unsigned int ticket = atomicAdd(&step_counters->blocks_done, 1u);
+    last = ticket == gridDim.x - 1;
+  }
+  __syncthreads();
+  if (last && threadIdx.x == 0) {
+    __threadfence();
+    step_counters->blocks_done = 0;
+    record_stage(p, job, sums, st, vp.u_next, vp.length_unit, counters, link);
+  }
 }
 
 }  // namespace zona::cuda
