@@ -27,10 +27,12 @@ class CudaJob final : public JobRunner {
   void set_tip(Vec3d tip) override;
   int64_t steps_advanced() const override { return advanced_; }
   uint64_t host_bytes_moved() const override {
-    // Per finished step: the latest record written over the bus, and the pose mailbox read;
-    // per sample: one record.
+    // Per step the progress counter; per publication (every few steps) the latest record and
+    // the pose mailbox read; per sample one record.
     const volatile unsigned long long* count = h_sample_count_.data();
-    return static_cast<uint64_t>(steps_done()) * (sizeof(LatestRecord) + sizeof(TipMailbox)) +
+    const volatile unsigned long long* published = &h_latest_.data()->seq;
+    return static_cast<uint64_t>(steps_done()) * sizeof(unsigned long long) +
+           static_cast<uint64_t>(*published) * (sizeof(JobRecord) + sizeof(TipMailbox)) +
            static_cast<uint64_t>(*count) * sizeof(JobRecord);
   }
   std::string description() const override {
@@ -44,11 +46,18 @@ class CudaJob final : public JobRunner {
     GraphExec exec;
   };
   Status enqueue_step(int64_t g);
+  /// The element pass sums the elastic energy on every kEnergyInterval-th step only (a block
+  /// reduction and an atomic per block of tetrahedra); the record carries the last value in
+  /// between: the energy criterion and the blow-up test see it at most 3 steps late, the
+  /// kinetic energy and non-finite values every step.
+  static constexpr int kEnergyInterval = 4;
+  /// Graphs depend on the step index modulo this (6 buffer phases, 4 energy phases).
+  static constexpr int kPhases = 12;
   Result<cudaGraphExec_t> graph(int steps, int phase);
   // Steps finished on the device (from the published sequence number; no synchronisation).
   int64_t steps_done() const {
-    const volatile unsigned long long* seq = &h_latest_.data()->seq;
-    return static_cast<int64_t>(*seq / 2);
+    const volatile unsigned long long* done = &h_latest_.data()->steps_done;
+    return static_cast<int64_t>(*done) - start_step_;
   }
 
   CudaBackend& b_;
@@ -70,6 +79,7 @@ class CudaJob final : public JobRunner {
   JobHostLink link_;
   std::vector<Graph> graphs_;
   int64_t advanced_ = 0;
+  int64_t start_step_ = 0;  // the job's step count when it started
   unsigned long long taken_ = 0;
   bool halted_seen_ = false;
   /// Steps that may be queued ahead of the device: enough to keep it busy between the host's
@@ -185,26 +195,31 @@ Status CudaJob::enqueue_step(int64_t g) {
     if (err == cudaSuccess) err = e;
   };
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
+  const bool energy = g % kEnergyInterval == 0;
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;
-    with_scatter(mode, [&](auto mc) {
-      constexpr Scatter M = decltype(mc)::value;
-      if constexpr (M != Scatter::kStore)
-        keep(launch(pdl, tet_pass_kernel<K, true, M>, tb, s, b_.tp_, vp.u, vp.force, vp.fixed,
-                    static_cast<float4*>(nullptr), kSubstep, st, true));
+    with_bool(energy, [&](auto dc) {
+      constexpr bool D = decltype(dc)::value;
+      with_scatter(mode, [&](auto mc) {
+        constexpr Scatter M = decltype(mc)::value;
+        if constexpr (M != Scatter::kStore)
+          keep(launch(pdl, tet_pass_kernel<K, D, M>, tb, s, b_.tp_, vp.u, vp.force, vp.fixed,
+                      static_cast<float4*>(nullptr), kSubstep, st, true));
+      });
     });
   });
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
   keep(launch(pdl, step_kernel, vb, s, params_, tl_,
               static_cast<const int32_t*>(d_tool_index_.data()), vp, d_damp_.data(),
-              d_force_prev_.data(), damping_rate_, kSubstep, st, d_job_.data(), d_sums_.data(),
+              d_force_prev_.data(), damping_rate_, kSubstep, energy, st, d_job_.data(),
+              d_sums_.data(),
               d_step_counters_.data(), d_counters_.data(), link_));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }
 
-// A graph of `steps` steps starting at buffer phase `phase` (mod 6), captured on first use.
+// A graph of `steps` steps starting at phase `phase` (mod kPhases), captured on first use.
 Result<cudaGraphExec_t> CudaJob::graph(int steps, int phase) {
   for (Graph& g : graphs_)
     if (g.steps == steps && g.phase == phase) return g.exec.get();
@@ -229,7 +244,7 @@ Result<cudaGraphExec_t> CudaJob::graph(int steps, int phase) {
 }
 
 Status CudaJob::advance(int64_t steps) {
-  constexpr int kLong = 48;  // steps per long graph: a multiple of the 6 buffer phases
+  constexpr int kLong = 48;  // steps per long graph: a multiple of kPhases
   const cudaStream_t s = b_.stream_.get();
   while (steps > 0) {
     if (halted_seen_) break;
@@ -249,7 +264,7 @@ Status CudaJob::advance(int64_t steps) {
       std::this_thread::yield();
     }
     const int chunk = steps >= kLong ? kLong : 1;
-    const int phase = static_cast<int>(b_.phase_step_ % 6);
+    const int phase = static_cast<int>(b_.phase_step_ % kPhases);
     Result<cudaGraphExec_t> exec = graph(chunk, phase);
     if (!exec) return exec.error();
     ZONA_CUDA_TRY(cudaGraphLaunch(*exec, s));
@@ -262,18 +277,16 @@ Status CudaJob::advance(int64_t steps) {
 
 bool CudaJob::latest(JobRecord* out) {
   const LatestRecord* l = h_latest_.data();
+  const volatile unsigned long long* seq = &l->seq;
   for (;;) {
-    const unsigned long long s1 = reinterpret_cast<const volatile LatestRecord*>(l)->seq;
+    const unsigned long long s1 = *seq;
     if (s1 == 0) return false;
-    if (s1 & 1ull) {
-      std::this_thread::yield();
-      continue;
-    }
     std::atomic_thread_fence(std::memory_order_acquire);
-    std::memcpy(static_cast<void*>(out), static_cast<const void*>(&l->record), sizeof(JobRecord));
+    std::memcpy(static_cast<void*>(out), static_cast<const void*>(&l->slot[(s1 - 1) % 2]),
+                sizeof(JobRecord));
     std::atomic_thread_fence(std::memory_order_acquire);
-    const unsigned long long s2 = reinterpret_cast<const volatile LatestRecord*>(l)->seq;
-    if (s1 == s2) {
+    const unsigned long long s2 = *seq;
+    if (s2 - s1 < 2) {
       if (out->halted) halted_seen_ = true;
       return true;
     }

@@ -24,10 +24,13 @@ struct ToolParams {
   double force_unit = 1;   ///< [N]
 };
 
-/// The newest record, published with a sequence number (odd while it is being written).
+/// The newest record, double-buffered: `seq` counts the publications, the newest is in
+/// slot[(seq - 1) % 2]. The device writes the other slot, fences, then bumps seq, so a reader
+/// that sees seq unchanged by less than 2 around its copy has a whole record.
 struct LatestRecord {
   unsigned long long seq = 0;
-  JobRecord record;
+  unsigned long long steps_done = 0;  ///< steps finished (progress for the host's throttle)
+  JobRecord slot[2];
 };
 
 /// The needle pose the host hands in (haptics), with a sequence number (odd while written).
@@ -36,10 +39,11 @@ struct TipMailbox {
   double tip[3] = {0, 0, 0};  ///< [m]
 };
 
-/// Device-side counters of the record kernel.
+/// Device-side counters of the record stage.
 struct JobCounters {
-  unsigned long long samples = 0;  ///< samples written so far
-  unsigned long long latest_seq = 0;
+  unsigned long long samples = 0;     ///< samples written so far
+  unsigned long long latest_seq = 0;  ///< records published so far
+  double elastic_energy = 0;          ///< the last evaluated elastic energy [J]
 };
 
 /// Where the record kernel publishes: mapped pinned host memory (written over the bus, read by
@@ -50,6 +54,10 @@ struct JobHostLink {
   unsigned long long capacity = 0;
   LatestRecord* latest = nullptr;
   const TipMailbox* tip = nullptr;
+  /// The latest record goes to the host every this many steps (and at every sample, puncture
+  /// and halt); the pose is read from the host as often. Each publication costs a system-scope
+  /// fence (a round trip over the bus): once per step it would double a small mesh's step.
+  int publish_interval = 8;
 };
 
 /// Device-side counters of the step kernel.
@@ -79,22 +87,27 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
 /// sample when due) to mapped host memory, and resets the sums for the next step. A halted job
 /// stays halted: the status keeps failed_substep at 0, which stops every later kernel.
 __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, DeviceStatus* st,
-                             const double* u_next, double length_unit, JobCounters* counters,
-                             const JobHostLink& link) {
+                             const double* u_next, double length_unit, bool fresh_energy,
+                             JobCounters* counters, const JobHostLink& link) {
+  const bool publish_step = (job->step + 1) % link.publish_interval == 0;
   // The pose the host handed in (haptics), when a whole one is there.
-  const volatile TipMailbox* mailbox = link.tip;
-  const unsigned long long seq = mailbox->seq;
-  if (seq != 0 && (seq & 1ull) == 0) {
-    const double t0 = mailbox->tip[0], t1 = mailbox->tip[1], t2 = mailbox->tip[2];
-    __threadfence_system();
-    if (mailbox->seq == seq) {
-      job->external_tip = 1;
-      job->external_tip_value = Vec3d{t0, t1, t2};
+  if (publish_step) {
+    const volatile TipMailbox* mailbox = link.tip;
+    const unsigned long long seq = mailbox->seq;
+    if (seq != 0 && (seq & 1ull) == 0) {
+      const double t0 = mailbox->tip[0], t1 = mailbox->tip[1], t2 = mailbox->tip[2];
+      __threadfence_system();
+      if (mailbox->seq == seq) {
+        job->external_tip = 1;
+        job->external_tip_value = Vec3d{t0, t1, t2};
+      }
     }
   }
   JobStepTotals tot;
-  tot.elastic_energy = st->elastic_energy;
-  tot.kinetic_energy = st->kinetic_energy;
+  // The elastic energy is summed every few steps (JobHostLink's caller decides): in between,
+  // the last value stands.
+  if (fresh_energy) counters->elastic_energy = st->elastic_energy;
+  tot.elastic_energy = counters->elastic_energy;
   tot.status = st->flags;
   tot.first_bad = st->first_nonfinite != LLONG_MAX   ? st->first_nonfinite
                   : st->first_inverted != LLONG_MAX ? st->first_inverted
@@ -118,23 +131,26 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   total.needle_contacts = vs->needle_contacts;
   total.rim_contacts = vs->rim_contacts;
   tot.kinetic_energy = static_cast<const volatile DeviceStatus*>(st)->kinetic_energy;
+  const int32_t punctured_before = job->puncture.punctured;
   JobRecord r;
   const bool sample = job_finish_step(p, *job, total, tot, &r);
+  const bool publish = publish_step || sample || r.halted ||
+                       r.puncture.punctured != punctured_before;
+  // Records first, one fence, then the counters that let the host read them.
+  if (sample) link.samples[counters->samples % link.capacity] = r;
+  if (publish) link.latest->slot[counters->latest_seq % 2] = r;
+  if (sample || publish) __threadfence_system();
   if (sample) {
-    const unsigned long long n = counters->samples;
-    link.samples[n % link.capacity] = r;
-    __threadfence_system();
-    counters->samples = n + 1;
-    *reinterpret_cast<volatile unsigned long long*>(link.sample_count) = n + 1;
+    counters->samples += 1;
+    *reinterpret_cast<volatile unsigned long long*>(link.sample_count) = counters->samples;
   }
-  const unsigned long long s = counters->latest_seq;
-  volatile unsigned long long* out_seq = &link.latest->seq;
-  *out_seq = s + 1;
-  __threadfence_system();
-  link.latest->record = r;
-  __threadfence_system();
-  *out_seq = s + 2;
-  counters->latest_seq = s + 2;
+  if (publish) {
+    counters->latest_seq += 1;
+    *reinterpret_cast<volatile unsigned long long*>(&link.latest->seq) = counters->latest_seq;
+  }
+  // Progress for the throttle: a posted write, no fence (order does not matter for it).
+  *reinterpret_cast<volatile unsigned long long*>(&link.latest->steps_done) =
+      static_cast<unsigned long long>(r.step);
   // The next step starts from clean sums; a halted job keeps every later kernel out.
   *sums = JobSums{};
   DeviceStatus fresh;
@@ -153,8 +169,9 @@ template <bool FIXED>
 __global__ void __launch_bounds__(kBlock)
     job_step_kernel(JobParams p, ToolParams tl, const int32_t* __restrict__ tool_index,
                     VertexParams vp, float4* damp, float4* force_prev, float damping_rate,
-                    int substep, DeviceStatus* st, JobState* job, JobSums* sums,
-                    JobStepCounters* step_counters, JobCounters* counters, JobHostLink link) {
+                    int substep, bool fresh_energy, DeviceStatus* st, JobState* job,
+                    JobSums* sums, JobStepCounters* step_counters, JobCounters* counters,
+                    JobHostLink link) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
@@ -236,7 +253,7 @@ __global__ void __launch_bounds__(kBlock)
   if (last && threadIdx.x == 0) {
     __threadfence();
     step_counters->blocks_done = 0;
-    record_stage(p, job, sums, st, vp.u_next, vp.length_unit, counters, link);
+    record_stage(p, job, sums, st, vp.u_next, vp.length_unit, fresh_energy, counters, link);
   }
 }
 
