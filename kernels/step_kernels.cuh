@@ -190,24 +190,40 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
   uint32_t bits = 0;
   const float energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
                                               tp.clamp_at_collapse, u, f, &bits);
-  if (bits && record_health) {
-    const long long model_tet = tp.tet_new_to_old[t];
-    uint32_t flags = 0;
-    if (bits & kElementInverted) {
-      flags |= kStepInvertedElement;
-      atomicAdd(&st->inverted_count, 1ull);
-      atomicMin(&st->first_inverted, model_tet);
+  if (record_health) {
+    // Rare per element, common per step near the tip (clamped, collapsing elements under a
+    // needle): one set of atomics per warp, not per element, so that thousands of flagged
+    // elements do not serialise on the status block.
+    const unsigned mask = __activemask();
+    if (__ballot_sync(mask, bits != 0)) {
+      const int lane = threadIdx.x & 31;
+      const unsigned inverted = __ballot_sync(mask, (bits & kElementInverted) != 0);
+      const unsigned collapsing = __ballot_sync(mask, (bits & kElementCollapsing) != 0);
+      const unsigned clamped = __ballot_sync(mask, (bits & kElementClamped) != 0);
+      const int model_tet = tp.tet_new_to_old[t];
+      const int first_inverted =
+          __reduce_min_sync(mask, (bits & kElementInverted) ? model_tet : INT_MAX);
+      const int first_collapsing =
+          __reduce_min_sync(mask, (bits & kElementCollapsing) ? model_tet : INT_MAX);
+      if (lane == __ffs(mask) - 1) {
+        uint32_t flags = 0;
+        if (inverted) {
+          flags |= kStepInvertedElement;
+          atomicAdd(&st->inverted_count, static_cast<unsigned long long>(__popc(inverted)));
+          atomicMin(&st->first_inverted, static_cast<long long>(first_inverted));
+        }
+        if (collapsing) {
+          flags |= kStepCollapsingElement;
+          atomicAdd(&st->collapsing_count, static_cast<unsigned long long>(__popc(collapsing)));
+          atomicMin(&st->first_collapsing, static_cast<long long>(first_collapsing));
+        }
+        if (clamped) {
+          flags |= kStepClampedElement;
+          atomicAdd(&st->clamped_count, static_cast<unsigned long long>(__popc(clamped)));
+        }
+        atomicOr(&st->flags, flags);
+      }
     }
-    if (bits & kElementCollapsing) {
-      flags |= kStepCollapsingElement;
-      atomicAdd(&st->collapsing_count, 1ull);
-      atomicMin(&st->first_collapsing, model_tet);
-    }
-    if (bits & kElementClamped) {
-      flags |= kStepClampedElement;
-      atomicAdd(&st->clamped_count, 1ull);
-    }
-    atomicOr(&st->flags, flags);
   }
   return energy;
 }
