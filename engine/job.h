@@ -169,6 +169,7 @@ struct JobParams {
   double entry_weight[3] = {0, 0, 0};   ///< barycentric weights of the entry point [-]
   double dt = 0;                  ///< [s]
   double force_filter = 0;        ///< low-pass time constant of the published force [s]
+  double force_filter_weight = 1; ///< 1 - exp(-dt / force_filter): the filter's step weight [-]
   double sample_interval = 0;     ///< a sample every this much simulated time [s]; 0: every step
   double stiffness_window = 20e-9;  ///< travel over which the local stiffness is taken [m]
   // Health.
@@ -402,7 +403,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   r.halted = s.halted;
   // Force filter (exact for a constant input over the step).
   if (p.force_filter > 0 && s.filter_started) {
-    const double a = 1.0 - exp(-p.dt / p.force_filter);
+    const double a = p.force_filter_weight;
     s.filtered_force += a * (r.raw_force - s.filtered_force);
   } else {
     s.filtered_force = r.raw_force;

@@ -41,6 +41,8 @@ Status Simulation::prepare_job() {
     p.needle_pressure_stiffness = kappa;
     p.needle_friction = scene_.needle.friction;
     p.force_filter = scene_.needle.force_filter;
+    p.force_filter_weight =
+        p.force_filter > 0 ? 1.0 - std::exp(-model_.dt / p.force_filter) : 1.0;
     const PunctureDef& pd = scene_.puncture;
     switch (pd.criterion) {
       case PunctureCriterion::kNone: p.criterion = kJobCriterionNone; break;

@@ -10,8 +10,9 @@
 # `run` executes on the GPU machine, writing to $OUT (default ./device-out): nvidia-smi,
 # `zona info --json`, the GPU tests, compute-sanitizer memcheck and racecheck over them, the
 # GPU benchmark, and a summary (printed last). Environment:
-#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling,interop
-#                        (default: all)
+#   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling,interop,job,
+#                        haptics (default: all)
+#   JOB_SIZES            vertex counts of the job benchmark (default 1e3,1e4,1e5,1e6,4e6)
 #   SCALING_MAX          largest size of the `zona bench --vertices sweep` stage (default 1.6e7)
 #   TEST_FILTER          gtest filter of the GPU tests (default 'Cuda*')
 #   SANITIZER_FILTER     gtest filter under compute-sanitizer (default: TEST_FILTER)
@@ -62,7 +63,7 @@ pack() {
 run() {
   local carry=${1:-build-device}
   local out=${OUT:-device-out}
-  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench,scaling,interop}
+  local stages=${DEVICE_CHECK_STAGES:-smi,tests,memcheck,racecheck,bench,scaling,interop,job,haptics}
   local filter=${TEST_FILTER:-Cuda*}
   mkdir -p "$out"
   export LD_LIBRARY_PATH="$PWD/$carry${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
@@ -131,6 +132,28 @@ run() {
       --set needle.speed=1mm/s --time 25ms --out "$out/interop_frame.png" \
       >"$out/interop_render.log" 2>&1
     note "zona render --backend cuda (interop): rc $? ; $(tail -2 "$out/interop_render.log" | tr '\n' ' ')"
+  fi
+  if has job; then
+    # The injection job (zona bench --job, docs/gpu.md) at JOB_SIZES, then the 1M-vertex mouse
+    # injection to puncture as a user runs it, wall time including setup.
+    local day
+    day=$(date -u +%Y-%m-%d)
+    timeout "${JOB_TIMEOUT:-400}" "$carry/zona" bench --job --backend cuda \
+      --vertices "${JOB_SIZES:-1e3,1e4,1e5,1e6,4e6}" --repeats 5 \
+      --max-run-seconds "${JOB_RUN_SECONDS:-40}" --out "$out/job_$day.csv" >"$out/job.log" 2>&1
+    note "job bench: rc $?"
+    grep -E "vertices:" "$out/job.log" | tee -a "$summary"
+    /usr/bin/time -f "wall %e s" timeout 120 "$carry/zona" run --backend cuda --quiet \
+      --no-frames --stop-after-puncture 0 --set mesh.generate.vertices=1000000 \
+      --out "$out/run_1m" >"$out/run_1m.log" 2>&1
+    note "zona run 1M vertices: rc $? ; $(grep -E 'puncture|wall|error' "$out/run_1m.log" | tr '\n' ' ')"
+  fi
+  if has haptics; then
+    # The haptic loop on the fine scene, fed from the device (16 cores: the loop's own rate).
+    timeout 60 "$carry/zona" haptics mouse_oocyte_fine --backend cuda --device scripted \
+      --duration "${HAPTICS_SECONDS:-15}" --json >"$out/haptics_fine.json" 2>"$out/haptics.log"
+    note "haptics fine scene: rc $? ; $(grep -E '"(rate_hz|period_p99_us|sim_real_time_ratio|puncture_felt_delay_ms|punctured)"' \
+      "$out/haptics_fine.json" | tr -d ' \n')"
   fi
   local sfilter=${SANITIZER_FILTER:-$filter}
   if has memcheck; then
