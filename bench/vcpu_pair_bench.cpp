@@ -4,11 +4,11 @@
 // once, and prints the two threads' combined rate over the one thread's rate: ~2 where the two
 // threads run on two physical cores, ~1 where they share one (SMT siblings, or a hypervisor that
 // placed both vCPUs on one core at that moment). On a cloud VM the answer can change from one
-// minute to the next (bench/README.md, docs/performance.md "Seventh round"); run it beside a
+// minute to the next (bench/README.md, "Reading CPU numbers from a shared VM"); run it beside a
 // benchmark to tell the machine's state from the code's (bench/repeat_bench.sh, VCPU_PROBE).
 // With --stream-kib K each thread instead sweeps a private array of K KiB (a = 0.999 a + b, two
 // reads and a write per element; cache-resident for small K): the vCPUs of a shared host can be
-// equal for arithmetic and unequal for loads and stores (docs/performance.md, "Seventh round").
+// equal for arithmetic and unequal for loads and stores (bench/README.md).
 //
 //   vcpu_pair_bench [--iterations N] [--rounds R] [--stream-kib K]
 //

@@ -618,8 +618,9 @@ tet_pass_chunks_f64_fma(void* context, int64_t chunk_begin, int64_t chunk_end) {
 
 // The same four-lane fused pass encoded with AVX-512VL, on CPUs that have it (cpu_simd_registers()
 // == 32): still 256-bit vectors (no 512-bit frequency licence), but 32 vector registers instead of
-// 16, so the batch's ~40 live packs stop spilling (~50 fewer loads and stores per batch of four:
-// docs/performance.md, "Fifth round"). The same operations in the same order: the same bits.
+// 16, so the batch's ~40 live packs stop spilling (~50 fewer loads and stores per batch of four;
+// docs/performance.md, "CPU fused SIMD element pass"). The same operations in the same order:
+// the same bits.
 template <bool kSvk>
 __attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma32(void* context, int64_t chunk_begin, int64_t chunk_end) {

@@ -44,8 +44,7 @@ namespace {
 // Segment boundaries (first chunk of each segment, and the end): equal chunk counts. (Until
 // late slots were per segment, a late corner cost ~0.15 tetrahedron more than an owned one and
 // the segments were balanced by that cost; adding into a per-segment slot costs what adding
-// into the vertex's block costs, and the balanced cut measured no faster: docs/performance.md,
-// "Ninth round".)
+// into the vertex's block costs, and the balanced cut measured no faster.)
 std::vector<int64_t> equal_segments(int64_t chunks, int64_t segments) {
   std::vector<int64_t> bounds(static_cast<size_t>(segments + 1));
   for (int64_t k = 0; k <= segments; ++k) bounds[static_cast<size_t>(k)] = chunks * k / segments;
