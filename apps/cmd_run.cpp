@@ -1,5 +1,5 @@
-// `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv, summary.json,
-// VTU frames and a force-deformation plot.
+// `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
+// run goes), summary.json, VTU frames and a force-deformation plot.
 #include <unistd.h>
 
 #include <chrono>
@@ -66,14 +66,6 @@ class Progress {
   bool tty_;
   double next_line_ = 0;
 };
-
-Status write_text(const std::string& path, const std::string& text) {
-  std::ofstream out(path);
-  if (!out) return make_error("%s: cannot open for writing", path.c_str());
-  out << text;
-  if (!out) return make_error("%s: write failed", path.c_str());
-  return Status::ok_status();
-}
 
 // Splits "text[:label]" at the last ':' that is not part of a Windows drive or a path.
 std::pair<std::string, std::string> split_label(const std::string& text) {
@@ -249,20 +241,42 @@ void run_command(const RunArgs& args) {
   Progress progress(args.quiet);
   options.progress = [&](const RunProgress& p) { progress.update(p); };
 
+  // Streamed outputs: scene.json before the run, force.csv row by row during it, so that a run
+  // stopped half-way leaves its scene and its curve up to there. A failed row is reported once
+  // after the run; the run goes on (its samples are still in memory for the summary and plot).
+  // A previous run's summary and plot would sit beside this run's curve until the end (or for
+  // good, if this run is killed): they go first.
+  for (const char* stale : {"summary.json", "force_deformation.png"})
+    fs::remove(fs::path(out) / stale, ec);
+  if (Status s = write_file_atomic((fs::path(out) / "scene.json").string(),
+                                   scene_to_json(*scene).dump(2) + "\n");
+      !s)
+    return fail(s.error().message);
+  Result<ForceCsvWriter> csv = ForceCsvWriter::open((fs::path(out) / "force.csv").string());
+  if (!csv) return fail(csv.error().message);
+  std::string csv_error;
+  options.on_sample = [&](const ForceSample& sample) {
+    if (csv_error.empty())
+      if (Status s = csv->append(sample); !s) csv_error = s.error().message;
+  };
+
   const RunResult run = run_simulation(sim, options);
   progress.finish();
   if (!frame_error.empty()) std::fprintf(stderr, "zona run: warning: frames: %s\n", frame_error.c_str());
 
-  // Outputs.
+  // Outputs. A failed streamed row (disk full, ...): the whole curve is still in memory, so
+  // force.csv gets one more try whole.
+  if (Status s = csv->close(); !s && csv_error.empty()) csv_error = s.error().message;
+  if (!csv_error.empty()) {
+    if (Status s = write_force_csv(csv->path(), run.samples); !s) return fail(csv_error);
+    std::fprintf(stderr, "zona run: warning: %s; force.csv rewritten whole after the run\n",
+                 csv_error.c_str());
+  }
   const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
-  if (Status s = write_force_csv((fs::path(out) / "force.csv").string(), run.samples); !s)
-    return fail(s.error().message);
   nlohmann::json summary = run_summary_json(sim, run, metrics);
   summary["numerics"]["setup_time_s"] = setup_seconds;
-  if (Status s = write_text((fs::path(out) / "summary.json").string(), summary.dump(2) + "\n"); !s)
-    return fail(s.error().message);
-  if (Status s = write_text((fs::path(out) / "scene.json").string(),
-                            scene_to_json(*scene).dump(2) + "\n");
+  if (Status s = write_file_atomic((fs::path(out) / "summary.json").string(),
+                                   summary.dump(2) + "\n");
       !s)
     return fail(s.error().message);
   const std::string plot = (fs::path(out) / "force_deformation.png").string();

@@ -54,6 +54,8 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   std::ifstream js(out / "summary.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   EXPECT_EQ(j["model"], "svk");
+  EXPECT_FALSE(j["interrupted"].get<bool>());
+  EXPECT_FALSE(fs::exists(out / "summary.json.tmp"));
   ASSERT_TRUE(j["puncture"]["punctured"].get<bool>());
   for (const char* key : {"time_s", "deformation_m", "force_N"})
     EXPECT_TRUE(j["puncture"].contains(key)) << key;
