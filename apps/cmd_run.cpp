@@ -1,9 +1,13 @@
 // `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
-// run goes), summary.json, VTU frames and a force-deformation plot.
+// run goes), summary.json, VTU frames and a force-deformation plot; SIGINT / SIGTERM end the
+// run at the next step with its outputs written.
+#include <signal.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -65,6 +69,46 @@ class Progress {
   bool quiet_;
   bool tty_;
   double next_line_ = 0;
+};
+
+// SIGINT and SIGTERM end the run at the next step instead of killing the process: the handler
+// only stores (async-signal-safe), the run loop reads the flag once per step, and the command
+// writes what it has and exits 128 + the signal. SA_RESETHAND makes a second signal kill at
+// once, for a run stuck outside the step loop. A signal the parent ignores stays ignored (a
+// shell script's background job ignores SIGINT so that Ctrl-C reaches only the foreground).
+// The previous handlers return with the object.
+std::atomic<bool> g_stop_requested{false};
+volatile std::sig_atomic_t g_stop_signal = 0;
+static_assert(std::atomic<bool>::is_always_lock_free, "the signal handler needs a lock-free flag");
+
+extern "C" void on_stop_signal(int sig) {
+  g_stop_signal = sig;
+  g_stop_requested.store(true, std::memory_order_relaxed);
+}
+
+class StopOnSignals {
+ public:
+  StopOnSignals() {
+    struct sigaction action {};
+    action.sa_handler = on_stop_signal;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESETHAND;
+    for (auto [sig, previous] :
+         {std::pair{SIGINT, &previous_int_}, std::pair{SIGTERM, &previous_term_}}) {
+      sigaction(sig, nullptr, previous);
+      if (previous->sa_handler != SIG_IGN) sigaction(sig, &action, nullptr);
+    }
+  }
+  ~StopOnSignals() {
+    sigaction(SIGINT, &previous_int_, nullptr);
+    sigaction(SIGTERM, &previous_term_, nullptr);
+  }
+  StopOnSignals(const StopOnSignals&) = delete;
+  StopOnSignals& operator=(const StopOnSignals&) = delete;
+
+ private:
+  struct sigaction previous_int_ {};
+  struct sigaction previous_term_ {};
 };
 
 // Splits "text[:label]" at the last ':' that is not part of a Windows drive or a path.
@@ -259,8 +303,13 @@ void run_command(const RunArgs& args) {
     if (csv_error.empty())
       if (Status s = csv->append(sample); !s) csv_error = s.error().message;
   };
+  options.stop = &g_stop_requested;
 
-  const RunResult run = run_simulation(sim, options);
+  RunResult run;
+  {
+    const StopOnSignals stop_on_signals;
+    run = run_simulation(sim, options);
+  }
   progress.finish();
   if (!frame_error.empty()) std::fprintf(stderr, "zona run: warning: frames: %s\n", frame_error.c_str());
 
@@ -305,6 +354,20 @@ void run_command(const RunArgs& args) {
   std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
               frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
   if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
+  // A signal: the run ended at the step it arrived (or, arriving after the last step's check,
+  // at its end); the exit status is the shell's 128 + signal either way.
+  if (const int sig = g_stop_signal; sig != 0) {
+    const char* name = sig == SIGINT ? "SIGINT" : "SIGTERM";
+    if (run.interrupted)
+      std::fprintf(stderr,
+                   "zona run: interrupted by %s at t %.6g s (%lld steps); force.csv and "
+                   "summary.json hold the run up to there\n",
+                   name, run.simulated_time, static_cast<long long>(run.steps));
+    else
+      std::fprintf(stderr, "zona run: %s arrived after the last step; the outputs are complete\n",
+                   name);
+    exit_code() = 128 + sig;
+  }
 }
 
 }  // namespace
