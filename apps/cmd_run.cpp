@@ -121,6 +121,9 @@ std::pair<std::string, std::string> split_label(const std::string& text) {
 // The loading part (punctured == 0) of another run's force.csv: deformation [um], force [uN].
 Result<PlotSeries> read_curve(const std::string& spec, uint32_t rgb) {
   const auto [path, label] = split_label(spec);
+  // Before opening: a FIFO blocks the open, a device (/dev/zero) never ends.
+  if (Status st = check_regular_file(path); !st)
+    return make_error("--compare: %s", st.error().message.c_str());
   std::ifstream in(path);
   if (!in) return make_error("--compare: cannot open %s", path.c_str());
   std::string line;

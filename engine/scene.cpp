@@ -848,7 +848,12 @@ Result<std::string> find_scene(const std::string& name, const std::vector<std::s
   if (name.empty()) return make_error("empty scene name");
   std::error_code ec;
   if (fs::is_regular_file(name, ec)) return name;
-  if (name.find('/') != std::string::npos) return make_error("%s: scene file not found", name.c_str());
+  if (name.find('/') != std::string::npos) {
+    // A path: one that exists but is a directory, device or FIFO says so.
+    const std::string kind = file_kind(name);
+    if (kind.empty()) return make_error("%s: scene file not found", name.c_str());
+    return make_error("%s: is not a regular file (%s)", name.c_str(), kind.c_str());
+  }
   std::vector<fs::path> dirs(search_dirs.begin(), search_dirs.end());
   if (const char* env = std::getenv("ZONA_SCENES_DIR"); env && *env) dirs.emplace_back(env);
   dirs.emplace_back("scenes");

@@ -3,12 +3,15 @@
 #include "engine/scene.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <string>
+#include <tuple>
 
 namespace zona {
 namespace {
@@ -398,6 +401,43 @@ TEST(Scene, FileMeshResolvesRelativeToTheSceneFile) {
   bad = load_scene(dir.write("no_unit.json", j.dump()));
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.error().message.find("mesh.unit: required key missing"), std::string::npos);
+}
+
+TEST(Scene, FilePathsThatAreNotRegularFilesSaySo) {
+  // Paths that exist but cannot be read as files: not "file not found".
+  TempDir dir;
+  const fs::path folder = fs::path(dir.write("x", "")).parent_path();
+  fs::create_directories(folder / "meshes.msh");
+  ASSERT_EQ(::mkfifo((folder / "pipe.msh").c_str(), 0600), 0);
+  json j = minimal();
+  // (file as written, the path the message names, its kind)
+  const std::tuple<std::string, std::string, std::string> cases[] = {
+      {"/dev/zero", "/dev/zero", "character device"},
+      {"meshes.msh", (folder / "meshes.msh").string(), "directory"},
+      {"pipe.msh", (folder / "pipe.msh").string(), "FIFO"}};
+  for (const auto& [file, named, kind] : cases) {
+    j["mesh"] = {{"file", file}, {"unit", "um"}};
+    const std::string path = dir.write("scene.json", j.dump());
+    Result<Scene> bad = load_scene(path);
+    ASSERT_FALSE(bad.ok()) << file;
+    EXPECT_EQ(bad.error().message,
+              path + ": mesh.file: '" + named + "' is not a regular file (" + kind + ")");
+  }
+  // The other file keys take the same check.
+  j = minimal();
+  j["needle"] = {{"trajectory", "/dev/zero"}};
+  Result<Scene> bad = load_scene(dir.write("trajectory.json", j.dump()));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("needle.trajectory: '/dev/zero' is not a regular file"),
+            std::string::npos)
+      << bad.error().message;
+  // A scene path: the same words from find_scene, not "scene file not found".
+  Result<std::string> found = find_scene("/dev/zero");
+  ASSERT_FALSE(found.ok());
+  EXPECT_EQ(found.error().message, "/dev/zero: is not a regular file (character device)");
+  found = find_scene((folder / "pipe.msh").string());
+  ASSERT_FALSE(found.ok());
+  EXPECT_NE(found.error().message.find("is not a regular file (FIFO)"), std::string::npos);
 }
 
 TEST(Scene, BrokenFilesGiveOneLineErrors) {
