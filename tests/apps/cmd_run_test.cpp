@@ -109,6 +109,13 @@ TEST(CmdRun, ErrorsAreOneLine) {
   r = run_zona("run " + scene.string() + " --backend gpu --out " + (dir.path / "z").string(), dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("auto, cpu or cuda"), std::string::npos) << r.err;
+  // A scene nested 100,000 deep: one line naming the file, not a stack overflow.
+  const fs::path deep = dir.path / "deep.json";
+  std::ofstream(deep) << std::string(100000, '[') << std::string(100000, ']');
+  r = run_zona("run " + deep.string() + " --out " + (dir.path / "d").string(), dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(r.err, "zona: error: " + deep.string() +
+                       ": nested deeper than 64 levels (line 1, column 65)\n");
 }
 
 // The lines of a file as it is on disk now.

@@ -469,6 +469,50 @@ TEST(Scene, BrokenFilesGiveOneLineErrors) {
   EXPECT_NE(s.error().message.find("cannot open"), std::string::npos);
 }
 
+// Text nesting `depth` arrays: [[[...]]].
+std::string nested_arrays(int depth) { return std::string(depth, '[') + std::string(depth, ']'); }
+
+TEST(Scene, DeepOrHugeOrSpecialFilesAreRefusedBeforeParsing) {
+  TempDir dir;
+  // 100,000 levels: one line naming the file (this crashed the process with a stack overflow);
+  // the object is the first level, the 64th bracket the 65th.
+  const std::string deep = dir.write("deep.json", "{\"mesh\": " + nested_arrays(100000) + "}");
+  Result<Scene> s = load_scene(deep);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message, deep + ": nested deeper than 64 levels (line 1, column 73)");
+  // 64 levels parse (and fail as a scene, not as JSON); brackets inside strings do not count.
+  s = load_scene(dir.write("deep64.json", "{\"mesh\": " + nested_arrays(63) + "}"));
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message.find("nested deeper"), std::string::npos) << s.error().message;
+  json quoted = minimal();
+  quoted["description"] = nested_arrays(1000) + "\\\"{{{";
+  load_ok(dir.write("quoted.json", quoted.dump()));
+  EXPECT_TRUE(check_json_depth("[\"\\\"[[\"]", 1).ok());
+  EXPECT_FALSE(check_json_depth("[[]]", 1).ok());
+  // More than 64 MiB (a sparse file: nothing is written): refused from its size.
+  const std::string huge = dir.write("huge.json", "{}");
+  fs::resize_file(huge, kMaxSceneFileBytes + 1);
+  s = load_scene(huge);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message.rfind(huge + ": 67108865 bytes, more than", 0), 0u)
+      << s.error().message;
+  // Not a regular file: a device would be read forever, a FIFO would block.
+  s = load_scene("/dev/zero");
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message, "/dev/zero: is not a regular file (character device)");
+  // The same reader serves anything else that reads a scene's JSON.
+  json doc;
+  EXPECT_FALSE(read_scene_json(deep, &doc).ok());
+  ASSERT_TRUE(read_scene_json(dir.write("ok.json", minimal().dump()), &doc).ok());
+  EXPECT_EQ(doc, minimal());
+  // A --set value is bounded the same way.
+  json j = minimal();
+  const Status st = apply_override(j, "description=" + nested_arrays(100000));
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().message,
+            "--set description: the value is nested deeper than 64 levels (line 1, column 65)");
+}
+
 TEST(Scene, OverridesApplyBeforeValidation) {
   const std::string mouse = kScenes + "mouse_oocyte.json";
   EXPECT_EQ(find_material(load_ok(mouse, {"materials.default.young=20kPa"}), "zona")->young, 20e3);
