@@ -2,7 +2,6 @@
 // measured force-deformation curve by running the scene repeatedly (engine/calibrate.h).
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -44,14 +43,11 @@ Status run_calibrate(const CalibrateArgs& a) {
   Result<ForceCurve> data = read_force_curve_csv(a.data);
   if (!data.ok()) return data.error();
   // The scene's JSON after the overrides, for "KEY" alone (range around its value).
+  // Read as load_scene reads it (size and depth bounded, duplicate keys refused).
   nlohmann::json doc;
-  {
-    std::ifstream in(*path);
-    doc = nlohmann::json::parse(in, nullptr, false, true);
-    if (doc.is_discarded()) return make_error("%s: not valid JSON", path->c_str());
-    for (const std::string& s : a.sets)
-      if (Status st = apply_override(doc, s); !st) return st;
-  }
+  if (Status st = read_scene_json(*path, &doc); !st) return st;
+  for (const std::string& s : a.sets)
+    if (Status st = apply_override(doc, s); !st) return st;
   std::vector<FitParameter> parameters;
   for (const std::string& f : a.fits) {
     Result<FitParameter> p = parse_fit_parameter(f, doc);

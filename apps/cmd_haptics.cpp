@@ -35,6 +35,7 @@ struct HapticsArgs {
   double hand_speed = 0;  // [m/s]; 0: the scene's needle speed mapped to the hand
   bool no_realtime = false;
   bool lateral_force = false;     // also render the (low-passed) lateral contact force
+  bool allow_remote_bridge = false;  // --device network may bind a non-loopback address
   double stiffness_window = 0.5e-6;  // travel over which the local stiffness is taken [m]
 };
 
@@ -142,8 +143,17 @@ Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Sc
     if (path.empty()) return make_error("--device replay needs --replay FILE or haptics.replay_file");
     return make_replay_device(info, path);
   }
-  if (a.device == "network")
-    return make_network_device(info, scene.haptics.network_host, scene.haptics.network_port);
+  if (a.device == "network") {
+    const HapticsDef& h = scene.haptics;
+    Result<std::unique_ptr<HapticDevice>> device =
+        make_network_device(info, h.network_host, h.network_port, a.allow_remote_bridge);
+    if (device && !is_loopback_ipv4(h.network_host))
+      std::fprintf(stderr,
+                   "zona haptics: warning: the UDP bridge listens on %s:%d, not loopback: any "
+                   "machine that reaches it can drive the needle (--allow-remote-bridge)\n",
+                   h.network_host.c_str(), network_device_port(**device));
+    return device;
+  }
   return make_error("--device %s: expected scripted, emulated, replay or network",
                     a.device.c_str());
 }
@@ -315,6 +325,9 @@ void add_haptics_command(CLI::App& app) {
   cmd->add_flag("--no-realtime", args->no_realtime, "Do not ask for SCHED_FIFO");
   cmd->add_flag("--lateral-force", args->lateral_force,
                 "Also render the lateral contact force (low-passed like the axial one)");
+  cmd->add_flag("--allow-remote-bridge", args->allow_remote_bridge,
+                "--device network: allow haptics.network_host to be a non-loopback address "
+                "(other machines can then drive the needle)");
   cmd->add_option("--stiffness-window", args->stiffness_window,
                   "Needle travel over which the local stiffness is taken [m] (default 0.5e-6)");
   cmd->callback([args] { run_haptics(*args); });

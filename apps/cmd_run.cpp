@@ -1,9 +1,13 @@
-// `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv, summary.json,
-// VTU frames and a force-deformation plot.
+// `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
+// run goes), summary.json, VTU frames and a force-deformation plot; SIGINT / SIGTERM end the
+// run at the next step with its outputs written.
+#include <signal.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -67,13 +71,45 @@ class Progress {
   double next_line_ = 0;
 };
 
-Status write_text(const std::string& path, const std::string& text) {
-  std::ofstream out(path);
-  if (!out) return make_error("%s: cannot open for writing", path.c_str());
-  out << text;
-  if (!out) return make_error("%s: write failed", path.c_str());
-  return Status::ok_status();
+// SIGINT and SIGTERM end the run at the next step instead of killing the process: the handler
+// only stores (async-signal-safe), the run loop reads the flag once per step, and the command
+// writes what it has and exits 128 + the signal. SA_RESETHAND makes a second signal kill at
+// once, for a run stuck outside the step loop. A signal the parent ignores stays ignored (a
+// shell script's background job ignores SIGINT so that Ctrl-C reaches only the foreground).
+// The previous handlers return with the object.
+std::atomic<bool> g_stop_requested{false};
+volatile std::sig_atomic_t g_stop_signal = 0;
+static_assert(std::atomic<bool>::is_always_lock_free, "the signal handler needs a lock-free flag");
+
+extern "C" void on_stop_signal(int sig) {
+  g_stop_signal = sig;
+  g_stop_requested.store(true, std::memory_order_relaxed);
 }
+
+class StopOnSignals {
+ public:
+  StopOnSignals() {
+    struct sigaction action {};
+    action.sa_handler = on_stop_signal;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESETHAND;
+    for (auto [sig, previous] :
+         {std::pair{SIGINT, &previous_int_}, std::pair{SIGTERM, &previous_term_}}) {
+      sigaction(sig, nullptr, previous);
+      if (previous->sa_handler != SIG_IGN) sigaction(sig, &action, nullptr);
+    }
+  }
+  ~StopOnSignals() {
+    sigaction(SIGINT, &previous_int_, nullptr);
+    sigaction(SIGTERM, &previous_term_, nullptr);
+  }
+  StopOnSignals(const StopOnSignals&) = delete;
+  StopOnSignals& operator=(const StopOnSignals&) = delete;
+
+ private:
+  struct sigaction previous_int_ {};
+  struct sigaction previous_term_ {};
+};
 
 // Splits "text[:label]" at the last ':' that is not part of a Windows drive or a path.
 std::pair<std::string, std::string> split_label(const std::string& text) {
@@ -85,6 +121,9 @@ std::pair<std::string, std::string> split_label(const std::string& text) {
 // The loading part (punctured == 0) of another run's force.csv: deformation [um], force [uN].
 Result<PlotSeries> read_curve(const std::string& spec, uint32_t rgb) {
   const auto [path, label] = split_label(spec);
+  // Before opening: a FIFO blocks the open, a device (/dev/zero) never ends.
+  if (Status st = check_regular_file(path); !st)
+    return make_error("--compare: %s", st.error().message.c_str());
   std::ifstream in(path);
   if (!in) return make_error("--compare: cannot open %s", path.c_str());
   std::string line;
@@ -249,20 +288,47 @@ void run_command(const RunArgs& args) {
   Progress progress(args.quiet);
   options.progress = [&](const RunProgress& p) { progress.update(p); };
 
-  const RunResult run = run_simulation(sim, options);
+  // Streamed outputs: scene.json before the run, force.csv row by row during it, so that a run
+  // stopped half-way leaves its scene and its curve up to there. A failed row is reported once
+  // after the run; the run goes on (its samples are still in memory for the summary and plot).
+  // A previous run's summary and plot would sit beside this run's curve until the end (or for
+  // good, if this run is killed): they go first.
+  for (const char* stale : {"summary.json", "force_deformation.png"})
+    fs::remove(fs::path(out) / stale, ec);
+  if (Status s = write_file_atomic((fs::path(out) / "scene.json").string(),
+                                   scene_to_json(*scene).dump(2) + "\n");
+      !s)
+    return fail(s.error().message);
+  Result<ForceCsvWriter> csv = ForceCsvWriter::open((fs::path(out) / "force.csv").string());
+  if (!csv) return fail(csv.error().message);
+  std::string csv_error;
+  options.on_sample = [&](const ForceSample& sample) {
+    if (csv_error.empty())
+      if (Status s = csv->append(sample); !s) csv_error = s.error().message;
+  };
+  options.stop = &g_stop_requested;
+
+  RunResult run;
+  {
+    const StopOnSignals stop_on_signals;
+    run = run_simulation(sim, options);
+  }
   progress.finish();
   if (!frame_error.empty()) std::fprintf(stderr, "zona run: warning: frames: %s\n", frame_error.c_str());
 
-  // Outputs.
+  // Outputs. A failed streamed row (disk full, ...): the whole curve is still in memory, so
+  // force.csv gets one more try whole.
+  if (Status s = csv->close(); !s && csv_error.empty()) csv_error = s.error().message;
+  if (!csv_error.empty()) {
+    if (Status s = write_force_csv(csv->path(), run.samples); !s) return fail(csv_error);
+    std::fprintf(stderr, "zona run: warning: %s; force.csv rewritten whole after the run\n",
+                 csv_error.c_str());
+  }
   const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
-  if (Status s = write_force_csv((fs::path(out) / "force.csv").string(), run.samples); !s)
-    return fail(s.error().message);
   nlohmann::json summary = run_summary_json(sim, run, metrics);
   summary["numerics"]["setup_time_s"] = setup_seconds;
-  if (Status s = write_text((fs::path(out) / "summary.json").string(), summary.dump(2) + "\n"); !s)
-    return fail(s.error().message);
-  if (Status s = write_text((fs::path(out) / "scene.json").string(),
-                            scene_to_json(*scene).dump(2) + "\n");
+  if (Status s = write_file_atomic((fs::path(out) / "summary.json").string(),
+                                   summary.dump(2) + "\n");
       !s)
     return fail(s.error().message);
   const std::string plot = (fs::path(out) / "force_deformation.png").string();
@@ -291,6 +357,20 @@ void run_command(const RunArgs& args) {
   std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
               frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
   if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
+  // A signal: the run ended at the step it arrived (or, arriving after the last step's check,
+  // at its end); the exit status is the shell's 128 + signal either way.
+  if (const int sig = g_stop_signal; sig != 0) {
+    const char* name = sig == SIGINT ? "SIGINT" : "SIGTERM";
+    if (run.interrupted)
+      std::fprintf(stderr,
+                   "zona run: interrupted by %s at t %.6g s (%lld steps); force.csv and "
+                   "summary.json hold the run up to there\n",
+                   name, run.simulated_time, static_cast<long long>(run.steps));
+    else
+      std::fprintf(stderr, "zona run: %s arrived after the last step; the outputs are complete\n",
+                   name);
+    exit_code() = 128 + sig;
+  }
 }
 
 }  // namespace

@@ -84,6 +84,16 @@ class [[nodiscard]] Status {
   bool failed_ = false;
 };
 
+/// What a path names, in words for messages: "regular file", "directory", "character device",
+/// "block device", "FIFO", "socket" or "special file"; "" when nothing is there (a dangling
+/// link included). Readers look before they open: a FIFO blocks the open and a device such as
+/// /dev/zero never ends, so anything but a regular file is refused with this word.
+const char* file_kind(const std::string& path);
+
+/// Ok for a regular file; else "PATH: cannot open: no such file" or "PATH: is not a regular
+/// file (KIND)" with file_kind's word. For readers of files named by a user, before opening.
+Status check_regular_file(const std::string& path);
+
 /// Builds an Error from printf-style arguments.
 #if defined(__GNUC__)
 __attribute__((format(printf, 1, 2)))

@@ -62,6 +62,8 @@ double to_value(const FitParameter& p, double s) {
 }  // namespace
 
 Result<ForceCurve> read_force_curve_csv(const std::string& path) {
+  // Before opening: a FIFO blocks the open, a device (/dev/zero) never ends.
+  if (Status st = check_regular_file(path); !st) return st.error();
   std::ifstream in(path);
   if (!in) return make_error("%s: cannot open", path.c_str());
   std::string line;

@@ -28,6 +28,8 @@ Result<DeviceInfo> device_profile(const std::string& name) {
 
 Status read_trajectory_csv(const std::string& path, std::vector<double>& times,
                            std::vector<Vec3d>& positions) {
+  // Before opening: a FIFO blocks the open, a device (/dev/zero) never ends.
+  if (Status st = check_regular_file(path); !st) return st;
   std::ifstream in(path);
   if (!in) return make_error("%s: cannot open", path.c_str());
   times.clear();

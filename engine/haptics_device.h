@@ -86,9 +86,15 @@ std::unique_ptr<HapticDevice> make_emulated_device(const DeviceInfo& info,
 Result<std::unique_ptr<HapticDevice>> make_replay_device(const DeviceInfo& info,
                                                          const std::string& path);
 /// UDP bridge: binds `host`:`port` (port 0: any free port) and talks to the driver process that
-/// sends state datagrams there (protocol in engine/haptics_network.h).
+/// sends state datagrams there (protocol in engine/haptics_network.h). Whoever can reach the
+/// port drives the needle and reads the forces, unauthenticated: `host` must be a loopback
+/// address (127.0.0.0/8) unless `allow_remote` (zona haptics --allow-remote-bridge); otherwise
+/// an error naming haptics.network_host and the address.
 Result<std::unique_ptr<HapticDevice>> make_network_device(const DeviceInfo& info,
-                                                          const std::string& host, int port);
+                                                          const std::string& host, int port,
+                                                          bool allow_remote = false);
+/// True for an IPv4 address in 127.0.0.0/8 written as make_network_device reads it.
+bool is_loopback_ipv4(const std::string& host);
 /// The UDP port a network device is bound to (-1 for other devices).
 int network_device_port(const HapticDevice& device);
 /// Native driver loaded at run time from a shared library (engine/haptics_plugin_abi.h).

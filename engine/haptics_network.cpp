@@ -166,8 +166,14 @@ class PluginDevice final : public HapticDevice {
 
 }  // namespace
 
+bool is_loopback_ipv4(const std::string& host) {
+  in_addr a{};
+  return ::inet_pton(AF_INET, host.c_str(), &a) == 1 && (ntohl(a.s_addr) >> 24) == 127;
+}
+
 Result<std::unique_ptr<HapticDevice>> make_network_device(const DeviceInfo& info,
-                                                          const std::string& host, int port) {
+                                                          const std::string& host, int port,
+                                                          bool allow_remote) {
   if (port < 0 || port > 65535)
     return make_error("haptics.network_port: %d is not a UDP port", port);
   sockaddr_in address{};
@@ -175,6 +181,13 @@ Result<std::unique_ptr<HapticDevice>> make_network_device(const DeviceInfo& info
   address.sin_port = htons(static_cast<uint16_t>(port));
   if (::inet_pton(AF_INET, host.c_str(), &address.sin_addr) != 1)
     return make_error("haptics.network_host: '%s' is not an IPv4 address", host.c_str());
+  // Nothing authenticates the datagrams: off loopback, any machine that reaches the port moves
+  // the needle and reads the forces, so a scene file alone cannot open it.
+  if (!allow_remote && !is_loopback_ipv4(host))
+    return make_error("haptics.network_host: '%s' is not a loopback address (127.0.0.0/8); "
+                      "binding it lets other machines drive the needle: allow it with "
+                      "zona haptics --allow-remote-bridge",
+                      host.c_str());
   const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
   if (fd < 0) return make_error("network device: socket: %s", std::strerror(errno));
   if (::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0) {

@@ -284,12 +284,9 @@ int64_t NodeTagMap::find(uint64_t tag) const {
 
 Result<std::string> read_file(const std::string& path) {
   namespace fs = std::filesystem;
+  // Before opening: a FIFO would block the open, a device (/dev/zero) would never end.
+  if (Status st = check_regular_file(path); !st) return st.error();
   std::error_code ec;
-  const fs::file_status st = fs::status(path, ec);
-  if (ec || !fs::exists(st)) return make_error("%s: cannot open: no such file", path.c_str());
-  if (fs::is_directory(st)) return make_error("%s: cannot read: is a directory", path.c_str());
-  if (!fs::is_regular_file(st))
-    return make_error("%s: cannot read: not a regular file", path.c_str());
   FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) return make_error("%s: cannot open: %s", path.c_str(), std::strerror(errno));
   std::string data;

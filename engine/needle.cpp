@@ -18,6 +18,8 @@ ToolDistance needle_distance(const NeedleGeometry& needle, Vec3d tip, Vec3d x) {
 }
 
 Result<NeedleTrajectory> read_needle_trajectory(const std::string& path) {
+  // Before opening: a FIFO blocks the open, a device (/dev/zero) never ends.
+  if (Status st = check_regular_file(path); !st) return st.error();
   std::ifstream in(path);
   if (!in) return make_error("%s: cannot open the needle trajectory", path.c_str());
   NeedleTrajectory t;

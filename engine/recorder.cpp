@@ -1,9 +1,14 @@
 // force.csv, summary.json, training metrics and VTU frames of a run.
 #include "engine/recorder.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <utility>
 
@@ -77,19 +82,122 @@ const std::vector<std::string>& force_csv_columns() {
   return columns;
 }
 
-Status write_force_csv(const std::string& path, std::span<const ForceSample> samples) {
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) return make_error("%s: cannot open for writing", path.c_str());
+namespace {
+
+// The longest row: 11 doubles of at most 24 characters ("-1.2345678901234567e-308"), two
+// ints, 12 commas and the newline come to 289; the rest is margin.
+constexpr size_t kMaxRowBytes = 512;
+constexpr size_t kRowBufferBytes = size_t{1} << 16;
+
+int64_t steady_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+void ForceCsvWriter::FileCloser::operator()(std::FILE* f) const { std::fclose(f); }
+
+Result<ForceCsvWriter> ForceCsvWriter::open(const std::string& path, double flush_interval) {
+  ForceCsvWriter w;
+  w.path_ = path;
+  w.flush_interval_ = flush_interval;
+  w.file_.reset(std::fopen(path.c_str(), "w"));
+  if (!w.file_)
+    return make_error("%s: cannot open for writing: %s", path.c_str(), std::strerror(errno));
+  // Unbuffered: the rows are buffered here, whole, and each flush is one write of whole rows.
+  std::setvbuf(w.file_.get(), nullptr, _IONBF, 0);
+  w.buffer_.resize(kRowBufferBytes);
   const std::vector<std::string>& columns = force_csv_columns();
+  std::string header;
   for (size_t i = 0; i < columns.size(); ++i)
-    std::fprintf(f, "%s%s", columns[i].c_str(), i + 1 < columns.size() ? "," : "\n");
+    header += columns[i] + (i + 1 < columns.size() ? "," : "\n");
+  if (std::fwrite(header.data(), 1, header.size(), w.file_.get()) != header.size())
+    return make_error("%s: write failed: %s", path.c_str(), std::strerror(errno));
+  return w;
+}
+
+ForceCsvWriter::~ForceCsvWriter() {
+  if (file_) (void)close();
+}
+
+Status ForceCsvWriter::append(const ForceSample& s) {
+  if (!error_.empty()) return Error{error_};
+  if (!file_) return make_error("%s: append after close", path_.c_str());
+  if (used_ + kMaxRowBytes > buffer_.size())
+    if (Status st = flush(); !st) return st;
+  const int n = std::snprintf(
+      buffer_.data() + used_, kMaxRowBytes,
+      "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g\n", s.time,
+      s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y, s.force_vector.z,
+      s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy, s.punctured ? 1 : 0,
+      s.raw_force);
+  ZONA_ASSERT(n > 0 && static_cast<size_t>(n) < kMaxRowBytes);
+  used_ += static_cast<size_t>(n);
+  // The first row goes out at once (a reader sees the run has started), then by wall time.
+  const int64_t now = steady_ns();
+  if (last_flush_ns_ == 0 || static_cast<double>(now - last_flush_ns_) * 1e-9 >= flush_interval_) {
+    if (Status st = flush(); !st) return st;
+    last_flush_ns_ = now;
+  }
+  return Status::ok_status();
+}
+
+Status ForceCsvWriter::flush() {
+  if (!error_.empty()) return Error{error_};
+  if (!file_ || used_ == 0) return Status::ok_status();
+  if (std::fwrite(buffer_.data(), 1, used_, file_.get()) != used_) {
+    error_ = path_ + ": write failed: " + std::strerror(errno);
+    return Error{error_};
+  }
+  used_ = 0;
+  return Status::ok_status();
+}
+
+Status ForceCsvWriter::close() {
+  if (!file_) return error_.empty() ? Status::ok_status() : Status(Error{error_});
+  Status st = flush();
+  if (std::fclose(file_.release()) != 0 && st.ok()) {
+    error_ = path_ + ": write failed: " + std::strerror(errno);
+    return Error{error_};
+  }
+  return st;
+}
+
+Status write_force_csv(const std::string& path, std::span<const ForceSample> samples) {
+  Result<ForceCsvWriter> writer = ForceCsvWriter::open(path, /*flush_interval=*/1e30);
+  if (!writer) return writer.error();
   for (const ForceSample& s : samples)
-    std::fprintf(f, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g\n",
-                 s.time, s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y,
-                 s.force_vector.z, s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy,
-                 s.punctured ? 1 : 0, s.raw_force);
-  const bool ok = std::ferror(f) == 0;
-  if (std::fclose(f) != 0 || !ok) return make_error("%s: write failed", path.c_str());
+    if (Status st = writer->append(s); !st) return st;
+  return writer->close();
+}
+
+Status write_file_atomic(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp";
+  std::FILE* f = std::fopen(tmp.c_str(), "w");
+  if (!f) return make_error("%s: cannot open for writing: %s", tmp.c_str(), std::strerror(errno));
+  // The first failure's errno; on disk (fsync) before the rename, otherwise a crash can leave
+  // the new name on empty contents.
+  int e = -1;
+  auto check = [&e](bool ok) {
+    if (!ok && e < 0) e = errno;
+  };
+  check(std::fwrite(text.data(), 1, text.size(), f) == text.size());
+  check(std::fflush(f) == 0);
+  check(::fsync(::fileno(f)) == 0);
+  check(std::fclose(f) == 0);
+  std::error_code ec;
+  if (e >= 0) {
+    std::filesystem::remove(tmp, ec);
+    return make_error("%s: write failed: %s", tmp.c_str(), std::strerror(e));
+  }
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    return make_error("%s: cannot rename %s over it: %s", path.c_str(), tmp.c_str(),
+                      ec.message().c_str());
+  }
   return Status::ok_status();
 }
 
@@ -102,6 +210,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   j["scene"] = scene.name;
   j["source"] = scene.source;
   j["model"] = model_name(scene.model);
+  j["interrupted"] = run.interrupted;
   j["backend"] = sim.backend_description();
   j["mesh"] = {{"vertices", model.vertex_count()},
                {"tets", model.tet_count()},

@@ -3,6 +3,7 @@
 // Mises stress (seed 002 Fig. 14) in a ParaView .pvd series.
 #pragma once
 
+#include <cstdio>
 #include <memory>
 #include <span>
 #include <string>
@@ -46,7 +47,51 @@ const std::vector<std::string>& force_csv_columns();
 /// Writes the samples as CSV with force_csv_columns(), full double precision.
 Status write_force_csv(const std::string& path, std::span<const ForceSample> samples);
 
-/// The summary of a run: scene and model, puncture {time_s, needle_travel_m, deformation_m,
+/// force.csv written as the run goes (RunOptions::on_sample): the header at open, then one row
+/// per append, so that a run stopped half-way (signal, crash, power) leaves its curve up to
+/// there. Rows are formatted into a buffer sized at open and written whole, one write per
+/// flush, so the file never ends in half a row unless the write itself is cut; a flush happens
+/// at the first append and then whenever `flush_interval` of wall time has passed, the buffer
+/// is full, or close() is called.
+class ForceCsvWriter {
+ public:
+  /// Creates (truncates) `path` and writes the header. Errors: cannot open, write failed.
+  static Result<ForceCsvWriter> open(const std::string& path, double flush_interval = 0.5);
+  /// Appends one row (flushing as described above). After a failed write every later call
+  /// returns the same error.
+  Status append(const ForceSample& sample);
+  /// Writes what is buffered to the file.
+  Status flush();
+  /// Flushes and closes; later appends fail.
+  Status close();
+  const std::string& path() const { return path_; }
+
+  ForceCsvWriter(ForceCsvWriter&&) noexcept = default;
+  // No assignment: it would close an open file without flushing its buffered rows.
+  ForceCsvWriter& operator=(ForceCsvWriter&&) = delete;
+  ~ForceCsvWriter();  ///< close(), its error dropped: call close() to see it
+
+ private:
+  ForceCsvWriter() = default;
+  struct FileCloser {
+    void operator()(std::FILE* f) const;
+  };
+  std::unique_ptr<std::FILE, FileCloser> file_;
+  std::string path_;
+  std::vector<char> buffer_;  // formatted rows not yet written, (capacity fixed at open)
+  size_t used_ = 0;
+  double flush_interval_ = 0.5;   // [s] of wall time
+  int64_t last_flush_ns_ = 0;     // steady clock [ns]; 0: never flushed a row
+  std::string error_;             // first write error, empty while fine
+};
+
+/// Writes `text` to `path` atomically: into `path`.tmp, flushed to disk, then renamed over
+/// `path`, so a reader (or a run killed while writing) sees the old file or the new one, never
+/// half of one. The .tmp is removed on failure.
+Status write_file_atomic(const std::string& path, const std::string& text);
+
+/// The summary of a run: scene and model, interrupted (the run was stopped by
+/// RunOptions::stop before its end), puncture {time_s, needle_travel_m, deformation_m,
 /// force_N}, peak_force_N, training metrics, numerics (steps, dt, mass scaling, wall time).
 nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& run,
                                 const TrainingMetrics& metrics);

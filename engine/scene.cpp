@@ -743,6 +743,8 @@ Status apply_override(json& doc, const std::string& assignment) {
   }
   // JSON when it parses as JSON (2000, true, [1, 0, 0], "quoted"), else the text itself
   // ("20kPa", "0.6 mm/s", "auto").
+  if (Status depth = check_json_depth(text); !depth)
+    return make_error("--set %s: the value is %s", key.c_str(), depth.error().message.c_str());
   json value = json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (value.is_discarded()) value = text;
   if (!doc.is_object()) return make_error("--set %s: the scene is not a JSON object", assignment.c_str());
@@ -825,19 +827,80 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   return scene;
 }
 
-Result<Scene> load_scene(const std::string& path, const std::vector<std::string>& overrides) {
+Status check_json_depth(std::string_view text, int max_depth) {
+  int depth = 0;
+  bool in_string = false, escaped = false;
+  size_t line = 1, line_start = 0;
+  for (size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    if (in_string) {
+      // Brackets in strings are text; a backslash hides the next character (\" among them).
+      if (escaped) {
+        escaped = false;
+      } else if (c == '\\') {
+        escaped = true;
+      } else if (c == '"') {
+        in_string = false;
+      }
+      continue;
+    }
+    switch (c) {
+      case '"':
+        in_string = true;
+        break;
+      case '[':
+      case '{':
+        if (++depth > max_depth)
+          return make_error("nested deeper than %d levels (line %zu, column %zu)", max_depth, line,
+                            i - line_start + 1);
+        break;
+      case ']':
+      case '}':
+        // Unbalanced text is the parser's to report; only the depth is checked here.
+        depth = std::max(depth - 1, 0);
+        break;
+      case '\n':
+        ++line;
+        line_start = i + 1;
+        break;
+      default:
+        break;
+    }
+  }
+  return Status::ok_status();
+}
+
+Status read_scene_json(const std::string& path, json* out) {
+  // What the path is, before opening it: a FIFO would block the open, a device (/dev/zero) or a
+  // huge file would be read whole into memory.
+  const std::string kind = file_kind(path);
+  if (kind.empty()) return make_error("%s: cannot open (no such file)", path.c_str());
+  if (kind == "directory") return make_error("%s: is a directory, not a scene file", path.c_str());
+  if (kind != "regular file")
+    return make_error("%s: is not a regular file (%s)", path.c_str(), kind.c_str());
   std::error_code ec;
-  if (fs::is_directory(path, ec)) return make_error("%s: is a directory, not a scene file", path.c_str());
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (!ec && size > kMaxSceneFileBytes)
+    return make_error("%s: %ju bytes, more than the %ju a scene file may have", path.c_str(), size,
+                      kMaxSceneFileBytes);
   std::ifstream in(path, std::ios::binary);
   if (!in) return make_error("%s: cannot open (%s)", path.c_str(), std::strerror(errno));
-  std::ostringstream text;
-  text << in.rdbuf();
+  // By chunks, stopping past the bound in case the file grew since it was measured.
+  std::string text;
+  if (!ec) text.reserve(static_cast<size_t>(size));
+  char chunk[1 << 16];
+  while (text.size() <= kMaxSceneFileBytes && in.read(chunk, sizeof chunk).gcount() > 0)
+    text.append(chunk, static_cast<size_t>(in.gcount()));
   if (in.bad()) return make_error("%s: read error", path.c_str());
+  if (text.size() > kMaxSceneFileBytes)
+    return make_error("%s: more than the %ju bytes a scene file may have", path.c_str(),
+                      kMaxSceneFileBytes);
+  if (Status depth = check_json_depth(text); !depth)
+    return make_error("%s: %s", path.c_str(), depth.error().message.c_str());
   DuplicateKeyFinder duplicates;
-  json doc;
   try {
     // Keeps the callback by reference semantics: nlohmann copies the functor, so it is wrapped.
-    doc = json::parse(text.str(), [&duplicates](int depth, json::parse_event_t event, json& parsed) {
+    *out = json::parse(text, [&duplicates](int depth, json::parse_event_t event, json& parsed) {
       return duplicates(depth, event, parsed);
     });
   } catch (const json::parse_error& e) {
@@ -852,6 +915,12 @@ Result<Scene> load_scene(const std::string& path, const std::vector<std::string>
   if (!duplicates.duplicate().empty()) {
     return make_error("%s: %s: duplicate key", path.c_str(), duplicates.duplicate().c_str());
   }
+  return Status::ok_status();
+}
+
+Result<Scene> load_scene(const std::string& path, const std::vector<std::string>& overrides) {
+  json doc;
+  if (Status st = read_scene_json(path, &doc); !st) return st.error();
   return parse_scene(doc, path, overrides);
 }
 
@@ -859,7 +928,12 @@ Result<std::string> find_scene(const std::string& name, const std::vector<std::s
   if (name.empty()) return make_error("empty scene name");
   std::error_code ec;
   if (fs::is_regular_file(name, ec)) return name;
-  if (name.find('/') != std::string::npos) return make_error("%s: scene file not found", name.c_str());
+  if (name.find('/') != std::string::npos) {
+    // A path: one that exists but is a directory, device or FIFO says so.
+    const std::string kind = file_kind(name);
+    if (kind.empty()) return make_error("%s: scene file not found", name.c_str());
+    return make_error("%s: is not a regular file (%s)", name.c_str(), kind.c_str());
+  }
   std::vector<fs::path> dirs(search_dirs.begin(), search_dirs.end());
   if (const char* env = std::getenv("ZONA_SCENES_DIR"); env && *env) dirs.emplace_back(env);
   dirs.emplace_back("scenes");

@@ -12,6 +12,7 @@
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/base.h"
@@ -300,6 +301,24 @@ struct Scene {
   HapticsDef haptics;
   OutputDef output;
 };
+
+/// Largest scene file read [bytes]: scenes are a few kilobytes (meshes live in their own files);
+/// the bound keeps a wrong path (a log, a device) from being read whole into memory.
+inline constexpr std::uintmax_t kMaxSceneFileBytes = std::uintmax_t{64} << 20;
+/// Deepest nesting of objects and arrays parsed from a scene file or a --set value. nlohmann's
+/// documents are copied and destroyed recursively, so text nested 100,000 deep overflows the
+/// stack; scenes nest about four levels.
+inline constexpr int kMaxJsonDepth = 64;
+
+/// Checks that JSON text nests objects and arrays at most `max_depth` deep (brackets inside
+/// strings do not count), without parsing it. Error: "nested deeper than 64 levels (line L,
+/// column C)".
+Status check_json_depth(std::string_view text, int max_depth = kMaxJsonDepth);
+
+/// Reads a scene file as JSON, without validating it as a scene: a regular file of at most
+/// kMaxSceneFileBytes, nested at most kMaxJsonDepth, with no duplicate keys. Errors are one
+/// line naming the file. load_scene reads with it; so does anything else reading a scene's JSON.
+Status read_scene_json(const std::string& path, nlohmann::json* out);
 
 /// Loads and validates a scene file. `overrides` are "key.path=value" strings (the CLI's --set)
 /// applied to the JSON before validation. Errors are one line: "FILE: key.path: what is wrong".

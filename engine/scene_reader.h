@@ -419,7 +419,8 @@ class Reader {
     return true;
   }
 
-  /// A file path relative to the scene's folder; the file must exist.
+  /// A file path relative to the scene's folder; the file must exist and be a regular file
+  /// (a directory, device or FIFO gets its own message: it exists, but cannot be read).
   bool file_path(std::string_view key, std::string* out) {
     std::string s;
     if (!string(key, &s)) return false;
@@ -429,9 +430,13 @@ class Reader {
     }
     std::filesystem::path p(s);
     if (p.is_relative()) p = ctx_.base_dir / p;
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(p, ec)) {
+    const std::string kind = file_kind(p.string());
+    if (kind.empty()) {
       ctx_.fail(key_path(key), "file not found: " + p.string());
+      return false;
+    }
+    if (kind != "regular file") {
+      ctx_.fail(key_path(key), "'" + p.string() + "' is not a regular file (" + kind + ")");
       return false;
     }
     *out = p.lexically_normal().string();

@@ -767,6 +767,7 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
     s.kinetic_energy = r.kinetic_energy;
     s.punctured = r.punctured;
     result.samples.push_back(s);
+    if (options.on_sample) options.on_sample(s);
   };
 
   record(sim.report());
@@ -774,6 +775,10 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
   double next_sample = interval;
   double next_progress = options.progress_interval;
   while (!sim.finished()) {
+    if (options.stop && options.stop->load(std::memory_order_relaxed)) {
+      result.interrupted = true;
+      break;
+    }
     const StepStatus status = sim.step();
     result.status |= status;
     ++result.steps;

@@ -304,6 +304,12 @@ struct RunOptions {
   std::function<void(const RunProgress&)> progress;
   /// Called at each output frame time with the simulation (VTU writing; may be empty).
   std::function<void(const Simulation&, int frame)> frame;
+  /// Called from the simulation thread with each sample as it is recorded, in order (streaming
+  /// force.csv; may be empty). Samples dropped by a full buffer are not passed.
+  std::function<void(const ForceSample&)> on_sample;
+  /// Read once per step (may be null): when true, the run ends before the next step and the
+  /// result says interrupted. Set it from a signal handler or another thread.
+  const std::atomic<bool>* stop = nullptr;
 };
 
 /// What a run returns: the recorded curve and the summary numbers.
@@ -319,6 +325,7 @@ struct RunResult {
   bool stopped_early = false;         ///< a step was not advanced
   std::string stop_reason;            ///< describe_step_status of the failing step
   bool sample_buffer_full = false;    ///< output.sample_interval too small for the buffer
+  bool interrupted = false;           ///< RunOptions::stop ended the run before its end
 };
 
 /// Runs a built simulation to its end (or stop_after_puncture) and records the curve.

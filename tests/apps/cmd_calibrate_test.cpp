@@ -76,6 +76,15 @@ TEST(CmdCalibrate, BadArgumentsAreOneLineErrors) {
   r = run_zona("calibrate " + scene.string() + " --data " + data.string() + " --fit materials.nucleus.young");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("materials.nucleus.young"), std::string::npos) << r.err;
+  // The scene's JSON is read with load_scene's bounds: a file nested 100,000 deep is one line.
+  const fs::path deep = temp_path("deep.json");
+  std::ofstream(deep) << std::string(100000, '[');
+  r = run_zona("calibrate " + deep.string() + " --data " + data.string() +
+               " --fit materials.default.young");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find(deep.string() + ": nested deeper than 64 levels"), std::string::npos)
+      << r.err;
+  fs::remove(deep);
   fs::remove(scene);
   fs::remove(data);
 }

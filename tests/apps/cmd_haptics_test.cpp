@@ -2,7 +2,11 @@
 // passivity of an emulated-hand run, and bad arguments refused with one-line errors. Runs are
 // a few tenths of a second on a tiny cell; nothing here asserts a rate or a jitter (those
 // belong in the benchmark: docs/haptics.md).
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -176,6 +180,58 @@ TEST(CmdHaptics, BadArgumentsAreOneLineErrors) {
     EXPECT_NE(r.err.find(c.names), std::string::npos) << c.args << "\n" << r.err;
     EXPECT_TRUE(r.out.empty()) << c.args << "\n" << r.out;
   }
+}
+
+// A free UDP port on every interface (a bound and closed socket's; another process could take
+// it in between, which the test would report as a bind error).
+int free_udp_port() {
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  socklen_t len = sizeof a;
+  int port = -1;
+  if (fd >= 0 && ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0)
+    port = ntohs(a.sin_port);
+  if (fd >= 0) ::close(fd);
+  return port;
+}
+
+// The UDP bridge binds loopback only, unless --allow-remote-bridge: then with a warning.
+TEST(CmdHaptics, RemoteBridgeNeedsTheFlag) {
+  TempDir dir;
+  const fs::path scene = write_scene(dir);
+  const int port = free_udp_port();
+  ASSERT_GT(port, 0);
+  const std::string args = "haptics " + scene.string() +
+                           " --device network --duration 0.1 --no-realtime --threads 1 --set "
+                           "haptics.network_host=0.0.0.0 --set haptics.network_port=" +
+                           std::to_string(port);
+  CliRun r = run_zona(args, dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("haptics.network_host: '0.0.0.0' is not a loopback address"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("--allow-remote-bridge"), std::string::npos) << r.err;
+  EXPECT_TRUE(r.out.empty()) << r.out;
+
+  r = run_zona(args + " --allow-remote-bridge", dir.path);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("zona haptics: warning: the UDP bridge listens on 0.0.0.0:" +
+                       std::to_string(port) + ", not loopback"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.out.find("zona haptics: "), std::string::npos) << r.out;
+
+  // Loopback needs no flag and says nothing.
+  r = run_zona("haptics " + scene.string() +
+                   " --device network --duration 0.1 --no-realtime --threads 1 --set "
+                   "haptics.network_port=" + std::to_string(port),
+               dir.path);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(r.err.empty()) << r.err;
 }
 
 TEST(CmdHaptics, SceneWithoutNeedleIsRefused) {

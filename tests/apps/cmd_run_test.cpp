@@ -1,11 +1,17 @@
-// End-to-end tests of `zona run`: the files it writes, their columns and keys, and its errors.
+// End-to-end tests of `zona run`: the files it writes, their columns and keys, its errors, and
+// a run stopped by a signal.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <thread>
+#include <tuple>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -54,6 +60,8 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   std::ifstream js(out / "summary.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   EXPECT_EQ(j["model"], "svk");
+  EXPECT_FALSE(j["interrupted"].get<bool>());
+  EXPECT_FALSE(fs::exists(out / "summary.json.tmp"));
   ASSERT_TRUE(j["puncture"]["punctured"].get<bool>());
   for (const char* key : {"time_s", "deformation_m", "force_N"})
     EXPECT_TRUE(j["puncture"].contains(key)) << key;
@@ -101,6 +109,70 @@ TEST(CmdRun, ErrorsAreOneLine) {
   r = run_zona("run " + scene.string() + " --backend gpu --out " + (dir.path / "z").string(), dir.path);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("auto, cpu or cuda"), std::string::npos) << r.err;
+  // A scene nested 100,000 deep: one line naming the file, not a stack overflow.
+  const fs::path deep = dir.path / "deep.json";
+  std::ofstream(deep) << std::string(100000, '[') << std::string(100000, ']');
+  r = run_zona("run " + deep.string() + " --out " + (dir.path / "d").string(), dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(r.err, "zona: error: " + deep.string() +
+                       ": nested deeper than 64 levels (line 1, column 65)\n");
+}
+
+// The lines of a file as it is on disk now.
+std::vector<std::string> lines_of(const fs::path& path) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  return lines;
+}
+
+// SIGTERM / SIGINT end the run at the next step: force.csv (streamed) holds the curve up to
+// there, summary.json says interrupted, one line on stderr, exit 128 + the signal.
+TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  for (const auto& [sig, code, name] :
+       {std::tuple{SIGTERM, 143, "SIGTERM"}, std::tuple{SIGINT, 130, "SIGINT"}}) {
+    const fs::path out = dir.path / name;
+    // 10 s of simulated time at 20 us steps: far longer than the test waits.
+    zona::test::CliProcess p = zona::test::start_zona(
+        "run " + scene.string() + " --out " + out.string() +
+            " --no-frames --quiet --set 'integrator.duration=10 s'",
+        dir.path);
+    ASSERT_GT(p.pid, 0);
+    // Rows appear while the run goes: the header, the start, and a row flushed later.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    size_t lines = 0;
+    while (std::chrono::steady_clock::now() < deadline && !zona::test::has_exited(p)) {
+      lines = lines_of(out / "force.csv").size();
+      if (lines >= 3) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    ASSERT_GE(lines, 3u) << name << ": force.csv did not grow while the run went";
+    ASSERT_EQ(::kill(p.pid, sig), 0);
+    const CliRun r = zona::test::wait_zona(p, 60);
+    EXPECT_EQ(r.exit_code, code) << r.err;
+    EXPECT_NE(r.err.find(std::string("zona run: interrupted by ") + name), std::string::npos)
+        << r.err;
+    EXPECT_EQ(r.err.find("interrupted by"), r.err.rfind("interrupted by")) << r.err;  // once
+    EXPECT_EQ(r.err.find("zona: error"), std::string::npos) << r.err;
+    // force.csv: the header and whole rows, at least as many as were seen before the signal.
+    const std::vector<std::string> csv = lines_of(out / "force.csv");
+    ASSERT_GE(csv.size(), lines);
+    EXPECT_EQ(csv[0].rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << csv[0];
+    for (size_t i = 1; i < csv.size(); ++i)
+      EXPECT_EQ(std::count(csv[i].begin(), csv[i].end(), ','), 12) << i << ": " << csv[i];
+    // summary.json: whole, interrupted, its numbers up to the stop.
+    std::ifstream js(out / "summary.json");
+    const nlohmann::json j = nlohmann::json::parse(js, nullptr, /*allow_exceptions=*/false);
+    ASSERT_FALSE(j.is_discarded());
+    EXPECT_TRUE(j["interrupted"].get<bool>());
+    EXPECT_EQ(j["numerics"]["samples"].get<size_t>(), csv.size() - 1);
+    EXPECT_LT(j["numerics"]["simulated_time_s"].get<double>(), 10.0);
+    EXPECT_FALSE(fs::exists(out / "summary.json.tmp"));
+    EXPECT_TRUE(fs::exists(out / "scene.json"));
+  }
 }
 
 // --frames DIR renders numbered PNG frames (headless Vulkan) as the run goes; a build or machine

@@ -155,6 +155,33 @@ TEST(HapticsDevice, NetworkBridgeOnLoopback) {
   EXPECT_FALSE(make_network_device(device_profile("touch").value(), "not-an-ip", 0).ok());
 }
 
+TEST(HapticsDevice, NetworkBridgeBindsOnlyLoopbackUnlessAllowed) {
+  const DeviceInfo touch = device_profile("touch").value();
+  EXPECT_TRUE(is_loopback_ipv4("127.0.0.1"));
+  EXPECT_TRUE(is_loopback_ipv4("127.255.0.9"));
+  EXPECT_FALSE(is_loopback_ipv4("0.0.0.0"));
+  EXPECT_FALSE(is_loopback_ipv4("192.168.1.20"));
+  EXPECT_FALSE(is_loopback_ipv4("128.0.0.1"));
+  EXPECT_FALSE(is_loopback_ipv4("localhost"));  // names are not resolved
+  // Any address off loopback is refused by default, naming the key and the address.
+  for (const char* host : {"0.0.0.0", "192.168.1.20"}) {
+    auto refused = make_network_device(touch, host, 0);
+    ASSERT_FALSE(refused.ok()) << host;
+    EXPECT_EQ(refused.error().message.rfind(std::string("haptics.network_host: '") + host +
+                                                "' is not a loopback address",
+                                            0),
+              0u)
+        << refused.error().message;
+    EXPECT_NE(refused.error().message.find("--allow-remote-bridge"), std::string::npos);
+  }
+  // Other loopback addresses bind; so does the wildcard when allowed.
+  auto loopback = make_network_device(touch, "127.0.0.2", 0);
+  EXPECT_TRUE(loopback.ok()) << loopback.error().message;
+  auto allowed = make_network_device(touch, "0.0.0.0", 0, /*allow_remote=*/true);
+  ASSERT_TRUE(allowed.ok()) << allowed.error().message;
+  EXPECT_GT(network_device_port(**allowed), 0);
+}
+
 TEST(HapticsDevice, PluginErrorsAreOneLine) {
   auto r = make_plugin_device("/nonexistent/libzona_driver.so", "");
   ASSERT_FALSE(r.ok());

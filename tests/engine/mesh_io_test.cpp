@@ -3,6 +3,7 @@
 #include "engine/mesh_io.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <bit>
 #include <cmath>
@@ -736,6 +737,27 @@ TEST(MeshIo, MissingAndUnknownFiles) {
   Result<Mesh> directory = read_mesh(dir + "/d.msh");
   ASSERT_FALSE(directory.ok());
   EXPECT_NE(directory.error().message.find("directory"), std::string::npos);
+}
+
+// A path that exists but is not a regular file is named as such, before it is opened: a FIFO
+// would block the open (this test would hang), a device would be read forever.
+TEST(MeshIo, PathsThatAreNotRegularFiles) {
+  const std::string dir = temp_dir();
+  ASSERT_EQ(::mkfifo((dir + "/pipe.msh").c_str(), 0600), 0);
+  Result<Mesh> fifo = read_mesh(dir + "/pipe.msh");
+  ASSERT_FALSE(fifo.ok());
+  EXPECT_EQ(fifo.error().message, dir + "/pipe.msh: is not a regular file (FIFO)");
+  fs::create_directories(dir + "/d.node");
+  Result<std::vector<Vec3d>> directory = read_positions(dir + "/d.node");
+  ASSERT_FALSE(directory.ok());
+  EXPECT_EQ(directory.error().message, dir + "/d.node: is not a regular file (directory)");
+  // A .node whose .ele beside it is a FIFO.
+  spit(dir + "/t.node", "1 3 0 0\n1 0 0 0\n");
+  ASSERT_EQ(::mkfifo((dir + "/t.ele").c_str(), 0600), 0);
+  Result<Mesh> ele = read_mesh(dir + "/t.node");
+  ASSERT_FALSE(ele.ok());
+  EXPECT_EQ(ele.error().message, dir + "/t.ele: is not a regular file (FIFO)");
+  fs::remove_all(dir);
 }
 
 // Every prefix of the real files (sampled) is refused or read, never a crash or a hang; run

@@ -4,12 +4,15 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "engine/mesh_generate.h"
 
@@ -86,6 +89,81 @@ TEST(Recorder, ForceCsvHasTheDocumentedColumns) {
   EXPECT_FALSE(write_force_csv("/nonexistent/dir/force.csv", r.samples).ok());
 }
 
+// The lines of a file as it is on disk now (a second reader, as a person tailing the run).
+std::vector<std::string> lines_on_disk(const fs::path& path) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  return lines;
+}
+
+TEST(Recorder, ForceCsvWriterStreamsRowsWhileTheRunGoes) {
+  const fs::path path = fs::temp_directory_path() / "zona_recorder_stream.csv";
+  const RunResult r = ramp(5, 0.0, 4);
+  {
+    // Flush interval 0: every row is on disk when append returns.
+    Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 0.0);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    EXPECT_EQ(lines_on_disk(path).size(), 1u);  // the header, at open
+    for (size_t i = 0; i < 3; ++i) {
+      ASSERT_TRUE(w->append(r.samples[i]).ok());
+      EXPECT_EQ(lines_on_disk(path).size(), 2 + i);
+    }
+    ASSERT_TRUE(w->close().ok());
+    EXPECT_FALSE(w->append(r.samples[3]).ok());  // closed
+  }
+  {
+    // A long interval: the first row goes out at once, later rows at close (or a flush).
+    Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
+    ASSERT_TRUE(w.ok());
+    for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
+    EXPECT_EQ(lines_on_disk(path).size(), 2u);
+    ASSERT_TRUE(w->flush().ok());
+    EXPECT_EQ(lines_on_disk(path).size(), 6u);
+    ASSERT_TRUE(w->close().ok());
+  }
+  // The streamed file is byte for byte the one write_force_csv writes.
+  const std::vector<std::string> streamed = lines_on_disk(path);
+  ASSERT_TRUE(write_force_csv(path.string(), r.samples).ok());
+  EXPECT_EQ(lines_on_disk(path), streamed);
+  fs::remove(path);
+  EXPECT_FALSE(ForceCsvWriter::open("/nonexistent/dir/force.csv").ok());
+}
+
+TEST(Recorder, ForceCsvWriterKeepsRowsWhole) {
+  // More rows than the buffer holds: every line on disk is a whole row of 13 columns.
+  const fs::path path = fs::temp_directory_path() / "zona_recorder_whole.csv";
+  const RunResult r = ramp(2000, 1e-8, 7);
+  Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
+  ASSERT_TRUE(w.ok());
+  for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
+  const std::vector<std::string> before_close = lines_on_disk(path);
+  EXPECT_GT(before_close.size(), 2u);     // buffer-full flushes happened
+  EXPECT_LT(before_close.size(), 2001u);  // and some rows are still buffered
+  for (size_t i = 1; i < before_close.size(); ++i)
+    EXPECT_EQ(std::count(before_close[i].begin(), before_close[i].end(), ','), 12) << i;
+  ASSERT_TRUE(w->close().ok());
+  EXPECT_EQ(lines_on_disk(path).size(), 2001u);
+  fs::remove(path);
+}
+
+TEST(Recorder, WriteFileAtomicReplacesTheWholeFile) {
+  const fs::path dir = fs::temp_directory_path() / "zona_recorder_atomic";
+  fs::create_directories(dir);
+  const fs::path path = dir / "summary.json";
+  ASSERT_TRUE(write_file_atomic(path.string(), "{\"a\": 1}\n").ok());
+  ASSERT_TRUE(write_file_atomic(path.string(), "{\"b\": 2}\n").ok());
+  EXPECT_EQ(lines_on_disk(path), std::vector<std::string>{"{\"b\": 2}"});
+  EXPECT_FALSE(fs::exists(dir / "summary.json.tmp"));
+  // A folder in the way of the rename: an error, the .tmp removed, the folder untouched.
+  fs::create_directories(dir / "taken");
+  EXPECT_FALSE(write_file_atomic((dir / "taken").string(), "x").ok());
+  EXPECT_FALSE(fs::exists(dir / "taken.tmp"));
+  EXPECT_TRUE(fs::is_directory(dir / "taken"));
+  EXPECT_FALSE(write_file_atomic("/nonexistent/dir/summary.json", "x").ok());
+  fs::remove_all(dir);
+}
+
 TEST(Recorder, FrameFieldsOfAUniformStretch) {
   const Mesh box = generate_box_mesh(Vec3d{0, 0, 0}, Vec3d{1, 1, 1}, 2, 2, 2);
   ModelDesc desc;
@@ -143,6 +221,7 @@ TEST(Recorder, FramesAndSummaryOfAShortRun) {
   EXPECT_TRUE(fs::exists(dir / "frames_000002.vtu"));
   const nlohmann::json j = run_summary_json(**sim, run, compute_training_metrics(run, 20e-6));
   EXPECT_EQ(j["model"], "svk");
+  EXPECT_EQ(j["interrupted"], false);
   EXPECT_EQ(j["puncture"]["punctured"], false);
   EXPECT_GT(j["peak_force_N"].get<double>(), 0.0);
   EXPECT_EQ(j["numerics"]["steps"].get<int64_t>(), run.steps);

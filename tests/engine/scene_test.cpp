@@ -3,12 +3,15 @@
 #include "engine/scene.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <string>
+#include <tuple>
 
 namespace zona {
 namespace {
@@ -400,6 +403,43 @@ TEST(Scene, FileMeshResolvesRelativeToTheSceneFile) {
   EXPECT_NE(bad.error().message.find("mesh.unit: required key missing"), std::string::npos);
 }
 
+TEST(Scene, FilePathsThatAreNotRegularFilesSaySo) {
+  // Paths that exist but cannot be read as files: not "file not found".
+  TempDir dir;
+  const fs::path folder = fs::path(dir.write("x", "")).parent_path();
+  fs::create_directories(folder / "meshes.msh");
+  ASSERT_EQ(::mkfifo((folder / "pipe.msh").c_str(), 0600), 0);
+  json j = minimal();
+  // (file as written, the path the message names, its kind)
+  const std::tuple<std::string, std::string, std::string> cases[] = {
+      {"/dev/zero", "/dev/zero", "character device"},
+      {"meshes.msh", (folder / "meshes.msh").string(), "directory"},
+      {"pipe.msh", (folder / "pipe.msh").string(), "FIFO"}};
+  for (const auto& [file, named, kind] : cases) {
+    j["mesh"] = {{"file", file}, {"unit", "um"}};
+    const std::string path = dir.write("scene.json", j.dump());
+    Result<Scene> bad = load_scene(path);
+    ASSERT_FALSE(bad.ok()) << file;
+    EXPECT_EQ(bad.error().message,
+              path + ": mesh.file: '" + named + "' is not a regular file (" + kind + ")");
+  }
+  // The other file keys take the same check.
+  j = minimal();
+  j["needle"] = {{"trajectory", "/dev/zero"}};
+  Result<Scene> bad = load_scene(dir.write("trajectory.json", j.dump()));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("needle.trajectory: '/dev/zero' is not a regular file"),
+            std::string::npos)
+      << bad.error().message;
+  // A scene path: the same words from find_scene, not "scene file not found".
+  Result<std::string> found = find_scene("/dev/zero");
+  ASSERT_FALSE(found.ok());
+  EXPECT_EQ(found.error().message, "/dev/zero: is not a regular file (character device)");
+  found = find_scene((folder / "pipe.msh").string());
+  ASSERT_FALSE(found.ok());
+  EXPECT_NE(found.error().message.find("is not a regular file (FIFO)"), std::string::npos);
+}
+
 TEST(Scene, BrokenFilesGiveOneLineErrors) {
   TempDir dir;
   const std::string syntax = dir.write("syntax.json", "{\n  \"mesh\": {\n    \"generate\": }\n}\n");
@@ -427,6 +467,50 @@ TEST(Scene, BrokenFilesGiveOneLineErrors) {
   s = load_scene("/nonexistent/scene.json");
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("cannot open"), std::string::npos);
+}
+
+// Text nesting `depth` arrays: [[[...]]].
+std::string nested_arrays(int depth) { return std::string(depth, '[') + std::string(depth, ']'); }
+
+TEST(Scene, DeepOrHugeOrSpecialFilesAreRefusedBeforeParsing) {
+  TempDir dir;
+  // 100,000 levels: one line naming the file (this crashed the process with a stack overflow);
+  // the object is the first level, the 64th bracket the 65th.
+  const std::string deep = dir.write("deep.json", "{\"mesh\": " + nested_arrays(100000) + "}");
+  Result<Scene> s = load_scene(deep);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message, deep + ": nested deeper than 64 levels (line 1, column 73)");
+  // 64 levels parse (and fail as a scene, not as JSON); brackets inside strings do not count.
+  s = load_scene(dir.write("deep64.json", "{\"mesh\": " + nested_arrays(63) + "}"));
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message.find("nested deeper"), std::string::npos) << s.error().message;
+  json quoted = minimal();
+  quoted["description"] = nested_arrays(1000) + "\\\"{{{";
+  load_ok(dir.write("quoted.json", quoted.dump()));
+  EXPECT_TRUE(check_json_depth("[\"\\\"[[\"]", 1).ok());
+  EXPECT_FALSE(check_json_depth("[[]]", 1).ok());
+  // More than 64 MiB (a sparse file: nothing is written): refused from its size.
+  const std::string huge = dir.write("huge.json", "{}");
+  fs::resize_file(huge, kMaxSceneFileBytes + 1);
+  s = load_scene(huge);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message.rfind(huge + ": 67108865 bytes, more than", 0), 0u)
+      << s.error().message;
+  // Not a regular file: a device would be read forever, a FIFO would block.
+  s = load_scene("/dev/zero");
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().message, "/dev/zero: is not a regular file (character device)");
+  // The same reader serves anything else that reads a scene's JSON.
+  json doc;
+  EXPECT_FALSE(read_scene_json(deep, &doc).ok());
+  ASSERT_TRUE(read_scene_json(dir.write("ok.json", minimal().dump()), &doc).ok());
+  EXPECT_EQ(doc, minimal());
+  // A --set value is bounded the same way.
+  json j = minimal();
+  const Status st = apply_override(j, "description=" + nested_arrays(100000));
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().message,
+            "--set description: the value is nested deeper than 64 levels (line 1, column 65)");
 }
 
 TEST(Scene, OverridesApplyBeforeValidation) {

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -424,6 +425,51 @@ TEST(Simulation, ScenesItCannotRunAreRefused) {
   s = Simulation::create(parse(j));
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("holding_pipette"), std::string::npos);
+}
+
+TEST(Simulation, RunStreamsEverySampleAndStopsWhenAsked) {
+  const Scene scene = parse(small_cell_scene());
+  // Every recorded sample reaches on_sample, in order, the same as the result's.
+  std::unique_ptr<Simulation> sim = create(scene);
+  ASSERT_TRUE(sim);
+  std::vector<ForceSample> streamed;
+  RunOptions options;
+  options.on_sample = [&](const ForceSample& s) { streamed.push_back(s); };
+  const RunResult full = run_simulation(*sim, options);
+  EXPECT_FALSE(full.interrupted);
+  ASSERT_GT(full.samples.size(), 10u);
+  ASSERT_EQ(streamed.size(), full.samples.size());
+  for (size_t i = 0; i < streamed.size(); ++i) {
+    EXPECT_EQ(streamed[i].time, full.samples[i].time) << i;
+    EXPECT_EQ(streamed[i].force, full.samples[i].force) << i;
+  }
+
+  // The stop flag, raised after the fifth sample (as a signal handler would), ends the run
+  // before the next step: the result says interrupted and holds the curve up to there.
+  sim = create(scene);
+  ASSERT_TRUE(sim);
+  std::atomic<bool> stop{false};
+  size_t seen = 0;
+  options.on_sample = [&](const ForceSample&) {
+    if (++seen == 5) stop.store(true);
+  };
+  options.stop = &stop;
+  const RunResult cut = run_simulation(*sim, options);
+  EXPECT_TRUE(cut.interrupted);
+  EXPECT_FALSE(cut.stopped_early);
+  EXPECT_EQ(cut.samples.size(), 5u);
+  EXPECT_EQ(seen, 5u);
+  EXPECT_LT(cut.simulated_time, 0.5 * full.simulated_time);
+  EXPECT_EQ(cut.samples.back().time, full.samples[4].time);
+
+  // Raised before the run: no step is taken, the start is still recorded.
+  sim = create(scene);
+  ASSERT_TRUE(sim);
+  options.on_sample = nullptr;
+  const RunResult none = run_simulation(*sim, options);
+  EXPECT_TRUE(none.interrupted);
+  EXPECT_EQ(none.steps, 0);
+  EXPECT_EQ(none.samples.size(), 1u);
 }
 
 TEST(Simulation, MouseOocytePunctureLandsInSeed000Band) {
