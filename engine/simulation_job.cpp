@@ -286,7 +286,12 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
   };
 
   // The initial state as the first sample (a run that starts at step 0).
-  if (job.steps_advanced() == 0) result.samples.push_back(ForceSample{});
+  // Every recorded sample also goes to RunOptions::on_sample (streamed output).
+  auto keep = [&](const ForceSample& s) {
+    result.samples.push_back(s);
+    if (options.on_sample) options.on_sample(s);
+  };
+  if (job.steps_advanced() == 0) keep(ForceSample{});
   std::vector<JobRecord> batch;
   batch.reserve(sim.job_setup().sample_capacity);
   auto drain = [&]() {
@@ -297,7 +302,7 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
         result.sample_buffer_full = true;
         break;
       }
-      result.samples.push_back(sample_of(r, direction));
+      keep(sample_of(r, direction));
       result.peak_force = std::max(result.peak_force, r.force);
       result.peak_deformation = std::max(result.peak_deformation, r.deformation);
       result.status |= r.status;
@@ -324,6 +329,10 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     next_frame = 1;
   }
   while (done < total) {
+    if (options.stop && options.stop->load(std::memory_order_relaxed)) {
+      result.interrupted = true;
+      break;
+    }
     int64_t target = std::min(total, done + batch_steps);
     if (frames && next_frame < frame_count) target = std::min(target, frame_step(next_frame));
     if (target > done) {
@@ -376,7 +385,7 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     if ((result.samples.empty() || result.samples.back().time < last.time) &&
         !result.sample_buffer_full &&
         result.samples.size() < result.samples.capacity())
-      result.samples.push_back(sample_of(last, direction));
+      keep(sample_of(last, direction));
   }
   if (frames && next_frame < frame_count && !result.stopped_early) {
     frame_now(frame_count - 1);

@@ -78,7 +78,10 @@ class CudaJob final : public JobRunner {
   PinnedBuffer<TipMailbox> h_tip_;
   JobHostLink link_;
   std::vector<Graph> graphs_;
-  int64_t advanced_ = 0;
+  int64_t advanced_ = 0;    // steps asked for
+  int64_t launched_ = 0;    // steps enqueued on the stream
+  int64_t pending_ = 0;     // asked for, not yet enqueued (fewer than a short graph)
+  bool flush_ = false;      // enqueue the pending steps whatever their number
   int64_t start_step_ = 0;  // the job's step count when it started
   unsigned long long taken_ = 0;
   bool halted_seen_ = false;
@@ -244,16 +247,23 @@ Result<cudaGraphExec_t> CudaJob::graph(int steps, int phase) {
 }
 
 Status CudaJob::advance(int64_t steps) {
-  constexpr int kLong = 48;  // steps per long graph: a multiple of kPhases
+  constexpr int kLong = 48;   // steps per long graph: a multiple of kPhases
+  constexpr int kShort = 8;   // steps handed over one at a time (the haptic loop) go in eights
   const cudaStream_t s = b_.stream_.get();
-  while (steps > 0) {
-    if (halted_seen_) break;
+  advanced_ += steps;
+  pending_ += steps;
+  while (pending_ >= kShort || (flush_ && pending_ > 0)) {
+    if (halted_seen_) {
+      pending_ = 0;
+      break;
+    }
     // Bound what is queued ahead of the device by its published progress (no synchronisation).
     const auto wait_start = std::chrono::steady_clock::now();
-    while (advanced_ - steps_done() > max_in_flight_) {
+    while (launched_ - steps_done() > max_in_flight_) {
       JobRecord r;
       if (latest(&r) && r.halted) {
         halted_seen_ = true;
+        pending_ = 0;
         return {};
       }
       const cudaError_t q = cudaStreamQuery(s);
@@ -263,14 +273,14 @@ Status CudaJob::advance(int64_t steps) {
         return make_error("cuda job: the device made no progress for 60 s");
       std::this_thread::yield();
     }
-    const int chunk = steps >= kLong ? kLong : 1;
+    const int chunk = pending_ >= kLong ? kLong : (pending_ >= kShort ? kShort : 1);
     const int phase = static_cast<int>(b_.phase_step_ % kPhases);
     Result<cudaGraphExec_t> exec = graph(chunk, phase);
     if (!exec) return exec.error();
     ZONA_CUDA_TRY(cudaGraphLaunch(*exec, s));
     b_.phase_step_ += chunk;
-    advanced_ += chunk;
-    steps -= chunk;
+    launched_ += chunk;
+    pending_ -= chunk;
   }
   return {};
 }
@@ -308,6 +318,11 @@ bool CudaJob::take_samples(std::vector<JobRecord>& out) {
 }
 
 Status CudaJob::finish() {
+  // Steps still pending (fewer than a short graph) go out one by one first.
+  flush_ = true;
+  const Status launched = advance(0);
+  flush_ = false;
+  if (!launched) return launched;
   ZONA_CUDA_TRY(cudaStreamSynchronize(b_.stream_.get()));
   return {};
 }
