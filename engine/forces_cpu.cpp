@@ -45,6 +45,16 @@ struct SvkGradientClamped {
   }
 };
 
+// One clamped element by the scalar path: the batched clamped passes call it for the lanes they
+// clamp. Not inlined, so that it is compiled once with the file's flags (no FMA contraction) and
+// gives the bits of SvkGradientClamped in any pass, whatever instruction set the pass is built for.
+[[gnu::noinline]] double clamped_element(const Model& m, int64_t t, const Vec3d* ug, Vec3d f[4],
+                                         uint32_t* bits) {
+  const Tet& e = m.tets[static_cast<size_t>(t)];
+  const Vec3d u[4] = {ug[e[0]], ug[e[1]], ug[e[2]], ug[e[3]]};
+  return SvkGradientClamped::eval(m, static_cast<size_t>(t), u, f, bits);
+}
+
 // Health for the tensor forms: they never form H, so it is formed here for the checks only.
 inline uint32_t tensor_form_health(const Model& m, size_t t, const Vec3d u[4]) {
   const Mat3d h = tet_displacement_gradient(m.tet_shape[t], u);
@@ -181,26 +191,40 @@ template <bool kSvk, class P>
   return h_sq;
 }
 
+// The three leading minors of C - s^2 I = 2E + (1 - s^2) I, as tet_health_from_strain forms
+// them: all positive iff every principal stretch exceeds s.
+template <class P>
+[[gnu::always_inline]] inline void batch_stretch_minors(const Mat3<P>& e, P stretch, P* m1, P* m2,
+                                                        P* det_a) {
+  Mat3<P> a = P(2) * e;
+  const P shift = P(1) - stretch * stretch;
+  for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
+  *m1 = a.m[0][0];
+  *m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
+  *det_a = determinant(a);
+}
+
 // The quantities tet_health_from_strain tests, in its order: det F and, for SVK, the three
-// leading minors of C - s^2 I (s the collapse stretch).
+// leading minors of C - s^2 I (s the collapse stretch). Where `clamp_minors` is given (three
+// packs), also the minors at `clamp_stretch`, which decide SvkGradientClamped's clamp when that
+// stretch is not the collapse stretch.
 template <bool kSvk, class P>
 [[gnu::always_inline]] inline void batch_health_values(const TetShape<P>& shape,
                                                        const Vec3<P> du[3], P* det_f, P* m1,
-                                                       P* m2, P* det_a) {
+                                                       P* m2, P* det_a, double clamp_stretch = 0,
+                                                       P* clamp_minors = nullptr) {
   const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
   if constexpr (kSvk) {
     const Mat3<P> e = green_strain(h);
     Mat3<P> fm = h;
     for (int i = 0; i < 3; ++i) fm.m[i][i] += P(1);
     *det_f = determinant(fm);
-    Mat3<P> a = P(2) * e;
-    const P shift = P(1) - P(kSvkCollapseStretch) * P(kSvkCollapseStretch);
-    for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
-    *m1 = a.m[0][0];
-    *m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
-    *det_a = determinant(a);
+    batch_stretch_minors(e, P(kSvkCollapseStretch), m1, m2, det_a);
+    if (clamp_minors)
+      batch_stretch_minors(e, P(clamp_stretch), &clamp_minors[0], &clamp_minors[1],
+                           &clamp_minors[2]);
   } else {
-    (void)m1, (void)m2, (void)det_a;
+    (void)m1, (void)m2, (void)det_a, (void)clamp_stretch, (void)clamp_minors;
     *det_f = determinant(Mat3<P>::identity() + h);
   }
 }
@@ -242,6 +266,70 @@ void batch_health_slow(const P& det_f, const P& m1, const P& m2, const P& det_a,
         r.first_inverted = t0 + l;
       if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
         r.first_collapsing = t0 + l;
+    }
+  }
+}
+
+// The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed, before
+// its corner forces are scattered: the exact health checks and, for each lane [0, lanes) that
+// SvkGradientClamped clamps (inverted, or a stretch below m.clamp_stretch: the same packed
+// quantities, formed lane by lane as the scalar check forms them, so the same decision), the
+// scalar clamped element's forces and energy in place of the batch's (w: the pass's energy
+// term, -4 V psi with kFma). Counts, first offenders and clamped elements as the scalar pass
+// counts them, in lane order.
+template <class L, bool kFma>
+[[gnu::always_inline]] inline void batch_clamp(const Model& m, const Vec3d* u, const double* ug,
+                                               const typename L::Row* b, const int32_t* o,
+                                               int64_t t0, int lanes,
+                                               Vec3<typename L::Pack> f[4],
+                                               typename L::Pack& w, TetChunkResult& r) {
+  using P = typename L::Pack;
+  // Reloaded rather than kept from the element math (as the health check does): ~20 more live
+  // packs through the batch would spill.
+  TetShape<P> shape;
+  P lambda, mu;
+  Vec3<P> du[3];
+  L::load(b, ug, o, shape, lambda, mu, du);
+  P det_f, m1, m2, det_a;
+  // At the collapse stretch the health minors decide the clamp too (SvkGradientClamped).
+  const bool own_stretch = m.clamp_stretch != kSvkCollapseStretch;
+  P clamp_minors[3];
+  batch_health_values<true>(shape, du, &det_f, &m1, &m2, &det_a, m.clamp_stretch,
+                            own_stretch ? clamp_minors : nullptr);
+  if (!own_stretch) {
+    clamp_minors[0] = m1;
+    clamp_minors[1] = m2;
+    clamp_minors[2] = det_a;
+  }
+  // Health at the collapse stretch and the clamp's check: no lane fails either, nothing to do.
+  if (L::template healthy<true>(det_f, m1, m2, det_a) &&
+      L::template healthy<true>(det_f, clamp_minors[0], clamp_minors[1], clamp_minors[2]))
+    return;
+  for (int l = 0; l < lanes; ++l) {
+    uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
+    if (!(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
+    const bool clamp = (bits & kElementInverted) || !(clamp_minors[0].v[l] > 0 &&
+                                                      clamp_minors[1].v[l] > 0 &&
+                                                      clamp_minors[2].v[l] > 0);
+    if (clamp) {
+      Vec3d fl[4];
+      uint32_t scalar_bits = 0;
+      const double energy = clamped_element(m, t0 + l, u, fl, &scalar_bits);
+      ZONA_ASSERT(scalar_bits == (bits | kElementClamped));
+      bits = scalar_bits;
+      for (int c = 0; c < 4; ++c) {
+        f[c].x.v[l] = fl[c].x;
+        f[c].y.v[l] = fl[c].y;
+        f[c].z.v[l] = fl[c].z;
+      }
+      // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
+      w.v[l] = kFma ? -4.0 * energy : energy;
+    }
+    if (bits) {
+      r.health |= bits;
+      if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
+      if ((bits & kElementCollapsing) && r.collapsing_count++ == 0) r.first_collapsing = t0 + l;
+      if (bits & kElementClamped) ++r.clamped_count;
     }
   }
 }
@@ -374,16 +462,21 @@ struct Lanes8f {
 
 // The element pass over chunks [chunk_begin, chunk_end) with batches of L::kLanes tetrahedra:
 // lane by lane the fem_element.h functions in their order, so bit-identical to them, or with
-// kFma batch_element_math_fma (only in functions built for FMA).
-template <bool kSvk, class L, bool kFma = false>
+// kFma batch_element_math_fma (only in functions built for FMA). kClamp (SVK, float64): the
+// inversion-safe SVK, whose clamped lanes batch_clamp replaces by SvkGradientClamped's results.
+template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
 [[gnu::always_inline]] inline void batch_pass(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
+  static_assert(!kClamp || (kSvk && std::is_same_v<typename L::Row, double>));
   using P = typename L::Pack;
   constexpr int kLanes = L::kLanes;
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const double* ug = &s.u.data()->x;
+  // kClamp: below this |H|^2 in every lane no lane is clamped, inverted or collapsing
+  // (clamp_check_skip_below_gradient_sq; it is at most kHealthCheckSkipBelowGradientSq).
+  const double clamp_bound = kClamp ? clamp_check_skip_below_gradient_sq(m.clamp_stretch) : 0.0;
   double* blocks = s.assembly.blocks.data();
   const int32_t* codes = s.assembly.corner_code.data();
   const typename L::Row* rows = L::rows(m);
@@ -428,6 +521,12 @@ template <bool kSvk, class L, bool kFma = false>
         h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w);
       else
         h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w);
+      // The clamp is decided, and the clamped lanes' forces replaced, before the scatter; the
+      // health counts of this batch with it (the check below is then not needed: clamp_bound is
+      // at most its bound).
+      if constexpr (kClamp)
+        if (!L::below(h_sq, clamp_bound))
+          batch_clamp<L, kFma>(m, s.u.data(), ug, b, o, t0, lanes, f, w, r);
       if (lanes == kLanes) {
         L::store(f, blocks, code);
         if constexpr (kFma) {
@@ -457,8 +556,8 @@ template <bool kSvk, class L, bool kFma = false>
       // and every principal stretch exceeds 0.9 > 1/sqrt(3), with margins (det F >= 0.73, the
       // minors of C - s^2 I >= 0.1) that rounding cannot eat. The exact quantities are only
       // formed where some lane is larger: the same flags as always evaluating them, for 17
-      // operations per batch instead of ~45 (of ~300).
-      if (!L::below(h_sq, kHealthCheckSkipBelowGradientSq)) {
+      // operations per batch instead of ~45 (of ~300). kClamp: batch_clamp has counted them.
+      if (!kClamp && !L::below(h_sq, kHealthCheckSkipBelowGradientSq)) {
         L::load(b, ug, o, shape, lambda, mu, du);
         P det_f, m1(0.0), m2(0.0), det_a(0.0);
         batch_health_values<kSvk>(shape, du, &det_f, &m1, &m2, &det_a);
@@ -478,9 +577,9 @@ template <bool kSvk, class L, bool kFma = false>
 // GCC builds an AVX2 clone and a baseline clone of these two and picks one at load time; FMA is
 // left out on purpose, because contracting a*b+c would change the bits between the clones. The
 // float64 one runs where the fused pass below does not (CPU without FMA, or ZONA_CPU_FMA=0).
-template <bool kSvk>
+template <bool kSvk, bool kClamp = false>
 ZONA_SIMD_CLONES void tet_pass_chunks_f64(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4d>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4d, false, kClamp>(context, chunk_begin, chunk_end);
 }
 
 template <bool kSvk>
@@ -601,29 +700,29 @@ struct Lanes8d {
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, so that a * b + c
 // fuses exactly where batch_element_math_fma says (kFma) and nowhere else (the health checks;
 // without kFma the bits of the other passes).
-template <bool kSvk, bool kFma>
+template <bool kSvk, bool kFma, bool kClamp = false>
 __attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes8d, kFma>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes8d, kFma, kClamp>(context, chunk_begin, chunk_end);
 }
 
 // Four float64 lanes with AVX2 and FMA: the same fused operations in the same order as the
 // AVX-512 FMA pass, so the same bits. Chosen at run time (cpu_element_fma()); CPUs without FMA
 // run tet_pass_chunks_f64 (bit-identical to fem_element.h).
-template <bool kSvk>
+template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dFma, true>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dFma, true, kClamp>(context, chunk_begin, chunk_end);
 }
 
 // The same four-lane fused pass encoded with AVX-512VL, on CPUs that have it (cpu_simd_registers()
 // == 32): still 256-bit vectors (no 512-bit frequency licence), but 32 vector registers instead of
 // 16, so the batch's ~40 live packs stop spilling (~50 fewer loads and stores per batch of four:
 // docs/performance.md, "Fifth round"). The same operations in the same order: the same bits.
-template <bool kSvk>
+template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma32(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dVl, true>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dVl, true, kClamp>(context, chunk_begin, chunk_end);
 }
 #endif
 
@@ -665,28 +764,30 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   }
 }
 
+// The float64 gradient-form pass for this CPU and the settings (cpu_element_fma(),
+// cpu_simd_bits(), cpu_simd_registers()).
+template <bool kSvk, bool kClamp>
+ThreadPool::ChunkFn select_f64_pass() {
+#ifdef ZONA_HAVE_AVX512_PASS
+  if (cpu_element_fma()) {
+    if (cpu_simd_bits() >= 512) return &tet_pass_chunks_f64_avx512<kSvk, true, kClamp>;
+    if (cpu_simd_registers() >= 32) return &tet_pass_chunks_f64_fma32<kSvk, kClamp>;
+    return &tet_pass_chunks_f64_fma<kSvk, kClamp>;
+  }
+  if (cpu_simd_bits() >= 512) return &tet_pass_chunks_f64_avx512<kSvk, false, kClamp>;
+#endif
+  return &tet_pass_chunks_f64<kSvk, kClamp>;
+}
+
 ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
     case Formulation::kGradient:
       if (m.element_precision == ElementPrecision::kFloat32)  // build_model: no clamp then
         return svk ? &tet_pass_chunks_f32<true> : &tet_pass_chunks_f32<false>;
-      if (svk && m.inversion == InversionHandling::kClampStretch)
-        return &tet_pass_chunks<SvkGradientClamped>;
-#ifdef ZONA_HAVE_AVX512_PASS
-      if (cpu_element_fma()) {
-        if (cpu_simd_bits() >= 512)
-          return svk ? &tet_pass_chunks_f64_avx512<true, true>
-                     : &tet_pass_chunks_f64_avx512<false, true>;
-        if (cpu_simd_registers() >= 32)
-          return svk ? &tet_pass_chunks_f64_fma32<true> : &tet_pass_chunks_f64_fma32<false>;
-        return svk ? &tet_pass_chunks_f64_fma<true> : &tet_pass_chunks_f64_fma<false>;
-      }
-      if (cpu_simd_bits() >= 512)
-        return svk ? &tet_pass_chunks_f64_avx512<true, false>
-                   : &tet_pass_chunks_f64_avx512<false, false>;
-#endif
-      return svk ? &tet_pass_chunks_f64<true> : &tet_pass_chunks_f64<false>;
+      if (!svk) return select_f64_pass<false, false>();
+      if (m.inversion == InversionHandling::kClampStretch) return select_f64_pass<true, true>();
+      return select_f64_pass<true, false>();
     case Formulation::kTensorStored:
       return svk ? &tet_pass_chunks<SvkTensorStored> : &tet_pass_chunks<LinearTensorStored>;
     case Formulation::kTensorRebuilt:

@@ -3,10 +3,12 @@
 // the element's largest corner force with it (the AVX2 and AVX-512 FMA passes bit for bit
 // against each other), float32 (eight per pack, ElementPrecision::kFloat32) bit for bit against
 // fem_element.h at T = float and within a stated tolerance of float64, health bits through the
-// packed masks, and determinism of the float32 step for any thread count.
+// packed masks, the inversion-safe SVK's clamped lanes against the scalar clamped element, and
+// determinism of the float32 step for any thread count.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <tuple>
@@ -378,6 +380,183 @@ TEST(SimdElementPass, HealthChecksCannotFailBelowTheSkipBound) {
   h = Mat3d{};
   h.m[0][0] = -5 * r;  // stretch 0.5, below 1/sqrt(3)
   EXPECT_EQ(tet_health(h), uint32_t{kElementCollapsing});
+}
+
+// The scalar clamped element, as SvkGradientClamped (engine/forces_cpu.cpp) composes it: forces
+// [N], energy [J], health bits with kElementClamped where it clamps.
+double scalar_clamped_element(const Model& m, size_t t, const std::vector<Vec3d>& u, Vec3d f[4],
+                              uint32_t* bits) {
+  const Tet& e = m.tets[t];
+  const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+  const TetShape<double>& s = m.tet_shape[t];
+  const Lame& l = m.tet_lame(t);
+  const Mat3d h = tet_displacement_gradient(s, ue);
+  const Mat3d strain = green_strain(h);
+  *bits = tet_health_from_strain(h, strain);
+  double psi;
+  Mat3d p;
+  if (tet_health_from_strain(h, strain, m.clamp_stretch) != 0) {
+    psi = svk_first_piola_clamped(h, l.lambda, l.mu, m.clamp_stretch, &p);
+    *bits |= kElementClamped;
+  } else {
+    const Mat3d stress = isotropic_stress(strain, l.lambda, l.mu, &psi);
+    p = stress + h * stress;
+  }
+  tet_forces_from_stress(s, p, f);
+  return s.volume * psi;
+}
+
+// The inversion-safe SVK runs in the batched passes: on a box strained by ~15 % everywhere (every
+// batch fails the |H|^2 filter) with one vertex pushed through its neighbours and the next one
+// pulled in (inverted, collapsing and merely compressed elements), every corner force of a
+// clamped element equals the scalar clamped element's bit for bit, and every other corner force
+// the unclamped pass's standard (bit for bit without FMA, within 1e-13 of the element's largest
+// corner force with it); counts, first offenders and flags are the scalar ones. For the default
+// clamp stretch (the health check decides the clamp) and for 0.85 (its own minors, a filter bound
+// below the health check's), on boxes whose last batch holds 2 and 6 lanes.
+TEST(SimdElementPass, ClampedSvkLanesEqualTheScalarClampedElement) {
+  struct Box {
+    int nx, ny, nz;
+  };
+  for (const Box& box : {Box{3, 3, 3}, Box{5, 3, 3}}) {
+    const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, box.nx, box.ny, box.nz);
+    std::vector<Vec3d> u = wavy(mesh, 0.15);
+    const size_t inner = static_cast<size_t>(1 + (box.nx + 1) * (1 + (box.ny + 1) * 1));  // (1,1,1)
+    u[inner] += Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
+    u[inner + 1] += Vec3d{-0.2 * kL, 0, 0};
+    for (double clamp_stretch : {kSvkCollapseStretch, 0.85}) {
+      ModelDesc desc;
+      desc.inversion = InversionHandling::kClampStretch;
+      desc.clamp_stretch = clamp_stretch;
+      const Model m = build_model(mesh, desc).value();
+      // The reference, element by element.
+      const size_t nt = m.tet_count();
+      std::vector<std::array<Vec3d, 4>> ref(nt);
+      std::vector<uint32_t> ref_bits(nt);
+      double ref_energy = 0, energy_scale = 0;
+      int64_t clamped = 0, inverted = 0, collapsing = 0, first_inverted = -1,
+              first_collapsing = -1, clamped_healthy = 0;
+      uint32_t health = 0;
+      for (size_t t = 0; t < nt; ++t) {
+        const double w = scalar_clamped_element(m, t, u, ref[t].data(), &ref_bits[t]);
+        ref_energy += w;
+        energy_scale += std::abs(w);
+        const uint32_t bits = ref_bits[t];
+        health |= bits;
+        clamped += (bits & kElementClamped) != 0;
+        clamped_healthy += bits == kElementClamped;  // clamped, yet neither inverted nor collapsing
+        if ((bits & kElementInverted) && inverted++ == 0) first_inverted = static_cast<int64_t>(t);
+        if ((bits & kElementCollapsing) && collapsing++ == 0)
+          first_collapsing = static_cast<int64_t>(t);
+      }
+      // Batches of four with clamped and unclamped lanes: the case the pass must splice.
+      int mixed = 0;
+      for (size_t t0 = 0; t0 < nt; t0 += 4) {
+        int lanes_clamped = 0;
+        const size_t end = std::min(nt, t0 + 4);
+        for (size_t t = t0; t < end; ++t) lanes_clamped += (ref_bits[t] & kElementClamped) != 0;
+        mixed += lanes_clamped > 0 && lanes_clamped < static_cast<int>(end - t0);
+      }
+      ASSERT_GT(inverted, 0);
+      ASSERT_GT(clamped, inverted);
+      ASSERT_LT(clamped, static_cast<int64_t>(nt) / 2);
+      ASSERT_GT(mixed, 0);
+      if (clamp_stretch != kSvkCollapseStretch) {
+        ASSERT_GT(clamped_healthy, 0);
+      }
+      // Every float64 pass: (fused, bits, registers).
+      const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
+                                                   {true, 512, 32},  {true, 256, 16},
+                                                   {true, 256, 32}};
+      for (const auto& [fused, simd_bits, registers] : passes) {
+        set_cpu_element_fma(fused);
+        if (fused && !cpu_element_fma()) continue;  // no FMA on this CPU (or ZONA_CPU_FMA=0)
+        set_cpu_simd_bits(simd_bits);
+        set_cpu_simd_registers(registers);
+        SCOPED_TRACE(::testing::Message()
+                     << nt << " tetrahedra, clamp stretch " << clamp_stretch << ", fma "
+                     << cpu_element_fma() << ", simd bits " << cpu_simd_bits() << ", registers "
+                     << cpu_simd_registers());
+        State s = loaded_state(m, u, 2);
+        compute_tet_forces(m, s);
+        StepDiagnostics d;
+        reduce_tet_chunks(s, d);
+        for (size_t t = 0; t < nt; ++t) {
+          double scale = 0;
+          for (const Vec3d& f : ref[t])
+            for (int i = 0; i < 3; ++i) scale = std::max(scale, std::abs(f[i]));
+          for (int c = 0; c < 4; ++c) {
+            const Vec3d pass = corner_force(s, t, c);
+            if ((ref_bits[t] & kElementClamped) || !fused) {
+              EXPECT_EQ(std::memcmp(&pass, &ref[t][c], sizeof(Vec3d)), 0)
+                  << "tet " << t << " corner " << c << " bits " << ref_bits[t];
+            } else {
+              for (int i = 0; i < 3; ++i)
+                EXPECT_LE(std::abs(pass[i] - ref[t][c][i]), 1e-13 * scale)
+                    << "tet " << t << " corner " << c << " component " << i;
+            }
+          }
+        }
+        EXPECT_EQ(d.clamped_count, clamped);
+        EXPECT_EQ(d.inverted_count, inverted);
+        EXPECT_EQ(d.collapsing_count, collapsing);
+        EXPECT_EQ(d.first_inverted, first_inverted);
+        EXPECT_EQ(d.first_collapsing, first_collapsing);
+        EXPECT_EQ(d.element_health, health);
+        EXPECT_NEAR(d.elastic_energy, ref_energy, 1e-13 * energy_scale);
+      }
+    }
+  }
+  set_cpu_element_fma(true);
+  set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
+}
+
+// The clamped passes look for clamped elements only where some lane has |H|^2 at or above
+// clamp_check_skip_below_gradient_sq: below it the scalar clamp and health checks must pass for
+// every H, in the worst directions and random ones, for clamp stretches from 0.1 to 0.999; a
+// stretch just below the clamp must fail them; the bound is never above the health check's.
+TEST(SimdElementPass, ClampChecksCannotFailBelowTheClampSkipBound) {
+  uint64_t seed = 777;
+  auto next = [&seed] {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(seed >> 11) / 9007199254740992.0 - 0.5;
+  };
+  for (double stretch : {0.1, kSvkCollapseStretch, 0.7, 0.8, 0.9, 0.95, 0.99, 0.999}) {
+    SCOPED_TRACE(::testing::Message() << "clamp stretch " << stretch);
+    const double bound = clamp_check_skip_below_gradient_sq(stretch);
+    ASSERT_GT(bound, 0);
+    ASSERT_LE(bound, kHealthCheckSkipBelowGradientSq);
+    const double r = std::sqrt(bound);  // largest |H| skipped
+    std::vector<Mat3d> gradients;
+    Mat3d h{};
+    h.m[0][0] = -r;
+    gradients.push_back(h);
+    gradients.push_back((-r / std::sqrt(3.0)) * Mat3d::identity());
+    h = Mat3d{};
+    h.m[0][1] = r;
+    gradients.push_back(h);
+    for (int i = 0; i < 2000; ++i) {
+      Mat3d g{};
+      double norm_sq = 0;
+      for (auto& row : g.m)
+        for (double& x : row) {
+          x = next();
+          norm_sq += x * x;
+        }
+      gradients.push_back((r / std::sqrt(norm_sq)) * g);
+    }
+    for (const Mat3d& hd : gradients) {
+      ASSERT_EQ(tet_health(hd, stretch), 0u);
+      ASSERT_EQ(tet_health(hd), 0u);
+    }
+    h = Mat3d{};
+    h.m[0][0] = -(1 - stretch) * 1.001;  // stretch 0.1 % of (1 - s) below s
+    EXPECT_NE(tet_health(h, stretch) & kElementCollapsing, 0u);
+  }
+  EXPECT_EQ(clamp_check_skip_below_gradient_sq(kSvkCollapseStretch),
+            kHealthCheckSkipBelowGradientSq);
+  EXPECT_EQ(clamp_check_skip_below_gradient_sq(1 - 1e-7), 0.0);  // every batch checked
 }
 
 // The float32 step is as deterministic as the float64 one: the same bits for 1, 2 and 3 threads
