@@ -18,42 +18,9 @@
 namespace zona {
 namespace {
 
-// One element evaluation per formulation: forces f[4] [N] written, energy [J] returned,
-// ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h.
-
-struct SvkGradientClamped {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    const TetShape<double>& s = m.tet_shape[t];
-    const Lame& l = m.tet_lame(t);
-    const Mat3d h = tet_displacement_gradient(s, u);
-    const Mat3d e = green_strain(h);
-    *bits = tet_health_from_strain(h, e);
-    const bool clamp = m.clamp_stretch == kSvkCollapseStretch
-                           ? *bits != 0
-                           : tet_health_from_strain(h, e, m.clamp_stretch) != 0;
-    double psi;
-    Mat3d p;
-    if (clamp) {
-      psi = svk_first_piola_clamped(h, l.lambda, l.mu, m.clamp_stretch, &p);
-      *bits |= kElementClamped;
-    } else {
-      const Mat3d stress = isotropic_stress(e, l.lambda, l.mu, &psi);
-      p = stress + h * stress;
-    }
-    tet_forces_from_stress(s, p, f);
-    return s.volume * psi;
-  }
-};
-
-// One clamped element by the scalar path: the batched clamped passes call it for the lanes they
-// clamp. Not inlined, so that it is compiled once with the file's flags (no FMA contraction) and
-// gives the bits of SvkGradientClamped in any pass, whatever instruction set the pass is built for.
-[[gnu::noinline]] double clamped_element(const Model& m, int64_t t, const Vec3d* ug, Vec3d f[4],
-                                         uint32_t* bits) {
-  const Tet& e = m.tets[static_cast<size_t>(t)];
-  const Vec3d u[4] = {ug[e[0]], ug[e[1]], ug[e[2]], ug[e[3]]};
-  return SvkGradientClamped::eval(m, static_cast<size_t>(t), u, f, bits);
-}
+// One element evaluation per tensor formulation: forces f[4] [N] written, energy [J] returned,
+// ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h. (The gradient form,
+// the inversion-safe SVK included, runs in the batched passes below.)
 
 // Health for the tensor forms: they never form H, so it is formed here for the checks only.
 inline uint32_t tensor_form_health(const Model& m, size_t t, const Vec3d u[4]) {
@@ -206,7 +173,7 @@ template <class P>
 
 // The quantities tet_health_from_strain tests, in its order: det F and, for SVK, the three
 // leading minors of C - s^2 I (s the collapse stretch). Where `clamp_minors` is given (three
-// packs), also the minors at `clamp_stretch`, which decide SvkGradientClamped's clamp when that
+// packs), also the minors at `clamp_stretch`, which decide the clamped SVK's clamp when that
 // stretch is not the collapse stretch.
 template <bool kSvk, class P>
 [[gnu::always_inline]] inline void batch_health_values(const TetShape<P>& shape,
@@ -270,15 +237,157 @@ void batch_health_slow(const P& det_f, const P& m1, const P& m2, const P& det_a,
   }
 }
 
+// Lane-wise helpers for the clamped SVK below: a where the mask holds, else b; the square root of
+// each lane (correctly rounded, as std::sqrt); whether no lane of a mask holds.
+template <class P, class M>
+[[gnu::always_inline]] inline P select_lanes(M mask, P a, P b) {
+  P r;
+  r.v = mask ? a.v : b.v;
+  return r;
+}
+template <class P, class M>
+[[gnu::always_inline]] inline Vec3<P> select_lanes(M mask, const Vec3<P>& a, const Vec3<P>& b) {
+  return Vec3<P>{select_lanes(mask, a.x, b.x), select_lanes(mask, a.y, b.y),
+                 select_lanes(mask, a.z, b.z)};
+}
+// x86-64: two 128-bit square roots (SSE2), where std::sqrt lane by lane would store every lane and
+// test it for errno.
+[[gnu::always_inline]] inline P4 sqrt_lanes(P4 a) {
+  P4 r;
+#if defined(__x86_64__)
+  const V2 lo = __builtin_shufflevector(a.v, a.v, 0, 1);
+  const V2 hi = __builtin_shufflevector(a.v, a.v, 2, 3);
+  r.v = __builtin_shufflevector(V2(_mm_sqrt_pd(lo)), V2(_mm_sqrt_pd(hi)), 0, 1, 2, 3);
+#else
+  for (int l = 0; l < 4; ++l) r.v[l] = std::sqrt(a.v[l]);
+#endif
+  return r;
+}
+[[gnu::always_inline]] inline P8d sqrt_lanes(P8d a) {
+  return concat(sqrt_lanes(half_of(a, 0)), sqrt_lanes(half_of(a, 1)));
+}
+template <class M>
+[[gnu::always_inline]] inline bool no_lane(M mask) {
+  return all_lanes(mask == 0);
+}
+
+// svk_first_piola_clamped (fem_element.h) on every lane of a pack: each lane performs the scalar
+// function's operations in its order, and where the scalar function branches on a value the
+// pack forms both sides and keeps the lane's (a Jacobi rotation a lane has finished or skips,
+// the overflow-safe tangent, the sort, the reflection, the Gram-Schmidt fallback). So each
+// lane's P and energy density are the scalar function's bits (forces_simd_test checks it on
+// inverted, collapsed, degenerate and random elements). Keep the two in step.
+template <class P>
+[[gnu::always_inline]] inline P batch_svk_first_piola_clamped(const Mat3<P>& h, P lambda, P mu,
+                                                              P stretch_min, Mat3<P>* p) {
+  using Mask = decltype(P{}.v > P{}.v);
+  Mat3<P> f = h;
+  for (int i = 0; i < 3; ++i) f.m[i][i] += P(1);
+  // symmetric_eigen3(F^T F): `active` lanes have not left the sweep loop.
+  Mat3<P> a = transpose(f) * f;
+  Mat3<P> v = Mat3<P>::identity();
+  Mask active = P(0.0).v == P(0.0).v;
+  for (int sweep = 0; sweep < 8; ++sweep) {
+    const P off = a.m[0][1] * a.m[0][1] + a.m[0][2] * a.m[0][2] + a.m[1][2] * a.m[1][2];
+    const P diag = a.m[0][0] * a.m[0][0] + a.m[1][1] * a.m[1][1] + a.m[2][2] * a.m[2][2];
+    active &= off.v > (P(1e-30) * diag).v;
+    if (no_lane(active)) break;
+    for (int pq = 0; pq < 3; ++pq) {
+      const int pi = pq == 2 ? 1 : 0;
+      const int qi = pq == 0 ? 1 : 2;
+      const P apq = a.m[pi][qi];
+      const Mask rotate = active & (apq.v != 0);
+      if (no_lane(rotate)) continue;
+      const P theta = (a.m[qi][qi] - a.m[pi][pi]) / (P(2) * apq);
+      const P at = select_lanes(theta.v < 0, -theta, theta);
+      P t = P(1) / (at + sqrt_lanes(theta * theta + P(1)));
+      const Mask large = at.v > 1e15;
+      if (!no_lane(large)) t = select_lanes(large, P(0.5) / at, t);
+      t = select_lanes(theta.v < 0, -t, t);
+      const P c = P(1) / sqrt_lanes(t * t + P(1));
+      const P sn = t * c;
+      a.m[pi][pi] = select_lanes(rotate, a.m[pi][pi] - t * apq, a.m[pi][pi]);
+      a.m[qi][qi] = select_lanes(rotate, a.m[qi][qi] + t * apq, a.m[qi][qi]);
+      a.m[pi][qi] = select_lanes(rotate, P(0), a.m[pi][qi]);
+      a.m[qi][pi] = select_lanes(rotate, P(0), a.m[qi][pi]);
+      const int r = 3 - pi - qi;
+      const P arp = a.m[r][pi], arq = a.m[r][qi];
+      const P rp = c * arp - sn * arq, rq = sn * arp + c * arq;
+      a.m[r][pi] = select_lanes(rotate, rp, a.m[r][pi]);
+      a.m[pi][r] = select_lanes(rotate, rp, a.m[pi][r]);
+      a.m[r][qi] = select_lanes(rotate, rq, a.m[r][qi]);
+      a.m[qi][r] = select_lanes(rotate, rq, a.m[qi][r]);
+      for (int i = 0; i < 3; ++i) {
+        const P vip = v.m[i][pi], viq = v.m[i][qi];
+        v.m[i][pi] = select_lanes(rotate, c * vip - sn * viq, vip);
+        v.m[i][qi] = select_lanes(rotate, sn * vip + c * viq, viq);
+      }
+    }
+  }
+  // Descending eigenvalues with their vectors: the scalar bubble sort's swaps, lane by lane.
+  P ev[3] = {a.m[0][0], a.m[1][1], a.m[2][2]};
+  Vec3<P> vc[3];
+  for (int i = 0; i < 3; ++i) vc[i] = Vec3<P>{v.m[0][i], v.m[1][i], v.m[2][i]};
+  for (int i = 0; i < 2; ++i)
+    for (int j = 0; j < 2 - i; ++j) {
+      const Mask swap = ev[j].v < ev[j + 1].v;
+      const P e0 = ev[j], e1 = ev[j + 1];
+      const Vec3<P> c0 = vc[j], c1 = vc[j + 1];
+      ev[j] = select_lanes(swap, e1, e0);
+      ev[j + 1] = select_lanes(swap, e0, e1);
+      vc[j] = select_lanes(swap, c1, c0);
+      vc[j + 1] = select_lanes(swap, c0, c1);
+    }
+  vc[2] = select_lanes(dot(vc[0], cross(vc[1], vc[2])).v < 0, -vc[2], vc[2]);
+  Vec3<P> fv[3];
+  for (int i = 0; i < 3; ++i) fv[i] = f * vc[i];
+  Vec3<P> uc[3];
+  const P n0 = sqrt_lanes(dot(fv[0], fv[0]));
+  const Mask n0_positive = n0.v > 0;
+  uc[0] = select_lanes(n0_positive, fv[0] / n0, Vec3<P>{P(1), P(0), P(0)});
+  Vec3<P> w = fv[1] - dot(uc[0], fv[1]) * uc[0];
+  P n1 = sqrt_lanes(dot(w, w));
+  const Mask degenerate = ~(n1.v > (P(1e-7) * select_lanes(n0_positive, n0, P(1))).v);
+  if (!no_lane(degenerate)) {
+    const Mask middle = (uc[0].x.v < 0.5) & (uc[0].x.v > -0.5);
+    const Vec3<P> w2 = cross(uc[0], select_lanes(middle, Vec3<P>{P(1), P(0), P(0)},
+                                                 Vec3<P>{P(0), P(1), P(0)}));
+    w = select_lanes(degenerate, w2, w);
+    n1 = select_lanes(degenerate, sqrt_lanes(dot(w2, w2)), n1);
+  }
+  uc[1] = w / n1;
+  uc[2] = cross(uc[0], uc[1]);
+  P sig[3], sh[3], eh[3];
+  P tr = P(0);
+  for (int i = 0; i < 3; ++i) {
+    sig[i] = dot(uc[i], fv[i]);
+    sh[i] = select_lanes(sig[i].v > stretch_min.v, sig[i], stretch_min);
+    eh[i] = P(0.5) * (sh[i] * sh[i] - P(1));
+    tr += eh[i];
+  }
+  P psi = P(0.5) * lambda * tr * tr;
+  Mat3<P> out = Mat3<P>::zero();
+  for (int i = 0; i < 3; ++i) {
+    const P pi = sh[i] * (lambda * tr + P(2) * mu * eh[i]);
+    psi += mu * eh[i] * eh[i] + pi * (sig[i] - sh[i]);
+    out = out + pi * outer(uc[i], vc[i]);
+  }
+  *p = out;
+  return psi;
+}
+
 // The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed, before
-// its corner forces are scattered: the exact health checks and, for each lane [0, lanes) that
-// SvkGradientClamped clamps (inverted, or a stretch below m.clamp_stretch: the same packed
-// quantities, formed lane by lane as the scalar check forms them, so the same decision), the
-// scalar clamped element's forces and energy in place of the batch's (w: the pass's energy
-// term, -4 V psi with kFma). Counts, first offenders and clamped elements as the scalar pass
-// counts them, in lane order.
+// its corner forces are scattered. The scalar clamped element (kernels/element_eval.h's
+// kSvkGradientClamped; the CPU's per-tetrahedron pass until the batched passes took it over)
+// clamps where the element is inverted or a stretch is below m.clamp_stretch
+// (tet_health_from_strain at that stretch); the same quantities are formed here lane by lane in
+// the scalar order, so the decision is the same. Where some lane is clamped the clamped stress
+// is formed for the whole batch (batch_svk_first_piola_clamped) and the clamped lanes take its
+// forces and energy in place of the pass's (w: the pass's energy term, -4 V psi with kFma); the
+// other lanes keep the pass's. Health and clamp counts and first offenders in lane order, as the
+// scalar pass counted them.
 template <class L, bool kFma>
-[[gnu::always_inline]] inline void batch_clamp(const Model& m, const Vec3d* u, const double* ug,
+[[gnu::always_inline]] inline void batch_clamp(const Model& m, const double* ug,
                                                const typename L::Row* b, const int32_t* o,
                                                int64_t t0, int lanes,
                                                Vec3<typename L::Pack> f[4],
@@ -291,7 +400,7 @@ template <class L, bool kFma>
   Vec3<P> du[3];
   L::load(b, ug, o, shape, lambda, mu, du);
   P det_f, m1, m2, det_a;
-  // At the collapse stretch the health minors decide the clamp too (SvkGradientClamped).
+  // At the collapse stretch the health minors decide the clamp too.
   const bool own_stretch = m.clamp_stretch != kSvkCollapseStretch;
   P clamp_minors[3];
   batch_health_values<true>(shape, du, &det_f, &m1, &m2, &det_a, m.clamp_stretch,
@@ -305,26 +414,24 @@ template <class L, bool kFma>
   if (L::template healthy<true>(det_f, m1, m2, det_a) &&
       L::template healthy<true>(det_f, clamp_minors[0], clamp_minors[1], clamp_minors[2]))
     return;
+  const auto clamp = ~((det_f.v > 0) & (clamp_minors[0].v > 0) & (clamp_minors[1].v > 0) &
+                       (clamp_minors[2].v > 0));
+  if (!no_lane(clamp)) {
+    // The scalar clamped element, lane by lane: the clamped P, its corner forces and V psi.
+    Mat3<P> p;
+    const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
+    const P psi = batch_svk_first_piola_clamped(h, lambda, mu, P(m.clamp_stretch), &p);
+    Vec3<P> fc[4];
+    tet_forces_from_stress(shape, p, fc);
+    const P wc = shape.volume * psi;
+    for (int c = 0; c < 4; ++c) f[c] = select_lanes(clamp, fc[c], f[c]);
+    // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
+    w = select_lanes(clamp, kFma ? P(-4.0) * wc : wc, w);
+  }
   for (int l = 0; l < lanes; ++l) {
     uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
     if (!(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
-    const bool clamp = (bits & kElementInverted) || !(clamp_minors[0].v[l] > 0 &&
-                                                      clamp_minors[1].v[l] > 0 &&
-                                                      clamp_minors[2].v[l] > 0);
-    if (clamp) {
-      Vec3d fl[4];
-      uint32_t scalar_bits = 0;
-      const double energy = clamped_element(m, t0 + l, u, fl, &scalar_bits);
-      ZONA_ASSERT(scalar_bits == (bits | kElementClamped));
-      bits = scalar_bits;
-      for (int c = 0; c < 4; ++c) {
-        f[c].x.v[l] = fl[c].x;
-        f[c].y.v[l] = fl[c].y;
-        f[c].z.v[l] = fl[c].z;
-      }
-      // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
-      w.v[l] = kFma ? -4.0 * energy : energy;
-    }
+    if (clamp[l]) bits |= kElementClamped;
     if (bits) {
       r.health |= bits;
       if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
@@ -463,7 +570,7 @@ struct Lanes8f {
 // The element pass over chunks [chunk_begin, chunk_end) with batches of L::kLanes tetrahedra:
 // lane by lane the fem_element.h functions in their order, so bit-identical to them, or with
 // kFma batch_element_math_fma (only in functions built for FMA). kClamp (SVK, float64): the
-// inversion-safe SVK, whose clamped lanes batch_clamp replaces by SvkGradientClamped's results.
+// inversion-safe SVK, whose clamped lanes batch_clamp replaces by the clamped element's.
 template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
 [[gnu::always_inline]] inline void batch_pass(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
@@ -526,7 +633,7 @@ template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
       // at most its bound).
       if constexpr (kClamp)
         if (!L::below(h_sq, clamp_bound))
-          batch_clamp<L, kFma>(m, s.u.data(), ug, b, o, t0, lanes, f, w, r);
+          batch_clamp<L, kFma>(m, ug, b, o, t0, lanes, f, w, r);
       if (lanes == kLanes) {
         L::store(f, blocks, code);
         if constexpr (kFma) {

@@ -512,6 +512,150 @@ TEST(SimdElementPass, ClampedSvkLanesEqualTheScalarClampedElement) {
   set_cpu_simd_registers(32);
 }
 
+// A rotation about a unit axis (Rodrigues) [-].
+Mat3d rotation(Vec3d axis, double angle) {
+  axis = axis / norm(axis);
+  const double c = std::cos(angle), s = std::sin(angle);
+  const Mat3d k{{{0, -axis.z, axis.y}, {axis.z, 0, -axis.x}, {-axis.y, axis.x, 0}}};
+  return Mat3d::identity() + s * k + (1 - c) * (k * k);
+}
+
+// The packed clamped stress takes, lane by lane, every branch of svk_first_piola_clamped: on a
+// soup of separate tetrahedra (each its own four vertices, so that each gets its own F) deformed
+// by F = 0 exactly (no direction to start U from), mirror images, partial collapse (rank 1 and
+// 2: the Gram-Schmidt fallback), repeated principal stretches (no Jacobi rotation), a C whose
+// tiny off-diagonal entry beside a large diagonal gap takes Jacobi's large-angle tangent,
+// random rotations of random signed stretches, and healthy ones between them, every clamped
+// element's corner forces equal the scalar clamped element's bit for bit in every float64 pass,
+// and the counts are the scalar ones. (Each of these branches, broken on purpose in the pass,
+// failed this test.)
+TEST(SimdElementPass, ClampedLanesEqualTheScalarClampedElementOnEveryBranch) {
+  uint64_t seed = 4242;
+  auto next = [&seed] {  // uniform in [-0.5, 0.5)
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(seed >> 11) / 9007199254740992.0 - 0.5;
+  };
+  auto random_vec = [&] { return Vec3d{next(), next(), next()}; };
+  std::vector<Mat3d> deformations;
+  auto diag = [](double a, double b, double c) { return Mat3d{{{a, 0, 0}, {0, b, 0}, {0, 0, c}}}; };
+  // The first two on exact geometry (below): F = 0 exactly (no direction to start U from), and
+  // a C = F^T F whose (0, 2) entry is tiny beside C22 - C00 while (0, 1) keeps Jacobi going.
+  deformations.push_back(Mat3d::zero());
+  deformations.push_back(Mat3d{{{1, 0.5, std::ldexp(1.0, -40)}, {0, 0.5, 0}, {0, 0, 64}}});
+  constexpr size_t kExact = 2;
+  deformations.push_back(diag(1, 1, -1));
+  deformations.push_back(diag(-1, -1, -1));
+  deformations.push_back(Mat3d::zero());
+  deformations.push_back(outer(Vec3d{0.3, -0.2, 0.9}, Vec3d{0.5, 0.1, -0.4}));  // rank 1
+  deformations.push_back(outer(Vec3d{1, 0, 0}, Vec3d{0, 1, 0}) +
+                         outer(Vec3d{0, 0.5, 0.2}, Vec3d{0, 0, 1}));  // rank 2
+  deformations.push_back(diag(0.3, 0.3, 0.3));
+  deformations.push_back(diag(-0.5, 0.4, 0.4));
+  deformations.push_back(diag(1e6, 1, 0.1));
+  deformations.push_back(diag(2e3, 1e-3, 0.5));
+  deformations.push_back(rotation({1, 2, 3}, 0.7) * diag(0.5, 0.5, 1.2));
+  for (int i = 0; i < 600; ++i) {
+    const Mat3d rot = rotation(random_vec(), 6 * next());
+    const Mat3d rot2 = rotation(random_vec(), 6 * next());
+    switch (i % 6) {
+      case 0:  // random signed stretches, some below every clamp
+        deformations.push_back(rot * diag(1 + next(), 0.9 + next(), 1.5 * next()) * rot2);
+        break;
+      case 1:  // healthy: within a few % of a rotation
+        deformations.push_back(rot * (Mat3d::identity() + 0.05 * diag(next(), next(), next())));
+        break;
+      case 2:  // one stretch just around the default clamp
+        deformations.push_back(rot * diag(1, 1, kSvkCollapseStretch + 0.02 * next()) * rot2);
+        break;
+      case 3:  // anisotropic
+        deformations.push_back(rot * diag(1e4 * (1 + next()), 0.2 + next(), 1e-3 * next()));
+        break;
+      case 4:  // a rank-1 and a small random part
+        deformations.push_back(outer(random_vec(), random_vec()) +
+                               1e-9 * diag(next(), next(), next()));
+        break;
+      default:  // compressed and sheared
+        deformations.push_back(Mat3d{{{0.2 + next(), next(), 0}, {0, 0.3, next()}, {0, 0, 0.4}}});
+        break;
+    }
+  }
+  // The soup: tetrahedron k's rest shape a random perturbation of the corner tetrahedron with
+  // edge e = 2^-17 m (~kL), its vertices displaced by (F_k - I) X plus an offset; the first
+  // kExact unperturbed and without offset, so that H = F_k - I exactly (powers of two).
+  const double e = std::ldexp(1.0, -17);
+  Mesh mesh;
+  for (size_t k = 0; k < deformations.size(); ++k) {
+    const Vec3d origin{std::ldexp(static_cast<double>(k), -15), 0, 0};
+    const double jitter = k < kExact ? 0.0 : 0.1 * e;
+    const Vec3d corners[4] = {Vec3d{0, 0, 0} + jitter * random_vec(),
+                              Vec3d{e, 0, 0} + jitter * random_vec(),
+                              Vec3d{0, e, 0} + jitter * random_vec(),
+                              Vec3d{0, 0, e} + jitter * random_vec()};
+    const int32_t v0 = static_cast<int32_t>(mesh.rest_positions.size());
+    for (const Vec3d& c : corners) mesh.rest_positions.push_back(origin + c);
+    mesh.tets.push_back(Tet{v0, v0 + 1, v0 + 2, v0 + 3});
+    mesh.tet_region.push_back(0);
+  }
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t k = 0; k < deformations.size(); ++k)
+    for (int c = 0; c < 4; ++c) {
+      const size_t v = 4 * k + static_cast<size_t>(c);
+      const Vec3d x = mesh.rest_positions[v] - mesh.rest_positions[4 * k];
+      const Vec3d offset = k < kExact ? Vec3d{0, 0, 0} : Vec3d{kL, -2 * kL, 0.5 * kL};
+      u[v] = (deformations[k] - Mat3d::identity()) * x + offset;
+    }
+  for (double clamp_stretch : {kSvkCollapseStretch, 0.85, 0.2}) {
+    ModelDesc desc;
+    desc.inversion = InversionHandling::kClampStretch;
+    desc.clamp_stretch = clamp_stretch;
+    const Model m = build_model(mesh, desc).value();
+    const size_t nt = m.tet_count();
+    std::vector<std::array<Vec3d, 4>> ref(nt);
+    int64_t clamped = 0, inverted = 0, collapsing = 0;
+    std::vector<uint32_t> ref_bits(nt);
+    for (size_t t = 0; t < nt; ++t) {
+      scalar_clamped_element(m, t, u, ref[t].data(), &ref_bits[t]);
+      clamped += (ref_bits[t] & kElementClamped) != 0;
+      inverted += (ref_bits[t] & kElementInverted) != 0;
+      collapsing += (ref_bits[t] & kElementCollapsing) != 0;
+    }
+    ASSERT_GT(clamped, static_cast<int64_t>(nt) / 4);
+    ASSERT_LT(clamped, static_cast<int64_t>(nt));
+    const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
+                                                 {true, 512, 32},  {true, 256, 16},
+                                                 {true, 256, 32}};
+    for (const auto& [fused, simd_bits, registers] : passes) {
+      set_cpu_element_fma(fused);
+      if (fused && !cpu_element_fma()) continue;
+      set_cpu_simd_bits(simd_bits);
+      set_cpu_simd_registers(registers);
+      SCOPED_TRACE(::testing::Message()
+                   << "clamp stretch " << clamp_stretch << ", fma " << cpu_element_fma()
+                   << ", simd bits " << cpu_simd_bits() << ", registers " << cpu_simd_registers());
+      State s = loaded_state(m, u, 2);
+      compute_tet_forces(m, s);
+      StepDiagnostics d;
+      reduce_tet_chunks(s, d);
+      for (size_t t = 0; t < nt; ++t) {
+        if (!(ref_bits[t] & kElementClamped)) continue;
+        for (int c = 0; c < 4; ++c) {
+          const Vec3d pass = corner_force(s, t, c);
+          EXPECT_EQ(std::memcmp(&pass, &ref[t][c], sizeof(Vec3d)), 0)
+              << "tet " << t << " corner " << c << ": " << pass.x << " " << pass.y << " "
+              << pass.z << " against " << ref[t][c].x << " " << ref[t][c].y << " "
+              << ref[t][c].z;
+        }
+      }
+      EXPECT_EQ(d.clamped_count, clamped);
+      EXPECT_EQ(d.inverted_count, inverted);
+      EXPECT_EQ(d.collapsing_count, collapsing);
+    }
+  }
+  set_cpu_element_fma(true);
+  set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
+}
+
 // The clamped passes look for clamped elements only where some lane has |H|^2 at or above
 // clamp_check_skip_below_gradient_sq: below it the scalar clamp and health checks must pass for
 // every H, in the worst directions and random ones, for clamp stretches from 0.1 to 0.999; a
