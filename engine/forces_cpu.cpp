@@ -70,15 +70,18 @@ struct PassContext {
 // exactly the scalar operations in the scalar order, so the results are bit-identical to the
 // scalar element functions (tests check it); only the instruction count drops.
 
-// Element math of one batch, as the scalar functions compose it (SvkGradient... above, and
-// kernels/element_eval.h): corner forces f and energy w [J]. Returns |H|^2 (Frobenius) per lane,
-// the health check's filter (batch_pass).
-template <bool kSvk, class P>
+// Element math of one batch, as the scalar functions compose it (kernels/element_eval.h):
+// corner forces f and energy w [J]. Returns |H|^2 (Frobenius) per lane, the health check's
+// filter (batch_pass), and hands it to `filter` as soon as it is formed: the clamped passes
+// test it there, while few packs are live, rather than beside the forces' 12 packs.
+template <bool kSvk, class P, class Filter>
 [[gnu::always_inline]] inline P batch_element_math(const TetShape<P>& shape, P lambda, P mu,
-                                                   const Vec3<P> du[3], Vec3<P> f[4], P* w) {
+                                                   const Vec3<P> du[3], Vec3<P> f[4], P* w,
+                                                   Filter&& filter) {
   const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
   P h_sq = h.m[0][0] * h.m[0][0];
   for (int k = 1; k < 9; ++k) h_sq += h.m[k / 3][k % 3] * h.m[k / 3][k % 3];
+  filter(h_sq);
   P psi;
   Mat3<P> p;
   if constexpr (kSvk) {
@@ -105,9 +108,10 @@ template <bool kSvk, class P>
 // from the trace already formed: tr(E2) = 2 tr(H) + |H|^2 (its rounding, a few ulp of |H|^2 +
 // 4 |tr H|, is far inside the margins of kHealthCheckSkipBelowGradientSq; a NaN or an
 // infinity in H still gives a NaN, which the filter does not pass). E2 and Q are symmetric.
-template <bool kSvk, class P>
+template <bool kSvk, class P, class Filter>
 [[gnu::always_inline]] inline P batch_element_math_fma(const TetShape<P>& shape, P lambda, P mu,
-                                                       const Vec3<P> du[3], Vec3<P> f[4], P* w) {
+                                                       const Vec3<P> du[3], Vec3<P> f[4], P* w,
+                                                       Filter&& filter) {
   const Vec3<P>* g = shape.grad;
   P h[3][3];
   for (int r = 0; r < 3; ++r)
@@ -129,6 +133,7 @@ template <bool kSvk, class P>
     h_sq = h[0][0] * h[0][0];
     for (int k = 1; k < 9; ++k) h_sq = fmadd(h[k / 3][k % 3], h[k / 3][k % 3], h_sq);
   }
+  filter(h_sq);
   const P neg_v = -shape.volume;
   const P k_mu = neg_v * mu;
   const P k_lam = (neg_v * lambda) * P(0.5);
@@ -376,8 +381,42 @@ template <class P>
   return psi;
 }
 
-// The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed, before
-// its corner forces are scattered. The scalar clamped element (kernels/element_eval.h's
+// One batch of a clamped pass for batch_clamp: where it is and where its forces go (in), its
+// energy term (out).
+template <class P>
+struct ClampBatch {
+  const Model* model;
+  const double* u;          // displacements [m], x, y, z per vertex (State::u)
+  const double* rows;       // the batch's Model::cpu_tet_batches rows
+  const int32_t* offsets;   // its Model::cpu_tet_corner_offsets
+  const int32_t* codes;     // its AssemblyPlan::corner_code
+  double* blocks;           // AssemblyPlan::blocks
+  int64_t t0;               // its first tetrahedron
+  int lanes;                // lanes [0, lanes) in the mesh
+  TetChunkResult* result;   // the chunk's counts (added to)
+  P w;                      // energy term [J] (-4 V psi with kFma)
+};
+
+// Scatters a batch's corner forces: all lanes by the pack's own store, or lanes [0, lanes) one
+// by one (the last batch of a chunk). Lane by lane in ascending tetrahedron order either way.
+template <class L>
+[[gnu::always_inline]] inline void store_batch(const Vec3<typename L::Pack> f[4], double* blocks,
+                                               const int32_t* code, int lanes) {
+  if (lanes == L::kLanes) {
+    L::store(f, blocks, code);
+    return;
+  }
+  for (int l = 0; l < lanes; ++l)
+    for (int c = 0; c < 4; ++c)
+      scatter_corner(blocks, code[8 * c + l],
+                     P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
+                        static_cast<double>(f[c].z.v[l]), 0.0));
+}
+
+// The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed: the
+// batch's element math again, as the pass forms it, the clamp, and the scatter. (Formed and
+// scattered here rather than handed over and back: a pass that keeps its forces for such a call
+// keeps them in memory in every batch.) The scalar clamped element (kernels/element_eval.h's
 // kSvkGradientClamped; the CPU's per-tetrahedron pass until the batched passes took it over)
 // clamps where the element is inverted or a stretch is below m.clamp_stretch
 // (tet_health_from_strain at that stretch); the same quantities are formed here lane by lane in
@@ -387,18 +426,21 @@ template <class P>
 // other lanes keep the pass's. Health and clamp counts and first offenders in lane order, as the
 // scalar pass counted them.
 template <class L, bool kFma>
-[[gnu::always_inline]] inline void batch_clamp(const Model& m, const double* ug,
-                                               const typename L::Row* b, const int32_t* o,
-                                               int64_t t0, int lanes,
-                                               Vec3<typename L::Pack> f[4],
-                                               typename L::Pack& w, TetChunkResult& r) {
+[[gnu::always_inline]] inline void batch_clamp(ClampBatch<typename L::Pack>& batch) {
   using P = typename L::Pack;
-  // Reloaded rather than kept from the element math (as the health check does): ~20 more live
-  // packs through the batch would spill.
+  const Model& m = *batch.model;
+  const int64_t t0 = batch.t0;
+  Vec3<P> f[4];
+  P& w = batch.w;
+  TetChunkResult& r = *batch.result;
   TetShape<P> shape;
   P lambda, mu;
   Vec3<P> du[3];
-  L::load(b, ug, o, shape, lambda, mu, du);
+  L::load(batch.rows, batch.u, batch.offsets, shape, lambda, mu, du);
+  if constexpr (kFma)
+    batch_element_math_fma<true>(shape, lambda, mu, du, f, &w, [](const P&) {});
+  else
+    batch_element_math<true>(shape, lambda, mu, du, f, &w, [](const P&) {});
   P det_f, m1, m2, det_a;
   // At the collapse stretch the health minors decide the clamp too.
   const bool own_stretch = m.clamp_stretch != kSvkCollapseStretch;
@@ -410,35 +452,38 @@ template <class L, bool kFma>
     clamp_minors[1] = m2;
     clamp_minors[2] = det_a;
   }
-  // Health at the collapse stretch and the clamp's check: no lane fails either, nothing to do.
-  if (L::template healthy<true>(det_f, m1, m2, det_a) &&
-      L::template healthy<true>(det_f, clamp_minors[0], clamp_minors[1], clamp_minors[2]))
-    return;
-  const auto clamp = ~((det_f.v > 0) & (clamp_minors[0].v > 0) & (clamp_minors[1].v > 0) &
-                       (clamp_minors[2].v > 0));
-  if (!no_lane(clamp)) {
-    // The scalar clamped element, lane by lane: the clamped P, its corner forces and V psi.
-    Mat3<P> p;
-    const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
-    const P psi = batch_svk_first_piola_clamped(h, lambda, mu, P(m.clamp_stretch), &p);
-    Vec3<P> fc[4];
-    tet_forces_from_stress(shape, p, fc);
-    const P wc = shape.volume * psi;
-    for (int c = 0; c < 4; ++c) f[c] = select_lanes(clamp, fc[c], f[c]);
-    // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
-    w = select_lanes(clamp, kFma ? P(-4.0) * wc : wc, w);
-  }
-  for (int l = 0; l < lanes; ++l) {
-    uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
-    if (!(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
-    if (clamp[l]) bits |= kElementClamped;
-    if (bits) {
-      r.health |= bits;
-      if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
-      if ((bits & kElementCollapsing) && r.collapsing_count++ == 0) r.first_collapsing = t0 + l;
-      if (bits & kElementClamped) ++r.clamped_count;
+  // Health at the collapse stretch and the clamp's check: where no lane fails either, the batch
+  // is scattered as the pass formed it.
+  if (!L::template healthy<true>(det_f, m1, m2, det_a) ||
+      !L::template healthy<true>(det_f, clamp_minors[0], clamp_minors[1], clamp_minors[2])) {
+    const auto clamp = ~((det_f.v > 0) & (clamp_minors[0].v > 0) & (clamp_minors[1].v > 0) &
+                         (clamp_minors[2].v > 0));
+    if (!no_lane(clamp)) {
+      // The scalar clamped element, lane by lane: the clamped P, its corner forces and V psi.
+      Mat3<P> p;
+      const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
+      const P psi = batch_svk_first_piola_clamped(h, lambda, mu, P(m.clamp_stretch), &p);
+      Vec3<P> fc[4];
+      tet_forces_from_stress(shape, p, fc);
+      const P wc = shape.volume * psi;
+      for (int c = 0; c < 4; ++c) f[c] = select_lanes(clamp, fc[c], f[c]);
+      // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
+      w = select_lanes(clamp, kFma ? P(-4.0) * wc : wc, w);
+    }
+    for (int l = 0; l < batch.lanes; ++l) {
+      uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
+      if (!(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
+      if (clamp[l]) bits |= kElementClamped;
+      if (bits) {
+        r.health |= bits;
+        if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
+        if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
+          r.first_collapsing = t0 + l;
+        if (bits & kElementClamped) ++r.clamped_count;
+      }
     }
   }
+  store_batch<L>(f, batch.blocks, batch.codes, batch.lanes);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -569,11 +614,14 @@ struct Lanes8f {
 
 // The element pass over chunks [chunk_begin, chunk_end) with batches of L::kLanes tetrahedra:
 // lane by lane the fem_element.h functions in their order, so bit-identical to them, or with
-// kFma batch_element_math_fma (only in functions built for FMA). kClamp (SVK, float64): the
-// inversion-safe SVK, whose clamped lanes batch_clamp replaces by the clamped element's.
-template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
+// kFma batch_element_math_fma (only in functions built for FMA). With kClampBatch (SVK,
+// float64: the inversion-safe SVK) the batches that may hold a clamped lane go through it (a
+// batch_clamp built for the pass's instruction set).
+template <bool kSvk, class L, bool kFma = false,
+          void (*kClampBatch)(ClampBatch<typename L::Pack>&) = nullptr>
 [[gnu::always_inline]] inline void batch_pass(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
+  constexpr bool kClamp = kClampBatch != nullptr;
   static_assert(!kClamp || (kSvk && std::is_same_v<typename L::Row, double>));
   using P = typename L::Pack;
   constexpr int kLanes = L::kLanes;
@@ -624,18 +672,28 @@ template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
       Vec3<P> f[4];
       P w;
       P h_sq;
+      [[maybe_unused]] bool may_clamp = false;  // kClamp: some lane's |H|^2 reaches clamp_bound
+      const auto filter = [&](const P& x) {
+        if constexpr (kClamp) may_clamp = !L::below(x, clamp_bound);
+        (void)x;
+      };
       if constexpr (kFma)
-        h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w);
+        h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w, filter);
       else
-        h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w);
-      // The clamp is decided, and the clamped lanes' forces replaced, before the scatter; the
-      // health counts of this batch with it (the check below is then not needed: clamp_bound is
-      // at most its bound).
-      if constexpr (kClamp)
-        if (!L::below(h_sq, clamp_bound))
-          batch_clamp<L, kFma>(m, ug, b, o, t0, lanes, f, w, r);
+        h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, filter);
+      // kClamp: a batch that may hold a clamped lane is formed again, clamped and scattered by
+      // kClampBatch, which counts its health too (the check below is then not needed:
+      // clamp_bound is at most its bound).
+      if (kClamp && may_clamp) [[unlikely]] {
+        if constexpr (kClamp) {
+          ClampBatch<P> batch{&m, ug, b, o, code, blocks, t0, lanes, &r, P(0.0)};
+          kClampBatch(batch);
+          w = batch.w;
+        }
+      } else {
+        store_batch<L>(f, blocks, code, lanes);
+      }
       if (lanes == kLanes) {
-        L::store(f, blocks, code);
         if constexpr (kFma) {
           L::add_energy4(w, energy4);
         } else {
@@ -649,13 +707,7 @@ template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
             energy4 += half_of(w, 0);
             first_single = 4;
           }
-        for (int l = 0; l < lanes; ++l) {
-          for (int c = 0; c < 4; ++c)
-            scatter_corner(blocks, code[8 * c + l],
-                           P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
-                              static_cast<double>(f[c].z.v[l]), 0.0));
-          if (l >= first_single) energy += static_cast<double>(w.v[l]);
-        }
+        for (int l = first_single; l < lanes; ++l) energy += static_cast<double>(w.v[l]);
       }
       // Health by lane masks (repeated lanes past the end copy a valid lane). Where every lane
       // has |H| <= 0.1 (Frobenius, so spectral too) the checks cannot fail: each singular value
@@ -681,12 +733,24 @@ template <bool kSvk, class L, bool kFma = false, bool kClamp = false>
   }
 }
 
+// The batches of the clamped passes that may hold a clamped lane, one function per pass, built
+// for its instruction set and called, not inlined, and handed no packs: with the ~1000
+// instructions of batch_clamp inlined, every batch of the clamped pass was 27 % slower than in
+// the unclamped pass, none clamped (the hot loop's registers and layout; 12 % with a scalar
+// call per clamped lane); called with the batch's forces handed over and back, 8-15 %
+// (they were kept in memory); as here, as fast (one thread, 20k-vertex mouse_oocyte at rest).
+// They run for a few % of the batches.
+__attribute__((noinline)) ZONA_SIMD_CLONES void clamp_batch_f64(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4d, false>(batch);
+}
+
 // GCC builds an AVX2 clone and a baseline clone of these two and picks one at load time; FMA is
 // left out on purpose, because contracting a*b+c would change the bits between the clones. The
 // float64 one runs where the fused pass below does not (CPU without FMA, or ZONA_CPU_FMA=0).
 template <bool kSvk, bool kClamp = false>
 ZONA_SIMD_CLONES void tet_pass_chunks_f64(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4d, false, kClamp>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4d, false, kClamp ? &clamp_batch_f64 : nullptr>(context, chunk_begin,
+                                                                       chunk_end);
 }
 
 template <bool kSvk>
@@ -807,29 +871,49 @@ struct Lanes8d {
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, so that a * b + c
 // fuses exactly where batch_element_math_fma says (kFma) and nowhere else (the health checks;
 // without kFma the bits of the other passes).
+template <bool kFma>
+__attribute__((target("avx512f"), optimize("fp-contract=off"), flatten, noinline)) void
+clamp_batch_avx512(ClampBatch<P8d>& batch) {
+  batch_clamp<Lanes8d, kFma>(batch);
+}
+
 template <bool kSvk, bool kFma, bool kClamp = false>
 __attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes8d, kFma, kClamp>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes8d, kFma, kClamp ? &clamp_batch_avx512<kFma> : nullptr>(
+      context, chunk_begin, chunk_end);
 }
 
 // Four float64 lanes with AVX2 and FMA: the same fused operations in the same order as the
 // AVX-512 FMA pass, so the same bits. Chosen at run time (cpu_element_fma()); CPUs without FMA
 // run tet_pass_chunks_f64 (bit-identical to fem_element.h).
+__attribute__((target("avx2,fma"), optimize("fp-contract=off"), flatten, noinline)) void
+clamp_batch_fma(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4dFma, true>(batch);
+}
+
 template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dFma, true, kClamp>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dFma, true, kClamp ? &clamp_batch_fma : nullptr>(context, chunk_begin,
+                                                                          chunk_end);
 }
 
 // The same four-lane fused pass encoded with AVX-512VL, on CPUs that have it (cpu_simd_registers()
 // == 32): still 256-bit vectors (no 512-bit frequency licence), but 32 vector registers instead of
 // 16, so the batch's ~40 live packs stop spilling (~50 fewer loads and stores per batch of four:
 // docs/performance.md, "Fifth round"). The same operations in the same order: the same bits.
+__attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten,
+               noinline)) void
+clamp_batch_fma32(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4dVl, true>(batch);
+}
+
 template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma32(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dVl, true, kClamp>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dVl, true, kClamp ? &clamp_batch_fma32 : nullptr>(context, chunk_begin,
+                                                                           chunk_end);
 }
 #endif
 
