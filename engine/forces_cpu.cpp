@@ -18,32 +18,9 @@
 namespace zona {
 namespace {
 
-// One element evaluation per formulation: forces f[4] [N] written, energy [J] returned,
-// ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h.
-
-struct SvkGradientClamped {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    const TetShape<double>& s = m.tet_shape[t];
-    const Lame& l = m.tet_lame(t);
-    const Mat3d h = tet_displacement_gradient(s, u);
-    const Mat3d e = green_strain(h);
-    *bits = tet_health_from_strain(h, e);
-    const bool clamp = m.clamp_stretch == kSvkCollapseStretch
-                           ? *bits != 0
-                           : tet_health_from_strain(h, e, m.clamp_stretch) != 0;
-    double psi;
-    Mat3d p;
-    if (clamp) {
-      psi = svk_first_piola_clamped(h, l.lambda, l.mu, m.clamp_stretch, &p);
-      *bits |= kElementClamped;
-    } else {
-      const Mat3d stress = isotropic_stress(e, l.lambda, l.mu, &psi);
-      p = stress + h * stress;
-    }
-    tet_forces_from_stress(s, p, f);
-    return s.volume * psi;
-  }
-};
+// One element evaluation per tensor formulation: forces f[4] [N] written, energy [J] returned,
+// ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h. (The gradient form,
+// the inversion-safe SVK included, runs in the batched passes below.)
 
 // Health for the tensor forms: they never form H, so it is formed here for the checks only.
 inline uint32_t tensor_form_health(const Model& m, size_t t, const Vec3d u[4]) {
@@ -93,15 +70,18 @@ struct PassContext {
 // exactly the scalar operations in the scalar order, so the results are bit-identical to the
 // scalar element functions (tests check it); only the instruction count drops.
 
-// Element math of one batch, as the scalar functions compose it (SvkGradient... above, and
-// kernels/element_eval.h): corner forces f and energy w [J]. Returns |H|^2 (Frobenius) per lane,
-// the health check's filter (batch_pass).
-template <bool kSvk, class P>
+// Element math of one batch, as the scalar functions compose it (kernels/element_eval.h):
+// corner forces f and energy w [J]. Returns |H|^2 (Frobenius) per lane, the health check's
+// filter (batch_pass), and hands it to `filter` as soon as it is formed: the clamped passes
+// test it there, while few packs are live, rather than beside the forces' 12 packs.
+template <bool kSvk, class P, class Filter>
 [[gnu::always_inline]] inline P batch_element_math(const TetShape<P>& shape, P lambda, P mu,
-                                                   const Vec3<P> du[3], Vec3<P> f[4], P* w) {
+                                                   const Vec3<P> du[3], Vec3<P> f[4], P* w,
+                                                   Filter&& filter) {
   const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
   P h_sq = h.m[0][0] * h.m[0][0];
   for (int k = 1; k < 9; ++k) h_sq += h.m[k / 3][k % 3] * h.m[k / 3][k % 3];
+  filter(h_sq);
   P psi;
   Mat3<P> p;
   if constexpr (kSvk) {
@@ -128,9 +108,10 @@ template <bool kSvk, class P>
 // from the trace already formed: tr(E2) = 2 tr(H) + |H|^2 (its rounding, a few ulp of |H|^2 +
 // 4 |tr H|, is far inside the margins of kHealthCheckSkipBelowGradientSq; a NaN or an
 // infinity in H still gives a NaN, which the filter does not pass). E2 and Q are symmetric.
-template <bool kSvk, class P>
+template <bool kSvk, class P, class Filter>
 [[gnu::always_inline]] inline P batch_element_math_fma(const TetShape<P>& shape, P lambda, P mu,
-                                                       const Vec3<P> du[3], Vec3<P> f[4], P* w) {
+                                                       const Vec3<P> du[3], Vec3<P> f[4], P* w,
+                                                       Filter&& filter) {
   const Vec3<P>* g = shape.grad;
   P h[3][3];
   for (int r = 0; r < 3; ++r)
@@ -152,6 +133,7 @@ template <bool kSvk, class P>
     h_sq = h[0][0] * h[0][0];
     for (int k = 1; k < 9; ++k) h_sq = fmadd(h[k / 3][k % 3], h[k / 3][k % 3], h_sq);
   }
+  filter(h_sq);
   const P neg_v = -shape.volume;
   const P k_mu = neg_v * mu;
   const P k_lam = (neg_v * lambda) * P(0.5);
@@ -181,26 +163,40 @@ template <bool kSvk, class P>
   return h_sq;
 }
 
+// The three leading minors of C - s^2 I = 2E + (1 - s^2) I, as tet_health_from_strain forms
+// them: all positive iff every principal stretch exceeds s.
+template <class P>
+[[gnu::always_inline]] inline void batch_stretch_minors(const Mat3<P>& e, P stretch, P* m1, P* m2,
+                                                        P* det_a) {
+  Mat3<P> a = P(2) * e;
+  const P shift = P(1) - stretch * stretch;
+  for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
+  *m1 = a.m[0][0];
+  *m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
+  *det_a = determinant(a);
+}
+
 // The quantities tet_health_from_strain tests, in its order: det F and, for SVK, the three
-// leading minors of C - s^2 I (s the collapse stretch).
+// leading minors of C - s^2 I (s the collapse stretch). Where `clamp_minors` is given (three
+// packs), also the minors at `clamp_stretch`, which decide the clamped SVK's clamp when that
+// stretch is not the collapse stretch.
 template <bool kSvk, class P>
 [[gnu::always_inline]] inline void batch_health_values(const TetShape<P>& shape,
                                                        const Vec3<P> du[3], P* det_f, P* m1,
-                                                       P* m2, P* det_a) {
+                                                       P* m2, P* det_a, double clamp_stretch = 0,
+                                                       P* clamp_minors = nullptr) {
   const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
   if constexpr (kSvk) {
     const Mat3<P> e = green_strain(h);
     Mat3<P> fm = h;
     for (int i = 0; i < 3; ++i) fm.m[i][i] += P(1);
     *det_f = determinant(fm);
-    Mat3<P> a = P(2) * e;
-    const P shift = P(1) - P(kSvkCollapseStretch) * P(kSvkCollapseStretch);
-    for (int i = 0; i < 3; ++i) a.m[i][i] += shift;
-    *m1 = a.m[0][0];
-    *m2 = a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0];
-    *det_a = determinant(a);
+    batch_stretch_minors(e, P(kSvkCollapseStretch), m1, m2, det_a);
+    if (clamp_minors)
+      batch_stretch_minors(e, P(clamp_stretch), &clamp_minors[0], &clamp_minors[1],
+                           &clamp_minors[2]);
   } else {
-    (void)m1, (void)m2, (void)det_a;
+    (void)m1, (void)m2, (void)det_a, (void)clamp_stretch, (void)clamp_minors;
     *det_f = determinant(Mat3<P>::identity() + h);
   }
 }
@@ -244,6 +240,250 @@ void batch_health_slow(const P& det_f, const P& m1, const P& m2, const P& det_a,
         r.first_collapsing = t0 + l;
     }
   }
+}
+
+// Lane-wise helpers for the clamped SVK below: a where the mask holds, else b; the square root of
+// each lane (correctly rounded, as std::sqrt); whether no lane of a mask holds.
+template <class P, class M>
+[[gnu::always_inline]] inline P select_lanes(M mask, P a, P b) {
+  P r;
+  r.v = mask ? a.v : b.v;
+  return r;
+}
+template <class P, class M>
+[[gnu::always_inline]] inline Vec3<P> select_lanes(M mask, const Vec3<P>& a, const Vec3<P>& b) {
+  return Vec3<P>{select_lanes(mask, a.x, b.x), select_lanes(mask, a.y, b.y),
+                 select_lanes(mask, a.z, b.z)};
+}
+// x86-64: two 128-bit square roots (SSE2), where std::sqrt lane by lane would store every lane and
+// test it for errno.
+[[gnu::always_inline]] inline P4 sqrt_lanes(P4 a) {
+  P4 r;
+#if defined(__x86_64__)
+  const V2 lo = __builtin_shufflevector(a.v, a.v, 0, 1);
+  const V2 hi = __builtin_shufflevector(a.v, a.v, 2, 3);
+  r.v = __builtin_shufflevector(V2(_mm_sqrt_pd(lo)), V2(_mm_sqrt_pd(hi)), 0, 1, 2, 3);
+#else
+  for (int l = 0; l < 4; ++l) r.v[l] = std::sqrt(a.v[l]);
+#endif
+  return r;
+}
+[[gnu::always_inline]] inline P8d sqrt_lanes(P8d a) {
+  return concat(sqrt_lanes(half_of(a, 0)), sqrt_lanes(half_of(a, 1)));
+}
+template <class M>
+[[gnu::always_inline]] inline bool no_lane(M mask) {
+  return all_lanes(mask == 0);
+}
+
+// svk_first_piola_clamped (fem_element.h) on every lane of a pack: each lane performs the scalar
+// function's operations in its order, and where the scalar function branches on a value the
+// pack forms both sides and keeps the lane's (a Jacobi rotation a lane has finished or skips,
+// the overflow-safe tangent, the sort, the reflection, the Gram-Schmidt fallback). So each
+// lane's P and energy density are the scalar function's bits (forces_simd_test checks it on
+// inverted, collapsed, degenerate and random elements). Keep the two in step.
+template <class P>
+[[gnu::always_inline]] inline P batch_svk_first_piola_clamped(const Mat3<P>& h, P lambda, P mu,
+                                                              P stretch_min, Mat3<P>* p) {
+  using Mask = decltype(P{}.v > P{}.v);
+  Mat3<P> f = h;
+  for (int i = 0; i < 3; ++i) f.m[i][i] += P(1);
+  // symmetric_eigen3(F^T F): `active` lanes have not left the sweep loop.
+  Mat3<P> a = transpose(f) * f;
+  Mat3<P> v = Mat3<P>::identity();
+  Mask active = P(0.0).v == P(0.0).v;
+  for (int sweep = 0; sweep < 8; ++sweep) {
+    const P off = a.m[0][1] * a.m[0][1] + a.m[0][2] * a.m[0][2] + a.m[1][2] * a.m[1][2];
+    const P diag = a.m[0][0] * a.m[0][0] + a.m[1][1] * a.m[1][1] + a.m[2][2] * a.m[2][2];
+    active &= off.v > (P(1e-30) * diag).v;
+    if (no_lane(active)) break;
+    for (int pq = 0; pq < 3; ++pq) {
+      const int pi = pq == 2 ? 1 : 0;
+      const int qi = pq == 0 ? 1 : 2;
+      const P apq = a.m[pi][qi];
+      const Mask rotate = active & (apq.v != 0);
+      if (no_lane(rotate)) continue;
+      const P theta = (a.m[qi][qi] - a.m[pi][pi]) / (P(2) * apq);
+      const P at = select_lanes(theta.v < 0, -theta, theta);
+      P t = P(1) / (at + sqrt_lanes(theta * theta + P(1)));
+      const Mask large = at.v > 1e15;
+      if (!no_lane(large)) t = select_lanes(large, P(0.5) / at, t);
+      t = select_lanes(theta.v < 0, -t, t);
+      const P c = P(1) / sqrt_lanes(t * t + P(1));
+      const P sn = t * c;
+      a.m[pi][pi] = select_lanes(rotate, a.m[pi][pi] - t * apq, a.m[pi][pi]);
+      a.m[qi][qi] = select_lanes(rotate, a.m[qi][qi] + t * apq, a.m[qi][qi]);
+      a.m[pi][qi] = select_lanes(rotate, P(0), a.m[pi][qi]);
+      a.m[qi][pi] = select_lanes(rotate, P(0), a.m[qi][pi]);
+      const int r = 3 - pi - qi;
+      const P arp = a.m[r][pi], arq = a.m[r][qi];
+      const P rp = c * arp - sn * arq, rq = sn * arp + c * arq;
+      a.m[r][pi] = select_lanes(rotate, rp, a.m[r][pi]);
+      a.m[pi][r] = select_lanes(rotate, rp, a.m[pi][r]);
+      a.m[r][qi] = select_lanes(rotate, rq, a.m[r][qi]);
+      a.m[qi][r] = select_lanes(rotate, rq, a.m[qi][r]);
+      for (int i = 0; i < 3; ++i) {
+        const P vip = v.m[i][pi], viq = v.m[i][qi];
+        v.m[i][pi] = select_lanes(rotate, c * vip - sn * viq, vip);
+        v.m[i][qi] = select_lanes(rotate, sn * vip + c * viq, viq);
+      }
+    }
+  }
+  // Descending eigenvalues with their vectors: the scalar bubble sort's swaps, lane by lane.
+  P ev[3] = {a.m[0][0], a.m[1][1], a.m[2][2]};
+  Vec3<P> vc[3];
+  for (int i = 0; i < 3; ++i) vc[i] = Vec3<P>{v.m[0][i], v.m[1][i], v.m[2][i]};
+  for (int i = 0; i < 2; ++i)
+    for (int j = 0; j < 2 - i; ++j) {
+      const Mask swap = ev[j].v < ev[j + 1].v;
+      const P e0 = ev[j], e1 = ev[j + 1];
+      const Vec3<P> c0 = vc[j], c1 = vc[j + 1];
+      ev[j] = select_lanes(swap, e1, e0);
+      ev[j + 1] = select_lanes(swap, e0, e1);
+      vc[j] = select_lanes(swap, c1, c0);
+      vc[j + 1] = select_lanes(swap, c0, c1);
+    }
+  vc[2] = select_lanes(dot(vc[0], cross(vc[1], vc[2])).v < 0, -vc[2], vc[2]);
+  Vec3<P> fv[3];
+  for (int i = 0; i < 3; ++i) fv[i] = f * vc[i];
+  Vec3<P> uc[3];
+  const P n0 = sqrt_lanes(dot(fv[0], fv[0]));
+  const Mask n0_positive = n0.v > 0;
+  uc[0] = select_lanes(n0_positive, fv[0] / n0, Vec3<P>{P(1), P(0), P(0)});
+  Vec3<P> w = fv[1] - dot(uc[0], fv[1]) * uc[0];
+  P n1 = sqrt_lanes(dot(w, w));
+  const Mask degenerate = ~(n1.v > (P(1e-7) * select_lanes(n0_positive, n0, P(1))).v);
+  if (!no_lane(degenerate)) {
+    const Mask middle = (uc[0].x.v < 0.5) & (uc[0].x.v > -0.5);
+    const Vec3<P> w2 = cross(uc[0], select_lanes(middle, Vec3<P>{P(1), P(0), P(0)},
+                                                 Vec3<P>{P(0), P(1), P(0)}));
+    w = select_lanes(degenerate, w2, w);
+    n1 = select_lanes(degenerate, sqrt_lanes(dot(w2, w2)), n1);
+  }
+  uc[1] = w / n1;
+  uc[2] = cross(uc[0], uc[1]);
+  P sig[3], sh[3], eh[3];
+  P tr = P(0);
+  for (int i = 0; i < 3; ++i) {
+    sig[i] = dot(uc[i], fv[i]);
+    sh[i] = select_lanes(sig[i].v > stretch_min.v, sig[i], stretch_min);
+    eh[i] = P(0.5) * (sh[i] * sh[i] - P(1));
+    tr += eh[i];
+  }
+  P psi = P(0.5) * lambda * tr * tr;
+  Mat3<P> out = Mat3<P>::zero();
+  for (int i = 0; i < 3; ++i) {
+    const P pi = sh[i] * (lambda * tr + P(2) * mu * eh[i]);
+    psi += mu * eh[i] * eh[i] + pi * (sig[i] - sh[i]);
+    out = out + pi * outer(uc[i], vc[i]);
+  }
+  *p = out;
+  return psi;
+}
+
+// One batch of a clamped pass for batch_clamp: where it is and where its forces go (in), its
+// energy term (out).
+template <class P>
+struct ClampBatch {
+  const Model* model;
+  const double* u;          // displacements [m], x, y, z per vertex (State::u)
+  const double* rows;       // the batch's Model::cpu_tet_batches rows
+  const int32_t* offsets;   // its Model::cpu_tet_corner_offsets
+  const int32_t* codes;     // its AssemblyPlan::corner_code
+  double* blocks;           // AssemblyPlan::blocks
+  int64_t t0;               // its first tetrahedron
+  int lanes;                // lanes [0, lanes) in the mesh
+  TetChunkResult* result;   // the chunk's counts (added to)
+  P w;                      // energy term [J] (-4 V psi with kFma)
+};
+
+// Scatters a batch's corner forces: all lanes by the pack's own store, or lanes [0, lanes) one
+// by one (the last batch of a chunk). Lane by lane in ascending tetrahedron order either way.
+template <class L>
+[[gnu::always_inline]] inline void store_batch(const Vec3<typename L::Pack> f[4], double* blocks,
+                                               const int32_t* code, int lanes) {
+  if (lanes == L::kLanes) {
+    L::store(f, blocks, code);
+    return;
+  }
+  for (int l = 0; l < lanes; ++l)
+    for (int c = 0; c < 4; ++c)
+      scatter_corner(blocks, code[8 * c + l],
+                     P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
+                        static_cast<double>(f[c].z.v[l]), 0.0));
+}
+
+// The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed: the
+// batch's element math again, as the pass forms it, the clamp, and the scatter. (Formed and
+// scattered here rather than handed over and back: a pass that keeps its forces for such a call
+// keeps them in memory in every batch.) The scalar clamped element (kernels/element_eval.h's
+// kSvkGradientClamped; the CPU's per-tetrahedron pass until the batched passes took it over)
+// clamps where the element is inverted or a stretch is below m.clamp_stretch
+// (tet_health_from_strain at that stretch); the same quantities are formed here lane by lane in
+// the scalar order, so the decision is the same. Where some lane is clamped the clamped stress
+// is formed for the whole batch (batch_svk_first_piola_clamped) and the clamped lanes take its
+// forces and energy in place of the pass's (w: the pass's energy term, -4 V psi with kFma); the
+// other lanes keep the pass's. Health and clamp counts and first offenders in lane order, as the
+// scalar pass counted them.
+template <class L, bool kFma>
+[[gnu::always_inline]] inline void batch_clamp(ClampBatch<typename L::Pack>& batch) {
+  using P = typename L::Pack;
+  const Model& m = *batch.model;
+  const int64_t t0 = batch.t0;
+  Vec3<P> f[4];
+  P& w = batch.w;
+  TetChunkResult& r = *batch.result;
+  TetShape<P> shape;
+  P lambda, mu;
+  Vec3<P> du[3];
+  L::load(batch.rows, batch.u, batch.offsets, shape, lambda, mu, du);
+  if constexpr (kFma)
+    batch_element_math_fma<true>(shape, lambda, mu, du, f, &w, [](const P&) {});
+  else
+    batch_element_math<true>(shape, lambda, mu, du, f, &w, [](const P&) {});
+  P det_f, m1, m2, det_a;
+  // At the collapse stretch the health minors decide the clamp too.
+  const bool own_stretch = m.clamp_stretch != kSvkCollapseStretch;
+  P clamp_minors[3];
+  batch_health_values<true>(shape, du, &det_f, &m1, &m2, &det_a, m.clamp_stretch,
+                            own_stretch ? clamp_minors : nullptr);
+  if (!own_stretch) {
+    clamp_minors[0] = m1;
+    clamp_minors[1] = m2;
+    clamp_minors[2] = det_a;
+  }
+  // Health at the collapse stretch and the clamp's check: where no lane fails either, the batch
+  // is scattered as the pass formed it.
+  if (!L::template healthy<true>(det_f, m1, m2, det_a) ||
+      !L::template healthy<true>(det_f, clamp_minors[0], clamp_minors[1], clamp_minors[2])) {
+    const auto clamp = ~((det_f.v > 0) & (clamp_minors[0].v > 0) & (clamp_minors[1].v > 0) &
+                         (clamp_minors[2].v > 0));
+    if (!no_lane(clamp)) {
+      // The scalar clamped element, lane by lane: the clamped P, its corner forces and V psi.
+      Mat3<P> p;
+      const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
+      const P psi = batch_svk_first_piola_clamped(h, lambda, mu, P(m.clamp_stretch), &p);
+      Vec3<P> fc[4];
+      tet_forces_from_stress(shape, p, fc);
+      const P wc = shape.volume * psi;
+      for (int c = 0; c < 4; ++c) f[c] = select_lanes(clamp, fc[c], f[c]);
+      // kFma: -4 V psi, exactly (a power of two), as batch_pass scales the sum back by -1/4.
+      w = select_lanes(clamp, kFma ? P(-4.0) * wc : wc, w);
+    }
+    for (int l = 0; l < batch.lanes; ++l) {
+      uint32_t bits = det_f.v[l] > 0 ? 0u : uint32_t{kElementInverted};
+      if (!(m1.v[l] > 0 && m2.v[l] > 0 && det_a.v[l] > 0)) bits |= kElementCollapsing;
+      if (clamp[l]) bits |= kElementClamped;
+      if (bits) {
+        r.health |= bits;
+        if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
+        if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
+          r.first_collapsing = t0 + l;
+        if (bits & kElementClamped) ++r.clamped_count;
+      }
+    }
+  }
+  store_batch<L>(f, batch.blocks, batch.codes, batch.lanes);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -374,16 +614,24 @@ struct Lanes8f {
 
 // The element pass over chunks [chunk_begin, chunk_end) with batches of L::kLanes tetrahedra:
 // lane by lane the fem_element.h functions in their order, so bit-identical to them, or with
-// kFma batch_element_math_fma (only in functions built for FMA).
-template <bool kSvk, class L, bool kFma = false>
+// kFma batch_element_math_fma (only in functions built for FMA). With kClampBatch (SVK,
+// float64: the inversion-safe SVK) the batches that may hold a clamped lane go through it (a
+// batch_clamp built for the pass's instruction set).
+template <bool kSvk, class L, bool kFma = false,
+          void (*kClampBatch)(ClampBatch<typename L::Pack>&) = nullptr>
 [[gnu::always_inline]] inline void batch_pass(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
+  constexpr bool kClamp = kClampBatch != nullptr;
+  static_assert(!kClamp || (kSvk && std::is_same_v<typename L::Row, double>));
   using P = typename L::Pack;
   constexpr int kLanes = L::kLanes;
   const Model& m = *static_cast<PassContext*>(context)->model;
   State& s = *static_cast<PassContext*>(context)->state;
   const int64_t nt = static_cast<int64_t>(m.tet_count());
   const double* ug = &s.u.data()->x;
+  // kClamp: below this |H|^2 in every lane no lane is clamped, inverted or collapsing
+  // (clamp_check_skip_below_gradient_sq; it is at most kHealthCheckSkipBelowGradientSq).
+  const double clamp_bound = kClamp ? clamp_check_skip_below_gradient_sq(m.clamp_stretch) : 0.0;
   double* blocks = s.assembly.blocks.data();
   const int32_t* codes = s.assembly.corner_code.data();
   const typename L::Row* rows = L::rows(m);
@@ -424,12 +672,28 @@ template <bool kSvk, class L, bool kFma = false>
       Vec3<P> f[4];
       P w;
       P h_sq;
+      [[maybe_unused]] bool may_clamp = false;  // kClamp: some lane's |H|^2 reaches clamp_bound
+      const auto filter = [&](const P& x) {
+        if constexpr (kClamp) may_clamp = !L::below(x, clamp_bound);
+        (void)x;
+      };
       if constexpr (kFma)
-        h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w);
+        h_sq = batch_element_math_fma<kSvk>(shape, lambda, mu, du, f, &w, filter);
       else
-        h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w);
+        h_sq = batch_element_math<kSvk>(shape, lambda, mu, du, f, &w, filter);
+      // kClamp: a batch that may hold a clamped lane is formed again, clamped and scattered by
+      // kClampBatch, which counts its health too (the check below is then not needed:
+      // clamp_bound is at most its bound).
+      if (kClamp && may_clamp) [[unlikely]] {
+        if constexpr (kClamp) {
+          ClampBatch<P> batch{&m, ug, b, o, code, blocks, t0, lanes, &r, P(0.0)};
+          kClampBatch(batch);
+          w = batch.w;
+        }
+      } else {
+        store_batch<L>(f, blocks, code, lanes);
+      }
       if (lanes == kLanes) {
-        L::store(f, blocks, code);
         if constexpr (kFma) {
           L::add_energy4(w, energy4);
         } else {
@@ -443,13 +707,7 @@ template <bool kSvk, class L, bool kFma = false>
             energy4 += half_of(w, 0);
             first_single = 4;
           }
-        for (int l = 0; l < lanes; ++l) {
-          for (int c = 0; c < 4; ++c)
-            scatter_corner(blocks, code[8 * c + l],
-                           P4(static_cast<double>(f[c].x.v[l]), static_cast<double>(f[c].y.v[l]),
-                              static_cast<double>(f[c].z.v[l]), 0.0));
-          if (l >= first_single) energy += static_cast<double>(w.v[l]);
-        }
+        for (int l = first_single; l < lanes; ++l) energy += static_cast<double>(w.v[l]);
       }
       // Health by lane masks (repeated lanes past the end copy a valid lane). Where every lane
       // has |H| <= 0.1 (Frobenius, so spectral too) the checks cannot fail: each singular value
@@ -457,8 +715,8 @@ template <bool kSvk, class L, bool kFma = false>
       // and every principal stretch exceeds 0.9 > 1/sqrt(3), with margins (det F >= 0.73, the
       // minors of C - s^2 I >= 0.1) that rounding cannot eat. The exact quantities are only
       // formed where some lane is larger: the same flags as always evaluating them, for 17
-      // operations per batch instead of ~45 (of ~300).
-      if (!L::below(h_sq, kHealthCheckSkipBelowGradientSq)) {
+      // operations per batch instead of ~45 (of ~300). kClamp: batch_clamp has counted them.
+      if (!kClamp && !L::below(h_sq, kHealthCheckSkipBelowGradientSq)) {
         L::load(b, ug, o, shape, lambda, mu, du);
         P det_f, m1(0.0), m2(0.0), det_a(0.0);
         batch_health_values<kSvk>(shape, du, &det_f, &m1, &m2, &det_a);
@@ -475,12 +733,24 @@ template <bool kSvk, class L, bool kFma = false>
   }
 }
 
+// The batches of the clamped passes that may hold a clamped lane, one function per pass, built
+// for its instruction set and called, not inlined, and handed no packs: with the ~1000
+// instructions of batch_clamp inlined, every batch of the clamped pass was 27 % slower than in
+// the unclamped pass, none clamped (the hot loop's registers and layout; 12 % with a scalar
+// call per clamped lane); called with the batch's forces handed over and back, 8-15 %
+// (they were kept in memory); as here, as fast (one thread, 20k-vertex mouse_oocyte at rest).
+// They run for a few % of the batches.
+__attribute__((noinline)) ZONA_SIMD_CLONES void clamp_batch_f64(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4d, false>(batch);
+}
+
 // GCC builds an AVX2 clone and a baseline clone of these two and picks one at load time; FMA is
 // left out on purpose, because contracting a*b+c would change the bits between the clones. The
 // float64 one runs where the fused pass below does not (CPU without FMA, or ZONA_CPU_FMA=0).
-template <bool kSvk>
+template <bool kSvk, bool kClamp = false>
 ZONA_SIMD_CLONES void tet_pass_chunks_f64(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4d>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4d, false, kClamp ? &clamp_batch_f64 : nullptr>(context, chunk_begin,
+                                                                       chunk_end);
 }
 
 template <bool kSvk>
@@ -601,19 +871,32 @@ struct Lanes8d {
 // AVX-512F brings FMA for 512-bit vectors: contraction is switched off here, so that a * b + c
 // fuses exactly where batch_element_math_fma says (kFma) and nowhere else (the health checks;
 // without kFma the bits of the other passes).
-template <bool kSvk, bool kFma>
+template <bool kFma>
+__attribute__((target("avx512f"), optimize("fp-contract=off"), flatten, noinline)) void
+clamp_batch_avx512(ClampBatch<P8d>& batch) {
+  batch_clamp<Lanes8d, kFma>(batch);
+}
+
+template <bool kSvk, bool kFma, bool kClamp = false>
 __attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes8d, kFma>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes8d, kFma, kClamp ? &clamp_batch_avx512<kFma> : nullptr>(
+      context, chunk_begin, chunk_end);
 }
 
 // Four float64 lanes with AVX2 and FMA: the same fused operations in the same order as the
 // AVX-512 FMA pass, so the same bits. Chosen at run time (cpu_element_fma()); CPUs without FMA
 // run tet_pass_chunks_f64 (bit-identical to fem_element.h).
-template <bool kSvk>
+__attribute__((target("avx2,fma"), optimize("fp-contract=off"), flatten, noinline)) void
+clamp_batch_fma(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4dFma, true>(batch);
+}
+
+template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dFma, true>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dFma, true, kClamp ? &clamp_batch_fma : nullptr>(context, chunk_begin,
+                                                                          chunk_end);
 }
 
 // The same four-lane fused pass encoded with AVX-512VL, on CPUs that have it (cpu_simd_registers()
@@ -621,10 +904,17 @@ tet_pass_chunks_f64_fma(void* context, int64_t chunk_begin, int64_t chunk_end) {
 // 16, so the batch's ~40 live packs stop spilling (~50 fewer loads and stores per batch of four;
 // docs/performance.md, "CPU fused SIMD element pass"). The same operations in the same order:
 // the same bits.
-template <bool kSvk>
+__attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten,
+               noinline)) void
+clamp_batch_fma32(ClampBatch<P4>& batch) {
+  batch_clamp<Lanes4dVl, true>(batch);
+}
+
+template <bool kSvk, bool kClamp = false>
 __attribute__((target("avx2,fma,avx512f,avx512vl"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_f64_fma32(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass<kSvk, Lanes4dVl, true>(context, chunk_begin, chunk_end);
+  batch_pass<kSvk, Lanes4dVl, true, kClamp ? &clamp_batch_fma32 : nullptr>(context, chunk_begin,
+                                                                           chunk_end);
 }
 #endif
 
@@ -666,28 +956,30 @@ void tet_pass_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
   }
 }
 
+// The float64 gradient-form pass for this CPU and the settings (cpu_element_fma(),
+// cpu_simd_bits(), cpu_simd_registers()).
+template <bool kSvk, bool kClamp>
+ThreadPool::ChunkFn select_f64_pass() {
+#ifdef ZONA_HAVE_AVX512_PASS
+  if (cpu_element_fma()) {
+    if (cpu_simd_bits() >= 512) return &tet_pass_chunks_f64_avx512<kSvk, true, kClamp>;
+    if (cpu_simd_registers() >= 32) return &tet_pass_chunks_f64_fma32<kSvk, kClamp>;
+    return &tet_pass_chunks_f64_fma<kSvk, kClamp>;
+  }
+  if (cpu_simd_bits() >= 512) return &tet_pass_chunks_f64_avx512<kSvk, false, kClamp>;
+#endif
+  return &tet_pass_chunks_f64<kSvk, kClamp>;
+}
+
 ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
     case Formulation::kGradient:
       if (m.element_precision == ElementPrecision::kFloat32)  // build_model: no clamp then
         return svk ? &tet_pass_chunks_f32<true> : &tet_pass_chunks_f32<false>;
-      if (svk && m.inversion == InversionHandling::kClampStretch)
-        return &tet_pass_chunks<SvkGradientClamped>;
-#ifdef ZONA_HAVE_AVX512_PASS
-      if (cpu_element_fma()) {
-        if (cpu_simd_bits() >= 512)
-          return svk ? &tet_pass_chunks_f64_avx512<true, true>
-                     : &tet_pass_chunks_f64_avx512<false, true>;
-        if (cpu_simd_registers() >= 32)
-          return svk ? &tet_pass_chunks_f64_fma32<true> : &tet_pass_chunks_f64_fma32<false>;
-        return svk ? &tet_pass_chunks_f64_fma<true> : &tet_pass_chunks_f64_fma<false>;
-      }
-      if (cpu_simd_bits() >= 512)
-        return svk ? &tet_pass_chunks_f64_avx512<true, false>
-                   : &tet_pass_chunks_f64_avx512<false, false>;
-#endif
-      return svk ? &tet_pass_chunks_f64<true> : &tet_pass_chunks_f64<false>;
+      if (!svk) return select_f64_pass<false, false>();
+      if (m.inversion == InversionHandling::kClampStretch) return select_f64_pass<true, true>();
+      return select_f64_pass<true, false>();
     case Formulation::kTensorStored:
       return svk ? &tet_pass_chunks<SvkTensorStored> : &tet_pass_chunks<LinearTensorStored>;
     case Formulation::kTensorRebuilt:

@@ -56,6 +56,20 @@ void set_cpu_element_fma(bool on);
 /// functions), so the flags are those of always checking.
 inline constexpr double kHealthCheckSkipBelowGradientSq = 0.01;
 
+/// The clamped SVK (InversionHandling::kClampStretch) runs in the batched float64 passes, which
+/// look for elements to clamp only in batches where some lane has |H|^2 at or above this bound
+/// [-]. Below it every principal stretch exceeds 1 - |H| > (1 + clamp_stretch) / 2 and 0.9, so
+/// no element is clamped, inverted or collapsing, with margins that rounding cannot eat:
+/// min(kHealthCheckSkipBelowGradientSq, ((1 - clamp_stretch) / 2)^2), or 0 (every batch is
+/// checked) for a clamp stretch within 1e-6 of 1. forces_simd_test checks it with the scalar
+/// functions.
+inline double clamp_check_skip_below_gradient_sq(double clamp_stretch) {
+  const double margin = 0.5 * (1.0 - clamp_stretch);
+  if (!(margin > 5e-7)) return 0.0;
+  return margin * margin < kHealthCheckSkipBelowGradientSq ? margin * margin
+                                                           : kHealthCheckSkipBelowGradientSq;
+}
+
 /// Element pass: corner forces of every tetrahedron at displacements state.u, summed into the
 /// blocks of state.assembly (vertex sums and late slots), energy and health per chunk into
 /// state.tet_chunks. Runs on state.pool, one segment per claim.

@@ -3,10 +3,12 @@
 // the element's largest corner force with it (the AVX2 and AVX-512 FMA passes bit for bit
 // against each other), float32 (eight per pack, ElementPrecision::kFloat32) bit for bit against
 // fem_element.h at T = float and within a stated tolerance of float64, health bits through the
-// packed masks, and determinism of the float32 step for any thread count.
+// packed masks, the inversion-safe SVK's clamped lanes against the scalar clamped element, and
+// determinism of the float32 step for any thread count.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <tuple>
@@ -378,6 +380,327 @@ TEST(SimdElementPass, HealthChecksCannotFailBelowTheSkipBound) {
   h = Mat3d{};
   h.m[0][0] = -5 * r;  // stretch 0.5, below 1/sqrt(3)
   EXPECT_EQ(tet_health(h), uint32_t{kElementCollapsing});
+}
+
+// The scalar clamped element, as SvkGradientClamped (engine/forces_cpu.cpp) composes it: forces
+// [N], energy [J], health bits with kElementClamped where it clamps.
+double scalar_clamped_element(const Model& m, size_t t, const std::vector<Vec3d>& u, Vec3d f[4],
+                              uint32_t* bits) {
+  const Tet& e = m.tets[t];
+  const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+  const TetShape<double>& s = m.tet_shape[t];
+  const Lame& l = m.tet_lame(t);
+  const Mat3d h = tet_displacement_gradient(s, ue);
+  const Mat3d strain = green_strain(h);
+  *bits = tet_health_from_strain(h, strain);
+  double psi;
+  Mat3d p;
+  if (tet_health_from_strain(h, strain, m.clamp_stretch) != 0) {
+    psi = svk_first_piola_clamped(h, l.lambda, l.mu, m.clamp_stretch, &p);
+    *bits |= kElementClamped;
+  } else {
+    const Mat3d stress = isotropic_stress(strain, l.lambda, l.mu, &psi);
+    p = stress + h * stress;
+  }
+  tet_forces_from_stress(s, p, f);
+  return s.volume * psi;
+}
+
+// The inversion-safe SVK runs in the batched passes: on a box strained by ~15 % everywhere (every
+// batch fails the |H|^2 filter) with one vertex pushed through its neighbours and the next one
+// pulled in (inverted, collapsing and merely compressed elements), every corner force of a
+// clamped element equals the scalar clamped element's bit for bit, and every other corner force
+// the unclamped pass's standard (bit for bit without FMA, within 1e-13 of the element's largest
+// corner force with it); counts, first offenders and flags are the scalar ones. For the default
+// clamp stretch (the health check decides the clamp) and for 0.85 (its own minors, a filter bound
+// below the health check's), on boxes whose last batch holds 2 and 6 lanes.
+TEST(SimdElementPass, ClampedSvkLanesEqualTheScalarClampedElement) {
+  struct Box {
+    int nx, ny, nz;
+  };
+  for (const Box& box : {Box{3, 3, 3}, Box{5, 3, 3}}) {
+    const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, box.nx, box.ny, box.nz);
+    std::vector<Vec3d> u = wavy(mesh, 0.15);
+    const size_t inner = static_cast<size_t>(1 + (box.nx + 1) * (1 + (box.ny + 1) * 1));  // (1,1,1)
+    u[inner] += Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
+    u[inner + 1] += Vec3d{-0.2 * kL, 0, 0};
+    for (double clamp_stretch : {kSvkCollapseStretch, 0.85}) {
+      ModelDesc desc;
+      desc.inversion = InversionHandling::kClampStretch;
+      desc.clamp_stretch = clamp_stretch;
+      const Model m = build_model(mesh, desc).value();
+      // The reference, element by element.
+      const size_t nt = m.tet_count();
+      std::vector<std::array<Vec3d, 4>> ref(nt);
+      std::vector<uint32_t> ref_bits(nt);
+      double ref_energy = 0, energy_scale = 0;
+      int64_t clamped = 0, inverted = 0, collapsing = 0, first_inverted = -1,
+              first_collapsing = -1, clamped_healthy = 0;
+      uint32_t health = 0;
+      for (size_t t = 0; t < nt; ++t) {
+        const double w = scalar_clamped_element(m, t, u, ref[t].data(), &ref_bits[t]);
+        ref_energy += w;
+        energy_scale += std::abs(w);
+        const uint32_t bits = ref_bits[t];
+        health |= bits;
+        clamped += (bits & kElementClamped) != 0;
+        clamped_healthy += bits == kElementClamped;  // clamped, yet neither inverted nor collapsing
+        if ((bits & kElementInverted) && inverted++ == 0) first_inverted = static_cast<int64_t>(t);
+        if ((bits & kElementCollapsing) && collapsing++ == 0)
+          first_collapsing = static_cast<int64_t>(t);
+      }
+      // Batches of four with clamped and unclamped lanes: the case the pass must splice.
+      int mixed = 0;
+      for (size_t t0 = 0; t0 < nt; t0 += 4) {
+        int lanes_clamped = 0;
+        const size_t end = std::min(nt, t0 + 4);
+        for (size_t t = t0; t < end; ++t) lanes_clamped += (ref_bits[t] & kElementClamped) != 0;
+        mixed += lanes_clamped > 0 && lanes_clamped < static_cast<int>(end - t0);
+      }
+      ASSERT_GT(inverted, 0);
+      ASSERT_GT(clamped, inverted);
+      ASSERT_LT(clamped, static_cast<int64_t>(nt) / 2);
+      ASSERT_GT(mixed, 0);
+      if (clamp_stretch != kSvkCollapseStretch) {
+        ASSERT_GT(clamped_healthy, 0);
+      }
+      // Every float64 pass: (fused, bits, registers).
+      const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
+                                                   {true, 512, 32},  {true, 256, 16},
+                                                   {true, 256, 32}};
+      for (const auto& [fused, simd_bits, registers] : passes) {
+        set_cpu_element_fma(fused);
+        if (fused && !cpu_element_fma()) continue;  // no FMA on this CPU (or ZONA_CPU_FMA=0)
+        set_cpu_simd_bits(simd_bits);
+        set_cpu_simd_registers(registers);
+        SCOPED_TRACE(::testing::Message()
+                     << nt << " tetrahedra, clamp stretch " << clamp_stretch << ", fma "
+                     << cpu_element_fma() << ", simd bits " << cpu_simd_bits() << ", registers "
+                     << cpu_simd_registers());
+        State s = loaded_state(m, u, 2);
+        compute_tet_forces(m, s);
+        StepDiagnostics d;
+        reduce_tet_chunks(s, d);
+        for (size_t t = 0; t < nt; ++t) {
+          double scale = 0;
+          for (const Vec3d& f : ref[t])
+            for (int i = 0; i < 3; ++i) scale = std::max(scale, std::abs(f[i]));
+          for (int c = 0; c < 4; ++c) {
+            const Vec3d pass = corner_force(s, t, c);
+            if ((ref_bits[t] & kElementClamped) || !fused) {
+              EXPECT_EQ(std::memcmp(&pass, &ref[t][c], sizeof(Vec3d)), 0)
+                  << "tet " << t << " corner " << c << " bits " << ref_bits[t];
+            } else {
+              for (int i = 0; i < 3; ++i)
+                EXPECT_LE(std::abs(pass[i] - ref[t][c][i]), 1e-13 * scale)
+                    << "tet " << t << " corner " << c << " component " << i;
+            }
+          }
+        }
+        EXPECT_EQ(d.clamped_count, clamped);
+        EXPECT_EQ(d.inverted_count, inverted);
+        EXPECT_EQ(d.collapsing_count, collapsing);
+        EXPECT_EQ(d.first_inverted, first_inverted);
+        EXPECT_EQ(d.first_collapsing, first_collapsing);
+        EXPECT_EQ(d.element_health, health);
+        EXPECT_NEAR(d.elastic_energy, ref_energy, 1e-13 * energy_scale);
+      }
+    }
+  }
+  set_cpu_element_fma(true);
+  set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
+}
+
+// A rotation about a unit axis (Rodrigues) [-].
+Mat3d rotation(Vec3d axis, double angle) {
+  axis = axis / norm(axis);
+  const double c = std::cos(angle), s = std::sin(angle);
+  const Mat3d k{{{0, -axis.z, axis.y}, {axis.z, 0, -axis.x}, {-axis.y, axis.x, 0}}};
+  return Mat3d::identity() + s * k + (1 - c) * (k * k);
+}
+
+// The packed clamped stress takes, lane by lane, every branch of svk_first_piola_clamped: on a
+// soup of separate tetrahedra (each its own four vertices, so that each gets its own F) deformed
+// by F = 0 exactly (no direction to start U from), mirror images, partial collapse (rank 1 and
+// 2: the Gram-Schmidt fallback), repeated principal stretches (no Jacobi rotation), a C whose
+// tiny off-diagonal entry beside a large diagonal gap takes Jacobi's large-angle tangent,
+// random rotations of random signed stretches, and healthy ones between them, every clamped
+// element's corner forces equal the scalar clamped element's bit for bit in every float64 pass,
+// and the counts are the scalar ones. (Each of these branches, broken on purpose in the pass,
+// failed this test.)
+TEST(SimdElementPass, ClampedLanesEqualTheScalarClampedElementOnEveryBranch) {
+  uint64_t seed = 4242;
+  auto next = [&seed] {  // uniform in [-0.5, 0.5)
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(seed >> 11) / 9007199254740992.0 - 0.5;
+  };
+  auto random_vec = [&] { return Vec3d{next(), next(), next()}; };
+  std::vector<Mat3d> deformations;
+  auto diag = [](double a, double b, double c) { return Mat3d{{{a, 0, 0}, {0, b, 0}, {0, 0, c}}}; };
+  // The first two on exact geometry (below): F = 0 exactly (no direction to start U from), and
+  // a C = F^T F whose (0, 2) entry is tiny beside C22 - C00 while (0, 1) keeps Jacobi going.
+  deformations.push_back(Mat3d::zero());
+  deformations.push_back(Mat3d{{{1, 0.5, std::ldexp(1.0, -40)}, {0, 0.5, 0}, {0, 0, 64}}});
+  constexpr size_t kExact = 2;
+  deformations.push_back(diag(1, 1, -1));
+  deformations.push_back(diag(-1, -1, -1));
+  deformations.push_back(Mat3d::zero());
+  deformations.push_back(outer(Vec3d{0.3, -0.2, 0.9}, Vec3d{0.5, 0.1, -0.4}));  // rank 1
+  deformations.push_back(outer(Vec3d{1, 0, 0}, Vec3d{0, 1, 0}) +
+                         outer(Vec3d{0, 0.5, 0.2}, Vec3d{0, 0, 1}));  // rank 2
+  deformations.push_back(diag(0.3, 0.3, 0.3));
+  deformations.push_back(diag(-0.5, 0.4, 0.4));
+  deformations.push_back(diag(1e6, 1, 0.1));
+  deformations.push_back(diag(2e3, 1e-3, 0.5));
+  deformations.push_back(rotation({1, 2, 3}, 0.7) * diag(0.5, 0.5, 1.2));
+  for (int i = 0; i < 600; ++i) {
+    const Mat3d rot = rotation(random_vec(), 6 * next());
+    const Mat3d rot2 = rotation(random_vec(), 6 * next());
+    switch (i % 6) {
+      case 0:  // random signed stretches, some below every clamp
+        deformations.push_back(rot * diag(1 + next(), 0.9 + next(), 1.5 * next()) * rot2);
+        break;
+      case 1:  // healthy: within a few % of a rotation
+        deformations.push_back(rot * (Mat3d::identity() + 0.05 * diag(next(), next(), next())));
+        break;
+      case 2:  // one stretch just around the default clamp
+        deformations.push_back(rot * diag(1, 1, kSvkCollapseStretch + 0.02 * next()) * rot2);
+        break;
+      case 3:  // anisotropic
+        deformations.push_back(rot * diag(1e4 * (1 + next()), 0.2 + next(), 1e-3 * next()));
+        break;
+      case 4:  // a rank-1 and a small random part
+        deformations.push_back(outer(random_vec(), random_vec()) +
+                               1e-9 * diag(next(), next(), next()));
+        break;
+      default:  // compressed and sheared
+        deformations.push_back(Mat3d{{{0.2 + next(), next(), 0}, {0, 0.3, next()}, {0, 0, 0.4}}});
+        break;
+    }
+  }
+  // The soup: tetrahedron k's rest shape a random perturbation of the corner tetrahedron with
+  // edge e = 2^-17 m (~kL), its vertices displaced by (F_k - I) X plus an offset; the first
+  // kExact unperturbed and without offset, so that H = F_k - I exactly (powers of two).
+  const double e = std::ldexp(1.0, -17);
+  Mesh mesh;
+  for (size_t k = 0; k < deformations.size(); ++k) {
+    const Vec3d origin{std::ldexp(static_cast<double>(k), -15), 0, 0};
+    const double jitter = k < kExact ? 0.0 : 0.1 * e;
+    const Vec3d corners[4] = {Vec3d{0, 0, 0} + jitter * random_vec(),
+                              Vec3d{e, 0, 0} + jitter * random_vec(),
+                              Vec3d{0, e, 0} + jitter * random_vec(),
+                              Vec3d{0, 0, e} + jitter * random_vec()};
+    const int32_t v0 = static_cast<int32_t>(mesh.rest_positions.size());
+    for (const Vec3d& c : corners) mesh.rest_positions.push_back(origin + c);
+    mesh.tets.push_back(Tet{v0, v0 + 1, v0 + 2, v0 + 3});
+    mesh.tet_region.push_back(0);
+  }
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t k = 0; k < deformations.size(); ++k)
+    for (int c = 0; c < 4; ++c) {
+      const size_t v = 4 * k + static_cast<size_t>(c);
+      const Vec3d x = mesh.rest_positions[v] - mesh.rest_positions[4 * k];
+      const Vec3d offset = k < kExact ? Vec3d{0, 0, 0} : Vec3d{kL, -2 * kL, 0.5 * kL};
+      u[v] = (deformations[k] - Mat3d::identity()) * x + offset;
+    }
+  for (double clamp_stretch : {kSvkCollapseStretch, 0.85, 0.2}) {
+    ModelDesc desc;
+    desc.inversion = InversionHandling::kClampStretch;
+    desc.clamp_stretch = clamp_stretch;
+    const Model m = build_model(mesh, desc).value();
+    const size_t nt = m.tet_count();
+    std::vector<std::array<Vec3d, 4>> ref(nt);
+    int64_t clamped = 0, inverted = 0, collapsing = 0;
+    std::vector<uint32_t> ref_bits(nt);
+    for (size_t t = 0; t < nt; ++t) {
+      scalar_clamped_element(m, t, u, ref[t].data(), &ref_bits[t]);
+      clamped += (ref_bits[t] & kElementClamped) != 0;
+      inverted += (ref_bits[t] & kElementInverted) != 0;
+      collapsing += (ref_bits[t] & kElementCollapsing) != 0;
+    }
+    ASSERT_GT(clamped, static_cast<int64_t>(nt) / 4);
+    ASSERT_LT(clamped, static_cast<int64_t>(nt));
+    const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
+                                                 {true, 512, 32},  {true, 256, 16},
+                                                 {true, 256, 32}};
+    for (const auto& [fused, simd_bits, registers] : passes) {
+      set_cpu_element_fma(fused);
+      if (fused && !cpu_element_fma()) continue;
+      set_cpu_simd_bits(simd_bits);
+      set_cpu_simd_registers(registers);
+      SCOPED_TRACE(::testing::Message()
+                   << "clamp stretch " << clamp_stretch << ", fma " << cpu_element_fma()
+                   << ", simd bits " << cpu_simd_bits() << ", registers " << cpu_simd_registers());
+      State s = loaded_state(m, u, 2);
+      compute_tet_forces(m, s);
+      StepDiagnostics d;
+      reduce_tet_chunks(s, d);
+      for (size_t t = 0; t < nt; ++t) {
+        if (!(ref_bits[t] & kElementClamped)) continue;
+        for (int c = 0; c < 4; ++c) {
+          const Vec3d pass = corner_force(s, t, c);
+          EXPECT_EQ(std::memcmp(&pass, &ref[t][c], sizeof(Vec3d)), 0)
+              << "tet " << t << " corner " << c << ": " << pass.x << " " << pass.y << " "
+              << pass.z << " against " << ref[t][c].x << " " << ref[t][c].y << " "
+              << ref[t][c].z;
+        }
+      }
+      EXPECT_EQ(d.clamped_count, clamped);
+      EXPECT_EQ(d.inverted_count, inverted);
+      EXPECT_EQ(d.collapsing_count, collapsing);
+    }
+  }
+  set_cpu_element_fma(true);
+  set_cpu_simd_bits(512);
+  set_cpu_simd_registers(32);
+}
+
+// The clamped passes look for clamped elements only where some lane has |H|^2 at or above
+// clamp_check_skip_below_gradient_sq: below it the scalar clamp and health checks must pass for
+// every H, in the worst directions and random ones, for clamp stretches from 0.1 to 0.999; a
+// stretch just below the clamp must fail them; the bound is never above the health check's.
+TEST(SimdElementPass, ClampChecksCannotFailBelowTheClampSkipBound) {
+  uint64_t seed = 777;
+  auto next = [&seed] {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(seed >> 11) / 9007199254740992.0 - 0.5;
+  };
+  for (double stretch : {0.1, kSvkCollapseStretch, 0.7, 0.8, 0.9, 0.95, 0.99, 0.999}) {
+    SCOPED_TRACE(::testing::Message() << "clamp stretch " << stretch);
+    const double bound = clamp_check_skip_below_gradient_sq(stretch);
+    ASSERT_GT(bound, 0);
+    ASSERT_LE(bound, kHealthCheckSkipBelowGradientSq);
+    const double r = std::sqrt(bound);  // largest |H| skipped
+    std::vector<Mat3d> gradients;
+    Mat3d h{};
+    h.m[0][0] = -r;
+    gradients.push_back(h);
+    gradients.push_back((-r / std::sqrt(3.0)) * Mat3d::identity());
+    h = Mat3d{};
+    h.m[0][1] = r;
+    gradients.push_back(h);
+    for (int i = 0; i < 2000; ++i) {
+      Mat3d g{};
+      double norm_sq = 0;
+      for (auto& row : g.m)
+        for (double& x : row) {
+          x = next();
+          norm_sq += x * x;
+        }
+      gradients.push_back((r / std::sqrt(norm_sq)) * g);
+    }
+    for (const Mat3d& hd : gradients) {
+      ASSERT_EQ(tet_health(hd, stretch), 0u);
+      ASSERT_EQ(tet_health(hd), 0u);
+    }
+    h = Mat3d{};
+    h.m[0][0] = -(1 - stretch) * 1.001;  // stretch 0.1 % of (1 - s) below s
+    EXPECT_NE(tet_health(h, stretch) & kElementCollapsing, 0u);
+  }
+  EXPECT_EQ(clamp_check_skip_below_gradient_sq(kSvkCollapseStretch),
+            kHealthCheckSkipBelowGradientSq);
+  EXPECT_EQ(clamp_check_skip_below_gradient_sq(1 - 1e-7), 0.0);  // every batch checked
 }
 
 // The float32 step is as deterministic as the float64 one: the same bits for 1, 2 and 3 threads
