@@ -111,16 +111,16 @@ const char* kScene = R"({
                  "stiffness_damping": "100 us"},
   "needle": {"tip_radius": "2 um", "standoff": "0.5 um", "speed": "0.5 mm/s", "max_travel": "4 um"},
   "holding_pipette": {"mode": "fixed", "inner_radius": "5 um"},
+  "contact": {"model": "kinematic"},
   "output": {"frames": 0, "sample_interval": "0.1 ms"}
 })";
 
 TEST(Calibrate, RecoversTheModulusOfItsOwnCurve) {
   const fs::path scene_path = temp_file("ball.json", kScene);
   // The synthetic measurement: the scene at E = 13 kPa, every 4th sample of its loading curve.
-  // The kinematic contact: this tests the fit, on a curve of the coarse ball that the penalty
-  // contact does not resolve (engine/job.h: the surface must resolve the tip).
-  Result<Scene> truth = load_scene(scene_path.string(),
-                                   {"materials.default.young=13kPa", "contact.model=kinematic"});
+  // The scene's kinematic contact: this tests the fit, on a curve of a coarse ball that the
+  // penalty contact does not resolve (engine/job.h: the surface must resolve the tip).
+  Result<Scene> truth = load_scene(scene_path.string(), {"materials.default.young=13kPa"});
   ASSERT_TRUE(truth.ok()) << truth.error().message;
   Result<RunResult> run = run_scene(*truth);
   ASSERT_TRUE(run.ok()) << run.error().message;
