@@ -182,8 +182,8 @@ template <class P>
 // stretch is not the collapse stretch.
 template <bool kSvk, class P>
 [[gnu::always_inline]] inline void batch_health_values(const TetShape<P>& shape,
-                                                       const Vec3<P> du[3], P* det_f, P* m1,
-                                                       P* m2, P* det_a, double clamp_stretch = 0,
+                                                       const Vec3<P> du[3], P* det_f, P* m1, P* m2,
+                                                       P* det_a, double clamp_stretch = 0,
                                                        P* clamp_minors = nullptr) {
   const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
   if constexpr (kSvk) {
@@ -355,8 +355,8 @@ template <class P>
   const Mask degenerate = ~(n1.v > (P(1e-7) * select_lanes(n0_positive, n0, P(1))).v);
   if (!no_lane(degenerate)) {
     const Mask middle = (uc[0].x.v < 0.5) & (uc[0].x.v > -0.5);
-    const Vec3<P> w2 = cross(uc[0], select_lanes(middle, Vec3<P>{P(1), P(0), P(0)},
-                                                 Vec3<P>{P(0), P(1), P(0)}));
+    const Vec3<P> w2 =
+        cross(uc[0], select_lanes(middle, Vec3<P>{P(1), P(0), P(0)}, Vec3<P>{P(0), P(1), P(0)}));
     w = select_lanes(degenerate, w2, w);
     n1 = select_lanes(degenerate, sqrt_lanes(dot(w2, w2)), n1);
   }
@@ -386,15 +386,15 @@ template <class P>
 template <class P>
 struct ClampBatch {
   const Model* model;
-  const double* u;          // displacements [m], x, y, z per vertex (State::u)
-  const double* rows;       // the batch's Model::cpu_tet_batches rows
-  const int32_t* offsets;   // its Model::cpu_tet_corner_offsets
-  const int32_t* codes;     // its AssemblyPlan::corner_code
-  double* blocks;           // AssemblyPlan::blocks
-  int64_t t0;               // its first tetrahedron
-  int lanes;                // lanes [0, lanes) in the mesh
-  TetChunkResult* result;   // the chunk's counts (added to)
-  P w;                      // energy term [J] (-4 V psi with kFma)
+  const double* u;         // displacements [m], x, y, z per vertex (State::u)
+  const double* rows;      // the batch's Model::cpu_tet_batches rows
+  const int32_t* offsets;  // its Model::cpu_tet_corner_offsets
+  const int32_t* codes;    // its AssemblyPlan::corner_code
+  double* blocks;          // AssemblyPlan::blocks
+  int64_t t0;              // its first tetrahedron
+  int lanes;               // lanes [0, lanes) in the mesh
+  TetChunkResult* result;  // the chunk's counts (added to)
+  P w;                     // energy term [J] (-4 V psi with kFma)
 };
 
 // Scatters a batch's corner forces: all lanes by the pack's own store, or lanes [0, lanes) one
@@ -477,8 +477,7 @@ template <class L, bool kFma>
       if (bits) {
         r.health |= bits;
         if ((bits & kElementInverted) && r.inverted_count++ == 0) r.first_inverted = t0 + l;
-        if ((bits & kElementCollapsing) && r.collapsing_count++ == 0)
-          r.first_collapsing = t0 + l;
+        if ((bits & kElementCollapsing) && r.collapsing_count++ == 0) r.first_collapsing = t0 + l;
         if (bits & kElementClamped) ++r.clamped_count;
       }
     }
@@ -750,7 +749,7 @@ __attribute__((noinline)) ZONA_SIMD_CLONES void clamp_batch_f64(ClampBatch<P4>& 
 template <bool kSvk, bool kClamp = false>
 ZONA_SIMD_CLONES void tet_pass_chunks_f64(void* context, int64_t chunk_begin, int64_t chunk_end) {
   batch_pass<kSvk, Lanes4d, false, kClamp ? &clamp_batch_f64 : nullptr>(context, chunk_begin,
-                                                                       chunk_end);
+                                                                        chunk_end);
 }
 
 template <bool kSvk>

@@ -434,8 +434,8 @@ TEST(SimdElementPass, ClampedSvkLanesEqualTheScalarClampedElement) {
       std::vector<std::array<Vec3d, 4>> ref(nt);
       std::vector<uint32_t> ref_bits(nt);
       double ref_energy = 0, energy_scale = 0;
-      int64_t clamped = 0, inverted = 0, collapsing = 0, first_inverted = -1,
-              first_collapsing = -1, clamped_healthy = 0;
+      int64_t clamped = 0, inverted = 0, collapsing = 0, first_inverted = -1, first_collapsing = -1,
+              clamped_healthy = 0;
       uint32_t health = 0;
       for (size_t t = 0; t < nt; ++t) {
         const double w = scalar_clamped_element(m, t, u, ref[t].data(), &ref_bits[t]);
@@ -465,9 +465,8 @@ TEST(SimdElementPass, ClampedSvkLanesEqualTheScalarClampedElement) {
         ASSERT_GT(clamped_healthy, 0);
       }
       // Every float64 pass: (fused, bits, registers).
-      const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
-                                                   {true, 512, 32},  {true, 256, 16},
-                                                   {true, 256, 32}};
+      const std::tuple<bool, int, int> passes[] = {
+          {false, 512, 32}, {false, 256, 32}, {true, 512, 32}, {true, 256, 16}, {true, 256, 32}};
       for (const auto& [fused, simd_bits, registers] : passes) {
         set_cpu_element_fma(fused);
         if (fused && !cpu_element_fma()) continue;  // no FMA on this CPU (or ZONA_CPU_FMA=0)
@@ -587,10 +586,9 @@ TEST(SimdElementPass, ClampedLanesEqualTheScalarClampedElementOnEveryBranch) {
   for (size_t k = 0; k < deformations.size(); ++k) {
     const Vec3d origin{std::ldexp(static_cast<double>(k), -15), 0, 0};
     const double jitter = k < kExact ? 0.0 : 0.1 * e;
-    const Vec3d corners[4] = {Vec3d{0, 0, 0} + jitter * random_vec(),
-                              Vec3d{e, 0, 0} + jitter * random_vec(),
-                              Vec3d{0, e, 0} + jitter * random_vec(),
-                              Vec3d{0, 0, e} + jitter * random_vec()};
+    const Vec3d corners[4] = {
+        Vec3d{0, 0, 0} + jitter * random_vec(), Vec3d{e, 0, 0} + jitter * random_vec(),
+        Vec3d{0, e, 0} + jitter * random_vec(), Vec3d{0, 0, e} + jitter * random_vec()};
     const int32_t v0 = static_cast<int32_t>(mesh.rest_positions.size());
     for (const Vec3d& c : corners) mesh.rest_positions.push_back(origin + c);
     mesh.tets.push_back(Tet{v0, v0 + 1, v0 + 2, v0 + 3});
@@ -621,9 +619,8 @@ TEST(SimdElementPass, ClampedLanesEqualTheScalarClampedElementOnEveryBranch) {
     }
     ASSERT_GT(clamped, static_cast<int64_t>(nt) / 4);
     ASSERT_LT(clamped, static_cast<int64_t>(nt));
-    const std::tuple<bool, int, int> passes[] = {{false, 512, 32}, {false, 256, 32},
-                                                 {true, 512, 32},  {true, 256, 16},
-                                                 {true, 256, 32}};
+    const std::tuple<bool, int, int> passes[] = {
+        {false, 512, 32}, {false, 256, 32}, {true, 512, 32}, {true, 256, 16}, {true, 256, 32}};
     for (const auto& [fused, simd_bits, registers] : passes) {
       set_cpu_element_fma(fused);
       if (fused && !cpu_element_fma()) continue;
@@ -641,9 +638,8 @@ TEST(SimdElementPass, ClampedLanesEqualTheScalarClampedElementOnEveryBranch) {
         for (int c = 0; c < 4; ++c) {
           const Vec3d pass = corner_force(s, t, c);
           EXPECT_EQ(std::memcmp(&pass, &ref[t][c], sizeof(Vec3d)), 0)
-              << "tet " << t << " corner " << c << ": " << pass.x << " " << pass.y << " "
-              << pass.z << " against " << ref[t][c].x << " " << ref[t][c].y << " "
-              << ref[t][c].z;
+              << "tet " << t << " corner " << c << ": " << pass.x << " " << pass.y << " " << pass.z
+              << " against " << ref[t][c].x << " " << ref[t][c].y << " " << ref[t][c].z;
         }
       }
       EXPECT_EQ(d.clamped_count, clamped);
