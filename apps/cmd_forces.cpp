@@ -45,7 +45,9 @@ Status run_forces(const ForcesArgs& a) {
   ModelDesc desc;
   desc.material.young = a.young;
   desc.material.poisson = a.poisson;
-  desc.constitutive = a.model == "linear" ? ConstitutiveModel::kLinear : ConstitutiveModel::kSvk;
+  desc.constitutive = a.model == "linear"       ? ConstitutiveModel::kLinear
+                      : a.model == "neohookean" ? ConstitutiveModel::kStableNeoHookean
+                                                : ConstitutiveModel::kSvk;
   desc.formulation = a.formulation == "tensor_stored"    ? Formulation::kTensorStored
                      : a.formulation == "tensor_rebuilt" ? Formulation::kTensorRebuilt
                                                          : Formulation::kGradient;
@@ -86,7 +88,7 @@ void add_forces_command(CLI::App& app) {
                   "Deformed positions, same vertices (a mesh, or a bare TetGen .node)")
       ->required();
   cmd->add_option("--model", args->model, "Constitutive model")
-      ->check(CLI::IsMember({"svk", "linear"}))
+      ->check(CLI::IsMember({"svk", "linear", "neohookean"}))
       ->capture_default_str();
   cmd->add_option("--formulation", args->formulation,
                   "Evaluation: deformation gradient, or the seed's mass tensors")

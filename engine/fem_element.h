@@ -1,6 +1,7 @@
 // Per-tetrahedron elasticity for the CPU loop and the CUDA kernels alike: shape gradients,
-// St Venant-Kirchhoff (SVK) and linear energy, nodal forces and 12x12 stiffness in the
-// deformation-gradient form, and the seed's mass-tensor form (stored or rebuilt in registers).
+// St Venant-Kirchhoff (SVK), stable neo-Hookean (SNH) and linear energy, nodal forces and 12x12
+// stiffness in the deformation-gradient form, and the seed's mass-tensor form (SVK and linear,
+// stored or rebuilt in registers).
 //
 // Every function here is ZONA_HOST_DEVICE, templated on the scalar (float or double), takes
 // plain data (four shape gradients and the rest volume, four displacements) and never reads a
@@ -31,6 +32,9 @@ namespace zona {
 enum class ConstitutiveModel : int32_t {
   kSvk = 0,     ///< St Venant-Kirchhoff: Green strain, exact under rigid rotation
   kLinear = 1,  ///< small-strain linear elasticity: valid below ~10 % strain, not rotation-free
+  /// Stable neo-Hookean (Smith, de Goes and Kim 2018), log-free form: rotation-free, keeps
+  /// resisting compression down to and through inversion (J <= 0); gradient form only.
+  kStableNeoHookean = 2,
 };
 
 /// How the internal force is evaluated; all three give the same numbers to rounding.
@@ -42,7 +46,7 @@ enum class Formulation : int32_t {
 
 /// Per-element health bits (OR-ed into step status by the integrator).
 enum ElementHealth : uint32_t {
-  kElementInverted = 1u,    ///< det F <= 0
+  kElementInverted = 1u,    ///< det F <= 0 (a failure for SVK; informational for SNH)
   kElementCollapsing = 2u,  ///< smallest principal stretch below the SVK limit 1/sqrt(3)
   kElementClamped = 4u,     ///< the inversion-safe SVK clamped a principal stretch
 };
@@ -282,6 +286,187 @@ ZONA_HOST_DEVICE ZONA_INLINE void tet_svk_stiffness(const TetShape<T>& s, T lamb
       Mat3<T> dp = f * ds;
       for (int c = 0; c < 3; ++c)
         dp.m[i][c] += dot(s.grad[a], Vec3<T>{stress.m[0][c], stress.m[1][c], stress.m[2][c]});
+      for (int b = 0; b < 4; ++b) {
+        const Vec3<T> col = s.volume * (dp * s.grad[b]);
+        for (int j = 0; j < 3; ++j) k[(3 * b + j) * 12 + 3 * a + i] = col[j];
+      }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Stable neo-Hookean (SNH; Smith, de Goes and Kim, "Stable Neo-Hookean Flesh Simulation", ACM
+// TOG 2018), in the log-free form of Kim and Eberle's "Dynamic Deformables" course (2020):
+//   Psi = mu_s/2 (I_C - 3) - mu_s (J - 1) + lambda_s/2 (J - 1)^2                   [J/m^3]
+// with I_C = |F|^2 and J = det F. It equals the paper's mu_s/2 (I_C - 3) + lambda_s/2 (J - a)^2,
+// a = 1 + mu_s / lambda_s, less its rest value mu_s^2 / (2 lambda_s) (a constant: same forces),
+// so that the rest state has zero energy. The paper's -mu/2 log(I_C + 1) term is left out, as in
+// the course and its code: it was added for the collapse of an element to a point (I_C -> 0), and
+// it would cost a log and a division per element.
+//
+// Constants: this form linearises at F = I to mu_s eps:eps + (lambda_s - mu_s)/2 tr(eps)^2, so
+// linear elasticity with the material's (lambda, mu) needs mu_s = mu, lambda_s = lambda + mu
+// (snh_lambda). The paper's mu_s = 4/3 mu, lambda_s = lambda + 5/6 mu belong to the form WITH
+// the log term (and a = 1 + 3 mu_s / (4 lambda_s)); with this form they would not match.
+// The functions below take the material's (lambda, mu) and form lambda_s themselves.
+//
+// P = mu_s (F - cof F) + lambda_s (J - 1) cof F, cof F = dJ/dF = J F^-T. Everything is formed
+// from H = F - I without subtracting numbers of order one, so that small strains keep their
+// digits in float32 (as green_strain does for SVK):
+//   cof(I + H) = I + tr(H) I - H^T + cof(H)      (cof is quadratic: exact)
+//   J - 1      = tr(H) + i2(H) + det(H)          (i2: sum of the principal 2x2 minors of H)
+//   F - cof F  = H + H^T - tr(H) I - cof(H)
+//   Psi        = mu_s (|H|^2/2 - i2(H) - det H) + lambda_s/2 (J - 1)^2
+// Under compression the volumetric term lambda_s (J - 1) cof F keeps pushing back as J -> 0 and
+// past it (J < 0: -mu_s (J - 1) and (J - 1)^2 both keep growing), unlike SVK whose resistance
+// peaks at stretch 1/sqrt(3) and vanishes when flat: no clamp, no eigen-decomposition.
+
+/// SNH's volumetric constant lambda_s = lambda + mu [Pa] from the material's Lame constants
+/// (mu_s = mu): the law then linearises to linear elasticity with (lambda, mu).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE constexpr T snh_lambda(T lambda, T mu) {
+  return lambda + mu;
+}
+
+/// Cofactor matrix cof(A) = det(A) A^-T (defined for singular A too): cof(A)_ij =
+/// A_{i+1,j+1} A_{i+2,j+2} - A_{i+1,j+2} A_{i+2,j+1}, indices mod 3.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> cofactor(const Mat3<T>& a) {
+  Mat3<T> c;
+  for (int i = 0; i < 3; ++i) {
+    const int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
+    for (int j = 0; j < 3; ++j) {
+      const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+      c.m[i][j] = a.m[i1][j1] * a.m[i2][j2] - a.m[i1][j2] * a.m[i2][j1];
+    }
+  }
+  return c;
+}
+
+/// Differential of the cofactor: d cof(A)[B] = cof(A + B) - cof(A) - cof(B) (cof is quadratic,
+/// so this is exact and bilinear in A and B).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> cofactor_differential(const Mat3<T>& a, const Mat3<T>& b) {
+  Mat3<T> c;
+  for (int i = 0; i < 3; ++i) {
+    const int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
+    for (int j = 0; j < 3; ++j) {
+      const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+      c.m[i][j] = a.m[i1][j1] * b.m[i2][j2] + b.m[i1][j1] * a.m[i2][j2] -
+                  a.m[i1][j2] * b.m[i2][j1] - b.m[i1][j2] * a.m[i2][j1];
+    }
+  }
+  return c;
+}
+
+/// Frobenius product A : B.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T frobenius_dot(const Mat3<T>& a, const Mat3<T>& b) {
+  T s = 0;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) s += a.m[r][c] * b.m[r][c];
+  return s;
+}
+
+/// Second principal invariant i2(H): the sum of the principal 2x2 minors of H.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T principal_minor_sum(const Mat3<T>& h) {
+  return (h.m[0][0] * h.m[1][1] - h.m[0][1] * h.m[1][0]) +
+         (h.m[0][0] * h.m[2][2] - h.m[0][2] * h.m[2][0]) +
+         (h.m[1][1] * h.m[2][2] - h.m[1][2] * h.m[2][1]);
+}
+
+/// J - 1 = det(I + H) - 1 [-] from H, without the cancellation of det(F) - 1 (see above).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T snh_volume_change(const Mat3<T>& h) {
+  return trace(h) + principal_minor_sum(h) + determinant(h);
+}
+
+/// cof(I + H) [-] from H: I + tr(H) I - H^T + cof(H).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> snh_cofactor_of_f(const Mat3<T>& h) {
+  Mat3<T> c = cofactor(h);
+  const T tr = trace(h);
+  for (int r = 0; r < 3; ++r) {
+    for (int q = 0; q < 3; ++q) c.m[r][q] -= h.m[q][r];
+    c.m[r][r] += T(1) + tr;
+  }
+  return c;
+}
+
+/// SNH first Piola-Kirchhoff stress P [Pa] at displacement gradient H, written to *p; energy
+/// density Psi [J/m^3] returned; J - 1 [-] to *j_minus_one. lambda, mu: the material's Lame
+/// constants [Pa] (the law's lambda_s = snh_lambda(lambda, mu) is formed here). Defined for
+/// every H, inverted (J <= 0) included.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu, Mat3<T>* p,
+                                               T* j_minus_one) {
+  const T lam = snh_lambda(lambda, mu);
+  const Mat3<T> ch = cofactor(h);
+  const T tr = trace(h);
+  T hh = 0;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) hh += h.m[r][c] * h.m[r][c];
+  const T i2 = principal_minor_sum(h);
+  const T det_h = determinant(h);
+  const T jm1 = tr + i2 + det_h;
+  // P = mu (H + H^T - tr(H) I - cof H) + lambda_s (J - 1) (I + tr(H) I - H^T + cof H).
+  const T k = lam * jm1;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      p->m[r][c] = mu * (h.m[r][c] + h.m[c][r] - ch.m[r][c]) + k * (ch.m[r][c] - h.m[c][r]);
+  for (int r = 0; r < 3; ++r) p->m[r][r] += k * (T(1) + tr) - mu * tr;
+  *j_minus_one = jm1;
+  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lam * jm1 * jm1;
+}
+
+/// SNH stress differential dP = (d^2 Psi / dF^2) : dF [Pa] at displacement gradient H, for a
+/// change dF of the deformation gradient [-]:
+///   dP = mu_s (dF - dcof) + lambda_s ((cof F : dF) cof F + (J - 1) dcof),  dcof = d cof(F)[dF].
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> snh_stress_differential(const Mat3<T>& h, T lambda, T mu,
+                                                             const Mat3<T>& df) {
+  const T lam = snh_lambda(lambda, mu);
+  Mat3<T> f = h;
+  for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
+  const Mat3<T> cof = snh_cofactor_of_f(h);
+  const Mat3<T> dcof = cofactor_differential(f, df);
+  const T jm1 = snh_volume_change(h);
+  const T dj = frobenius_dot(cof, df);
+  Mat3<T> dp;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      dp.m[r][c] = mu * (df.m[r][c] - dcof.m[r][c]) + lam * (dj * cof.m[r][c] + jm1 * dcof.m[r][c]);
+  return dp;
+}
+
+/// SNH element: energy [J] returned, forces f [N] written (gradient form), health in *bits:
+/// kElementInverted when J <= 0 (informational: the law stays defined and pushes back).
+/// lambda, mu: the material's Lame constants [Pa].
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T tet_snh_forces(const TetShape<T>& s, T lambda, T mu,
+                                              const Vec3<T> u[4], Vec3<T> f[4], uint32_t* bits) {
+  Mat3<T> p;
+  T jm1;
+  const T psi = snh_first_piola(tet_displacement_gradient(s, u), lambda, mu, &p, &jm1);
+  *bits = jm1 > T(-1) ? 0u : uint32_t{kElementInverted};  // J > 0; NaN counts as inverted
+  tet_forces_from_stress(s, p, f);
+  return s.volume * psi;
+}
+
+/// SNH tangent stiffness K = d^2W/du^2 [N/m] at displacements u, 12 x 12 row-major in k[144]
+/// (row 3a+i, column 3b+k). Column (a, i) is V dP grad_b with dP = snh_stress_differential at
+/// dF = e_i grad_a^T. Not projected to positive definite: away from rest it can be indefinite
+/// (Smith et al. give its eigenvalues); the explicit step does not need it, an implicit solver
+/// would.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void tet_snh_stiffness(const TetShape<T>& s, T lambda, T mu,
+                                                    const Vec3<T> u[4], T k[144]) {
+  const Mat3<T> h = tet_displacement_gradient(s, u);
+  for (int a = 0; a < 4; ++a)
+    for (int i = 0; i < 3; ++i) {
+      Mat3<T> df = Mat3<T>::zero();
+      for (int c = 0; c < 3; ++c) df.m[i][c] = s.grad[a][c];
+      const Mat3<T> dp = snh_stress_differential(h, lambda, mu, df);
       for (int b = 0; b < 4; ++b) {
         const Vec3<T> col = s.volume * (dp * s.grad[b]);
         for (int j = 0; j < 3; ++j) k[(3 * b + j) * 12 + 3 * a + i] = col[j];

@@ -22,6 +22,14 @@ namespace {
 // ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h. (The gradient form,
 // the inversion-safe SVK included, runs in the batched passes below.)
 
+// Stable neo-Hookean, gradient form (float64; there is no batched SIMD pass for it).
+struct SnhGradient {
+  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
+    const Lame& l = m.tet_lame(t);
+    return tet_snh_forces(m.tet_shape[t], l.lambda, l.mu, u, f, bits);
+  }
+};
+
 // Health for the tensor forms: they never form H, so it is formed here for the checks only.
 inline uint32_t tensor_form_health(const Model& m, size_t t, const Vec3d u[4]) {
   const Mat3d h = tet_displacement_gradient(m.tet_shape[t], u);
@@ -971,6 +979,8 @@ ThreadPool::ChunkFn select_f64_pass() {
 }
 
 ThreadPool::ChunkFn select_tet_pass(const Model& m) {
+  // Stable neo-Hookean: gradient form only (build_model), float64, the scalar loop.
+  if (m.constitutive == ConstitutiveModel::kStableNeoHookean) return &tet_pass_chunks<SnhGradient>;
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
     case Formulation::kGradient:
@@ -1149,9 +1159,11 @@ Eigen::SparseMatrix<double> assemble_stiffness(const Model& model, std::span<con
   for (size_t t = 0; t < nt; ++t) {
     const Tet& e = model.tets[t];
     const Lame& l = model.tet_lame(t);
+    const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
     if (model.constitutive == ConstitutiveModel::kSvk) {
-      const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
       tet_svk_stiffness(model.tet_shape[t], l.lambda, l.mu, ue, k);
+    } else if (model.constitutive == ConstitutiveModel::kStableNeoHookean) {
+      tet_snh_stiffness(model.tet_shape[t], l.lambda, l.mu, ue, k);
     } else {
       tet_linear_stiffness(model.tet_shape[t], l.lambda, l.mu, k);
     }
@@ -1186,7 +1198,8 @@ double estimate_max_frequency(const Model& model, int iterations) {
   }
   double lambda_max = 0;
   for (int it = 0; it < iterations; ++it) {
-    // y = M^-1/2 K M^-1/2 x, with K x from the linear element forces (f = -K x).
+    // y = M^-1/2 K M^-1/2 x, with K x from the linear element forces (f = -K x): the tangent
+    // at rest of every law here (SVK and stable neo-Hookean linearise to it).
     for (size_t v = 0; v < nv; ++v) z[v] = inv_sqrt_mass[v] * x[v];
     std::fill(y.begin(), y.end(), Vec3d{0, 0, 0});
     for (size_t t = 0; t < model.tet_count(); ++t) {

@@ -104,7 +104,8 @@ void reduce_tet_chunks(const State& state, StepDiagnostics& diag);
 void compute_elastic_forces(const Model& model, State& state);
 
 /// Global tangent stiffness d^2W/du^2 at displacements u [N/m], (3 vertex_count)^2, symmetric;
-/// the model's constitutive law (SVK tangent or linear K). Host-only, allocates.
+/// the model's constitutive law (SVK or stable neo-Hookean tangent, or linear K). Host-only,
+/// allocates.
 Eigen::SparseMatrix<double> assemble_stiffness(const Model& model, std::span<const Vec3d> u);
 
 /// Largest natural frequency omega_max [rad/s] of the linearised model (M^-1 K at rest, fixed

@@ -51,6 +51,15 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
     return make_error("model: energy_blowup_factor must be > 1, got %g", d.energy_blowup_factor);
   if (!(std::isfinite(d.clamp_stretch) && d.clamp_stretch > 0 && d.clamp_stretch < 1))
     return make_error("model: clamp_stretch must be in (0, 1), got %g", d.clamp_stretch);
+  if (d.constitutive != ConstitutiveModel::kSvk && d.constitutive != ConstitutiveModel::kLinear &&
+      d.constitutive != ConstitutiveModel::kStableNeoHookean)
+    return make_error("model: constitutive model %d is none of svk (0), linear (1), neohookean (2)",
+                      static_cast<int>(d.constitutive));
+  if (d.constitutive == ConstitutiveModel::kStableNeoHookean &&
+      d.formulation != Formulation::kGradient)
+    return make_error(
+        "model: the neohookean model has no mass-tensor form: use the gradient "
+        "formulation");
   if (d.inversion == InversionHandling::kClampStretch &&
       (d.constitutive != ConstitutiveModel::kSvk || d.formulation != Formulation::kGradient))
     return make_error(
@@ -65,6 +74,11 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
     return make_error(
         "model: float32 element math is implemented for the gradient formulation without the "
         "stretch clamp only");
+  if (d.element_precision == ElementPrecision::kFloat32 &&
+      d.constitutive == ConstitutiveModel::kStableNeoHookean)
+    return make_error(
+        "model: float32 element math on the CPU is implemented for svk and linear "
+        "only (neohookean runs in float64 on the CPU, float32 on the GPU)");
   for (int32_t v : d.fixed_vertices)
     if (v < 0 || static_cast<size_t>(v) >= mesh.vertex_count())
       return make_error("model: fixed vertex %d out of range [0, %zu)", v, mesh.vertex_count());
@@ -150,6 +164,11 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   //   omega_e^2 <= (4 / rho_e) (lambda sum_j |g_j|^2 + 2 mu lambda_max(G G^T)),
   // so dt_e = 2 / omega_e = sqrt(rho_e / (lambda sum|g|^2 + 2 mu lambda_max)). The altitude
   // estimate h / c_d is kept for reports (it is not a bound: docs/physics.md).
+  // Stable neo-Hookean takes its own constants (mu_s = mu, lambda_s = lambda + mu): at rest its
+  // tangent equals the linear one with (lambda, mu), so the larger lambda_s only shortens the
+  // step (by ~1 % at nu = 0.49): a small margin for deformed elements, whose tangent is no
+  // longer the rest one (dt_safety covers the rest, as for SVK's stiffening).
+  const bool snh = desc.constitutive == ConstitutiveModel::kStableNeoHookean;
   double dt_bound0 = std::numeric_limits<double>::infinity();
   double dt_altitude0 = std::numeric_limits<double>::infinity();
   model.min_altitude = std::numeric_limits<double>::infinity();
@@ -157,7 +176,10 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   for (size_t t = 0; t < nt; ++t) {
     const Tet& e = mesh.tets[t];
     const TetShape<double>& shape = model.tet_shape[t];
-    const Lame& lame = model.tet_lame(t);
+    const Lame& material_lame = model.tet_lame(t);
+    const Lame lame =
+        snh ? Lame{snh_lambda(material_lame.lambda, material_lame.mu), material_lame.mu}
+            : material_lame;
     Vec3d p[4];
     double rho = std::numeric_limits<double>::infinity();
     for (int c = 0; c < 4; ++c) {
@@ -280,7 +302,9 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
 }
 
 std::string describe_model(const Model& model) {
-  const char* cm = model.constitutive == ConstitutiveModel::kSvk ? "svk" : "linear";
+  const char* cm = model.constitutive == ConstitutiveModel::kSvk      ? "svk"
+                   : model.constitutive == ConstitutiveModel::kLinear ? "linear"
+                                                                      : "neohookean";
   const char* fm = model.formulation == Formulation::kGradient        ? "gradient"
                    : model.formulation == Formulation::kTensorStored ? "tensor_stored"
                                                                      : "tensor_rebuilt";

@@ -327,6 +327,14 @@ void frame_fields(const Model& model, const State& state, std::span<const Contac
       for (int i = 0; i < 3; ++i) f.m[i][i] += 1.0;
       const double det = determinant(f);
       sigma = det > 0 ? (1.0 / det) * (f * s * transpose(f)) : s;
+    } else if (model.constitutive == ConstitutiveModel::kStableNeoHookean) {
+      // Cauchy stress sigma = P F^T / J; an inverted element reports its P.
+      Mat3d p;
+      double jm1;
+      psi = snh_first_piola(h, lame.lambda, lame.mu, &p, &jm1);
+      Mat3d f = h;
+      for (int i = 0; i < 3; ++i) f.m[i][i] += 1.0;
+      sigma = jm1 > -1.0 ? (1.0 / (1.0 + jm1)) * (p * transpose(f)) : p;
     } else {
       sigma = isotropic_stress(small_strain(h), lame.lambda, lame.mu, &psi);
     }

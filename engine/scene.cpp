@@ -29,7 +29,10 @@ using namespace scene_detail;
 // Sections.
 
 constexpr std::initializer_list<Choice<ModelKind>> kModels = {
-    {"svk", ModelKind::kSvk}, {"linear", ModelKind::kLinear}, {"particles", ModelKind::kParticles}};
+    {"svk", ModelKind::kSvk},
+    {"linear", ModelKind::kLinear},
+    {"neohookean", ModelKind::kStableNeoHookean},
+    {"particles", ModelKind::kParticles}};
 
 void read_mesh(Reader& root, Scene& scene) {
   if (!root.require("mesh")) return;

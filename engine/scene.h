@@ -25,6 +25,9 @@ enum class ModelKind {
   kSvk,        ///< St Venant-Kirchhoff mass-tensor FEM (seed 000, non-linear)
   kLinear,     ///< linear mass-tensor FEM (seed 000; valid for small displacements)
   kParticles,  ///< particle membrane model (seed 001)
+  /// Stable neo-Hookean FEM (Smith, de Goes and Kim 2018; gradient form): resists the tip's
+  /// compression through inversion, no stretch clamp (docs/physics.md).
+  kStableNeoHookean,
 };
 
 /// Where the mesh comes from.
@@ -347,7 +350,7 @@ const MaterialDef* find_material(const Scene& scene, const std::string& region);
 /// reads back to the same Scene; used to record the resolved scene next to a run's results.
 nlohmann::json scene_to_json(const Scene& scene);
 
-/// Name of a model ("svk", "linear", "particles") as written in scene files.
+/// Name of a model ("svk", "linear", "neohookean", "particles") as written in scene files.
 const char* model_name(ModelKind model);
 
 }  // namespace zona

@@ -64,9 +64,14 @@ Result<ModelDesc> model_desc_from_scene(const Scene& scene, const Mesh& mesh,
   switch (scene.model) {
     case ModelKind::kSvk: desc.constitutive = ConstitutiveModel::kSvk; break;
     case ModelKind::kLinear: desc.constitutive = ConstitutiveModel::kLinear; break;
+    case ModelKind::kStableNeoHookean:
+      desc.constitutive = ConstitutiveModel::kStableNeoHookean;
+      break;
     case ModelKind::kParticles:
-      return make_error("%s: model 'particles' is not supported by the FEM simulation (use svk or "
-                        "linear)", scene.name.c_str());
+      return make_error(
+          "%s: model 'particles' is not supported by the FEM simulation (use svk, "
+          "linear or neohookean)",
+          scene.name.c_str());
   }
   desc.inversion = desc.constitutive == ConstitutiveModel::kSvk ? options.inversion
                                                                  : InversionHandling::kReport;

@@ -38,6 +38,10 @@ Status CudaBackend::upload(const Model& model, const State& state) {
   const Formulation form = options_.formulation >= 0
                                ? static_cast<Formulation>(options_.formulation)
                                : model.formulation;
+  if (model.constitutive == ConstitutiveModel::kStableNeoHookean && form != Formulation::kGradient)
+    return make_error(
+        "cuda backend: the neohookean model has no mass-tensor form: use the "
+        "gradient formulation");
   kind_ = choose_kind(model, form);
 
   Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder});

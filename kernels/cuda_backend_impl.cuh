@@ -47,6 +47,9 @@ inline void with_kind(ElementKind k, F&& f) {
     case EK::kLinearStored:
       f(std::integral_constant<EK, EK::kLinearStored>{});
       break;
+    case EK::kSnhGradient:
+      f(std::integral_constant<EK, EK::kSnhGradient>{});
+      break;
   }
 }
 
@@ -59,7 +62,10 @@ inline void with_bool(bool b, F&& f) {
     f(std::false_type{});
 }
 
+// The element kind for a model evaluated in `formulation`. Stable neo-Hookean has the gradient
+// form only: upload refuses it with a tensor formulation before asking here.
 inline ElementKind choose_kind(const Model& model, Formulation formulation) {
+  if (model.constitutive == ConstitutiveModel::kStableNeoHookean) return ElementKind::kSnhGradient;
   const bool svk = model.constitutive == ConstitutiveModel::kSvk;
   switch (formulation) {
     case Formulation::kGradient:
@@ -90,6 +96,8 @@ inline const char* kind_name(ElementKind k) {
       return "svk/tensor_stored";
     case ElementKind::kLinearStored:
       return "linear/tensor_stored";
+    case ElementKind::kSnhGradient:
+      return "neohookean/gradient";
   }
   return "?";
 }

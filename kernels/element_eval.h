@@ -21,6 +21,7 @@ enum class ElementKind : int32_t {
   kLinearRebuilt = 4,   ///< seed's contraction, K rebuilt in registers
   kSvkStored = 5,       ///< seed's contraction, B C D read from memory (592 numbers)
   kLinearStored = 6,    ///< seed's contraction, K read from memory (144 numbers)
+  kSnhGradient = 7,     ///< stable neo-Hookean, F and cof F (gradient form only)
 };
 
 /// Whether the kind reads stored tensors.
@@ -82,6 +83,8 @@ ZONA_HOST_DEVICE ZONA_INLINE T eval_element(const TetShape<T>& s, T lambda, T mu
     T psi;
     tet_forces_from_stress(s, isotropic_stress(small_strain(h), lambda, mu, &psi), f);
     return s.volume * psi;
+  } else if constexpr (K == ElementKind::kSnhGradient) {
+    return tet_snh_forces(s, lambda, mu, u, f, bits);
   } else if constexpr (K == ElementKind::kSvkRebuilt) {
     *bits = tensor_form_health(true, s, u);
     return tet_svk_forces_rebuilt(s, lambda, mu, u, f);

@@ -44,46 +44,51 @@ int run(const std::string& args, std::string* err) {
 }
 
 TEST(CmdForces, CsvMatchesTheEngine) {
-  const fs::path dir = fs::temp_directory_path() / "zona_cmd_forces_test";
-  fs::create_directories(dir);
-  const Mesh mesh = testing::box_mesh({0, 0, 0}, {2, 1, 1}, 2, 1, 1);  // file units: um
-  std::vector<Vec3d> deformed = mesh.rest_positions;
-  for (Vec3d& x : deformed) x = Vec3d{1.2 * x.x + 0.1 * x.z, 0.95 * x.y, x.z + 0.05 * x.x * x.y};
-  write_tetgen(dir / "rest", mesh.rest_positions, mesh.tets);
-  write_tetgen(dir / "moved", deformed, {});  // a bare .node
-  std::string err;
-  const fs::path csv = dir / "f.csv";
-  ASSERT_EQ(run((dir / "rest.node").string() + " " + (dir / "moved.node").string() +
-                    " --model svk --young 2000 --poisson 0.4 --scale 1e-6 --backend cpu --out " +
-                    csv.string(),
-                &err),
-            0)
-      << err;
-  // The same forces in process.
-  Mesh scaled = mesh;
-  for (Vec3d& x : scaled.rest_positions) x = 1e-6 * x;
-  ModelDesc d;
-  d.material.young = 2000;
-  d.material.poisson = 0.4;
-  const Model m = build_model(scaled, d).value();
-  State s = make_state(m, 1);
-  for (size_t v = 0; v < s.u.size(); ++v) s.u[v] = 1e-6 * deformed[v] - scaled.rest_positions[v];
-  compute_elastic_forces(m, s);
+  for (const char* law : {"svk", "neohookean"}) {
+    SCOPED_TRACE(law);
+    const fs::path dir = fs::temp_directory_path() / "zona_cmd_forces_test";
+    fs::create_directories(dir);
+    const Mesh mesh = testing::box_mesh({0, 0, 0}, {2, 1, 1}, 2, 1, 1);  // file units: um
+    std::vector<Vec3d> deformed = mesh.rest_positions;
+    for (Vec3d& x : deformed) x = Vec3d{1.2 * x.x + 0.1 * x.z, 0.95 * x.y, x.z + 0.05 * x.x * x.y};
+    write_tetgen(dir / "rest", mesh.rest_positions, mesh.tets);
+    write_tetgen(dir / "moved", deformed, {});  // a bare .node
+    std::string err;
+    const fs::path csv = dir / "f.csv";
+    ASSERT_EQ(
+        run((dir / "rest.node").string() + " " + (dir / "moved.node").string() + " --model " + law +
+                " --young 2000 --poisson 0.4 --scale 1e-6 --backend cpu --out " + csv.string(),
+            &err),
+        0)
+        << err;
+    // The same forces in process.
+    Mesh scaled = mesh;
+    for (Vec3d& x : scaled.rest_positions) x = 1e-6 * x;
+    ModelDesc d;
+    d.material.young = 2000;
+    d.material.poisson = 0.4;
+    d.constitutive =
+        std::string(law) == "svk" ? ConstitutiveModel::kSvk : ConstitutiveModel::kStableNeoHookean;
+    const Model m = build_model(scaled, d).value();
+    State s = make_state(m, 1);
+    for (size_t v = 0; v < s.u.size(); ++v) s.u[v] = 1e-6 * deformed[v] - scaled.rest_positions[v];
+    compute_elastic_forces(m, s);
 
-  std::ifstream in(csv);
-  std::string line;
-  std::getline(in, line);
-  EXPECT_EQ(line, "vertex,fx,fy,fz");
-  size_t rows = 0;
-  while (std::getline(in, line)) {
-    size_t v;
-    double f[3];
-    ASSERT_EQ(std::sscanf(line.c_str(), "%zu,%lf,%lf,%lf", &v, &f[0], &f[1], &f[2]), 4) << line;
-    EXPECT_EQ(v, rows);
-    for (int i = 0; i < 3; ++i) EXPECT_NEAR(f[i], s.force[v][i], 1e-12 * (1e-6 + std::abs(f[i])));
-    ++rows;
+    std::ifstream in(csv);
+    std::string line;
+    std::getline(in, line);
+    EXPECT_EQ(line, "vertex,fx,fy,fz");
+    size_t rows = 0;
+    while (std::getline(in, line)) {
+      size_t v;
+      double f[3];
+      ASSERT_EQ(std::sscanf(line.c_str(), "%zu,%lf,%lf,%lf", &v, &f[0], &f[1], &f[2]), 4) << line;
+      EXPECT_EQ(v, rows);
+      for (int i = 0; i < 3; ++i) EXPECT_NEAR(f[i], s.force[v][i], 1e-12 * (1e-6 + std::abs(f[i])));
+      ++rows;
+    }
+    EXPECT_EQ(rows, mesh.vertex_count());
   }
-  EXPECT_EQ(rows, mesh.vertex_count());
 }
 
 TEST(CmdForces, BadInputsFailWithOneLine) {

@@ -1,11 +1,13 @@
 // Element functions: geometry conventions, finite-difference checks of force and stiffness,
-// tensor form == gradient form, small-strain and rotation limits, health, inversion remedy.
+// tensor form == gradient form, small-strain and rotation limits, health, inversion remedy,
+// stable neo-Hookean.
 #include "engine/fem_element.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdio>
+#include <random>
 #include <vector>
 
 #include "engine/material.h"
@@ -111,13 +113,13 @@ TEST(FemElement, TensorFormsAreMinusTheirEnergyGradient) {
       [&](const Vec3d* uu, Vec3d* f) { return tet_svk_forces_tensor(t.data(), uu, f); }, u, 1e-7);
 }
 
-// Central differences of the force against the stiffness, column by column.
-void check_stiffness(const Fixture& fx, bool svk, const Vec3d u0[4]) {
+// Central differences of the force (force_fn(u, f)) against the stiffness (stiffness_fn(u, k)),
+// column by column, and the stiffness's symmetry.
+template <class StiffnessFn, class ForceFn>
+void check_stiffness_of(const StiffnessFn& stiffness_fn, const ForceFn& force_fn,
+                        const Vec3d u0[4]) {
   double k[144];
-  if (svk)
-    tet_svk_stiffness(fx.shape, fx.lame.lambda, fx.lame.mu, u0, k);
-  else
-    tet_linear_stiffness(fx.shape, fx.lame.lambda, fx.lame.mu, k);
+  stiffness_fn(u0, k);
   double kmax = 0;
   for (double v : k) kmax = std::max(kmax, std::abs(v));
   const double h = 1e-12;
@@ -127,13 +129,8 @@ void check_stiffness(const Fixture& fx, bool svk, const Vec3d u0[4]) {
       for (int q = 0; q < 4; ++q) up[q] = um[q] = u0[q];
       up[b][j] += h;
       um[b][j] -= h;
-      if (svk) {
-        tet_svk_forces(fx.shape, fx.lame.lambda, fx.lame.mu, up, fp);
-        tet_svk_forces(fx.shape, fx.lame.lambda, fx.lame.mu, um, fm);
-      } else {
-        tet_linear_forces(fx.shape, fx.lame.lambda, fx.lame.mu, up, fp);
-        tet_linear_forces(fx.shape, fx.lame.lambda, fx.lame.mu, um, fm);
-      }
+      force_fn(up, fp);
+      force_fn(um, fm);
       for (int a = 0; a < 4; ++a)
         for (int i = 0; i < 3; ++i) {
           const double fd = -(fp[a][i] - fm[a][i]) / (2 * h);  // df = -K du
@@ -142,6 +139,18 @@ void check_stiffness(const Fixture& fx, bool svk, const Vec3d u0[4]) {
     }
   for (int r = 0; r < 12; ++r)
     for (int c = 0; c < 12; ++c) EXPECT_NEAR(k[r * 12 + c], k[c * 12 + r], 1e-12 * kmax);
+}
+
+void check_stiffness(const Fixture& fx, bool svk, const Vec3d u0[4]) {
+  const double lambda = fx.lame.lambda, mu = fx.lame.mu;
+  if (svk)
+    check_stiffness_of(
+        [&](const Vec3d* u, double* k) { tet_svk_stiffness(fx.shape, lambda, mu, u, k); },
+        [&](const Vec3d* u, Vec3d* f) { tet_svk_forces(fx.shape, lambda, mu, u, f); }, u0);
+  else
+    check_stiffness_of(
+        [&](const Vec3d*, double* k) { tet_linear_stiffness(fx.shape, lambda, mu, k); },
+        [&](const Vec3d* u, Vec3d* f) { tet_linear_forces(fx.shape, lambda, mu, u, f); }, u0);
 }
 
 TEST(FemElement, SvkStiffnessMatchesForceDifferences) {
@@ -396,6 +405,304 @@ TEST(FemElement, Float32ElementAgreesWithDoubleWhenEdgesAreFormedInDouble) {
   // Rounding the 25 um displacements to float32 loses |u| / h * 6e-8 ~ 1.5e-6 of strain, which
   // lambda / mu ~ 50 amplifies: two orders of magnitude worse.
   EXPECT_GT(offset_float, 10 * offset_double_edges);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Stable neo-Hookean.
+
+// A fixed set of deformation gradients: general, compressed, nearly flat, inverted (J < 0) and
+// strongly inverted, each rotated on both sides by seeded random rotations.
+std::vector<Mat3d> snh_test_gradients() {
+  std::mt19937_64 rng(20180501);
+  std::uniform_real_distribution<double> uni(-1.0, 1.0);
+  auto rotation = [&] {
+    Vec3d axis{uni(rng), uni(rng), uni(rng)};
+    axis = axis / norm(axis);
+    const double theta = 3.0 * uni(rng);
+    const Mat3d kx{{{0, -axis.z, axis.y}, {axis.z, 0, -axis.x}, {-axis.y, axis.x, 0}}};
+    return Mat3d::identity() + std::sin(theta) * kx + (1 - std::cos(theta)) * (kx * kx);
+  };
+  const double stretches[][3] = {{1.2, 0.9, 1.05}, {0.5, 0.7, 0.95},  {0.3, 0.5, 0.9},
+                                 {0.1, 0.8, 1.1},  {0.02, 0.9, 1.0},  {0.8, 0.6, -0.3},
+                                 {0.5, 0.5, -0.5}, {1.3, 0.4, -0.05}, {0.2, 0.2, -0.7}};
+  std::vector<Mat3d> out;
+  for (const auto& s : stretches) {
+    Mat3d d = Mat3d::zero();
+    for (int i = 0; i < 3; ++i) d.m[i][i] = s[i];
+    out.push_back(rotation() * d * rotation());
+  }
+  // And general matrices near the identity (not of the form above by construction).
+  for (int k = 0; k < 3; ++k) {
+    Mat3d f = Mat3d::identity();
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) f.m[r][c] += 0.4 * uni(rng);
+    out.push_back(f);
+  }
+  return out;
+}
+
+double snh_energy(const Mat3d& f, const Lame& l) {
+  Mat3d p;
+  double jm1;
+  return snh_first_piola(f - Mat3d::identity(), l.lambda, l.mu, &p, &jm1);
+}
+
+Mat3d snh_stress(const Mat3d& f, const Lame& l) {
+  Mat3d p;
+  double jm1;
+  snh_first_piola(f - Mat3d::identity(), l.lambda, l.mu, &p, &jm1);
+  return p;
+}
+
+double max_abs(const Mat3d& a) {
+  double m = 0;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m = std::max(m, std::abs(a.m[r][c]));
+  return m;
+}
+
+TEST(FemElement, SnhStressAndStiffnessMatchFiniteDifferencesIncludingInverted) {
+  const Lame l = lame_from_young_poisson(17.9e3, 0.49);
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> uni(-1.0, 1.0);
+  int inverted = 0;
+  for (const Mat3d& f : snh_test_gradients()) {
+    const double j = determinant(f);
+    inverted += j < 0 ? 1 : 0;
+    const Mat3d p = snh_stress(f, l);
+    // The law's own J - 1 and the determinant agree.
+    Mat3d pp;
+    double jm1;
+    snh_first_piola(f - Mat3d::identity(), l.lambda, l.mu, &pp, &jm1);
+    EXPECT_NEAR(1.0 + jm1, j, 1e-14);
+    // P = dPsi/dF, entry by entry.
+    const double h = 1e-6;
+    const double pscale = max_abs(p) + l.mu;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) {
+        Mat3d fp = f, fm = f;
+        fp.m[r][c] += h;
+        fm.m[r][c] -= h;
+        const double fd = (snh_energy(fp, l) - snh_energy(fm, l)) / (2 * h);
+        EXPECT_NEAR(p.m[r][c], fd, 1e-7 * pscale) << "J " << j << " entry " << r << c;
+      }
+    // dP[dF] = derivative of P along dF, for random directions.
+    for (int k = 0; k < 3; ++k) {
+      Mat3d df;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) df.m[r][c] = uni(rng);
+      const Mat3d dp = snh_stress_differential(f - Mat3d::identity(), l.lambda, l.mu, df);
+      const Mat3d fd = (1.0 / (2 * h)) * (snh_stress(f + h * df, l) - snh_stress(f - h * df, l));
+      const double scale = max_abs(fd) + l.mu;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          EXPECT_NEAR(dp.m[r][c], fd.m[r][c], 1e-7 * scale) << "J " << j << " entry " << r << c;
+      // Symmetry of the Hessian: dF2 : dP[dF1] = dF1 : dP[dF2].
+      Mat3d df2;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) df2.m[r][c] = uni(rng);
+      const Mat3d dp2 = snh_stress_differential(f - Mat3d::identity(), l.lambda, l.mu, df2);
+      EXPECT_NEAR(frobenius_dot(df2, dp), frobenius_dot(df, dp2), 1e-12 * scale * 9);
+    }
+  }
+  EXPECT_GE(inverted, 4);  // the set does reach J < 0
+}
+
+// The Fixture's tetrahedron with vertex 3 pushed through the opposite face: J < 0.
+void inverted_displacements(Vec3d u[4]) {
+  displacements(0.2, u);
+  u[3] = u[3] + Vec3d{0.1e-6, -0.2e-6, -1.6e-6};
+}
+
+TEST(FemElement, SnhForceIsMinusTheEnergyGradient) {
+  Fixture fx;
+  auto fn = [&](const Vec3d* uu, Vec3d* f) {
+    uint32_t bits;
+    return tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, uu, f, &bits);
+  };
+  Vec3d u[4];
+  displacements(0.3, u);
+  check_force_against_energy(fn, u, 1e-7);
+  inverted_displacements(u);
+  ASSERT_LT(determinant(Mat3d::identity() + tet_displacement_gradient(fx.shape, u)), 0.0);
+  check_force_against_energy(fn, u, 1e-7);
+}
+
+TEST(FemElement, SnhStiffnessMatchesForceDifferencesIncludingInverted) {
+  Fixture fx;
+  auto kfn = [&](const Vec3d* uu, double* k) {
+    tet_snh_stiffness(fx.shape, fx.lame.lambda, fx.lame.mu, uu, k);
+  };
+  auto ffn = [&](const Vec3d* uu, Vec3d* f) {
+    uint32_t bits;
+    tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, uu, f, &bits);
+  };
+  Vec3d u[4];
+  displacements(0.3, u);
+  check_stiffness_of(kfn, ffn, u);
+  inverted_displacements(u);
+  check_stiffness_of(kfn, ffn, u);
+}
+
+TEST(FemElement, SnhRestStateHasZeroEnergyAndForce) {
+  Fixture fx;
+  // At rest and under a rigid translation: exactly zero (H is exactly zero there).
+  for (const Vec3d shift : {Vec3d{0, 0, 0}, Vec3d{3e-6, -1e-6, 2e-6}}) {
+    const Vec3d u[4] = {shift, shift, shift, shift};
+    Vec3d f[4];
+    uint32_t bits = 7;
+    EXPECT_EQ(tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, u, f, &bits), 0.0);
+    EXPECT_EQ(max_norm(f), 0.0);
+    EXPECT_EQ(bits, 0u);
+  }
+}
+
+TEST(FemElement, SnhIsRotationInvariant) {
+  const Lame l = lame_from_young_poisson(17.9e3, 0.49);
+  const Vec3d axis = Vec3d{1, 2, 2} / 3.0;
+  const Mat3d kx{{{0, -axis.z, axis.y}, {axis.z, 0, -axis.x}, {-axis.y, axis.x, 0}}};
+  for (double theta : {0.5, 2.5}) {
+    const Mat3d r = Mat3d::identity() + std::sin(theta) * kx + (1 - std::cos(theta)) * (kx * kx);
+    for (const Mat3d& f : snh_test_gradients()) {
+      // Psi(R F) = Psi(F), P(R F) = R P(F).
+      const double psi = snh_energy(f, l);
+      EXPECT_NEAR(snh_energy(r * f, l), psi, 1e-12 * (std::abs(psi) + l.mu));
+      const Mat3d p = snh_stress(f, l), pr = snh_stress(r * f, l);
+      EXPECT_LE(max_abs(pr - r * p), 1e-12 * (max_abs(p) + l.mu));
+    }
+  }
+  // A rigidly rotated and translated element: no force, no energy (as SVK; linear would push).
+  Fixture fx;
+  const double theta = 0.5;
+  const Mat3d r = Mat3d::identity() + std::sin(theta) * kx + (1 - std::cos(theta)) * (kx * kx);
+  Vec3d u[4], f[4], us[4], fref[4];
+  for (int j = 0; j < 4; ++j) u[j] = r * fx.x[j] - fx.x[j] + Vec3d{3e-6, -1e-6, 2e-6};
+  uint32_t bits;
+  const double w = tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, u, f, &bits);
+  for (int j = 0; j < 4; ++j) us[j] = Vec3d{0.1 * fx.x[j].x, 0, 0};
+  tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, us, fref, &bits);
+  EXPECT_LE(max_norm(f), 1e-10 * max_norm(fref));
+  EXPECT_LE(std::abs(w), 1e-18);
+}
+
+TEST(FemElement, SnhSmallStrainLimitIsLinearElasticity) {
+  Fixture fx;
+  // Forces at a 1e-6 strain: the linear model's with the material's (lambda, mu), to 1e-3
+  // (the difference is second order: ~ (lambda / mu) 1e-6).
+  Vec3d u[4], fs[4], fl[4];
+  displacements(1e-6, u);
+  uint32_t bits;
+  tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, u, fs, &bits);
+  tet_linear_forces(fx.shape, fx.lame.lambda, fx.lame.mu, u, fl);
+  double diff = 0;
+  for (int j = 0; j < 4; ++j) diff = std::max(diff, norm(fs[j] - fl[j]));
+  EXPECT_LT(diff / max_norm(fl), 1e-3);
+  EXPECT_LT(diff / max_norm(fl), 1e-4);  // in fact
+  // And the tangent at rest is the linear stiffness, entry by entry.
+  const Vec3d zero[4] = {};
+  double ks[144], kl[144];
+  tet_snh_stiffness(fx.shape, fx.lame.lambda, fx.lame.mu, zero, ks);
+  tet_linear_stiffness(fx.shape, fx.lame.lambda, fx.lame.mu, kl);
+  double kmax = 0;
+  for (double v : kl) kmax = std::max(kmax, std::abs(v));
+  for (int i = 0; i < 144; ++i) EXPECT_NEAR(ks[i], kl[i], 1e-13 * kmax);
+}
+
+TEST(FemElement, SnhResistsCompressionWhereSvkGivesWay) {
+  // Uniaxial F = diag(s, 1, 1): SNH's P_11 = (mu + lambda_s)(s - 1) grows in magnitude all the
+  // way to s = 0 and through it; SVK's P_11 = s (lambda + 2 mu)(s^2 - 1)/2 peaks at 1/sqrt(3)
+  // and is zero when flat.
+  const Lame l = lame_from_young_poisson(17.9e3, 0.45);
+  double previous = 0;
+  for (double s = 0.95; s > -0.5; s -= 0.05) {
+    Mat3d h = Mat3d::zero();
+    h.m[0][0] = s - 1;
+    const double p11 = snh_stress(Mat3d::identity() + h, l).m[0][0];
+    EXPECT_NEAR(p11, (l.mu + snh_lambda(l.lambda, l.mu)) * (s - 1), 1e-9 * l.lambda);
+    EXPECT_LT(p11, previous) << "stretch " << s;
+    previous = p11;
+  }
+  Mat3d flat = Mat3d::zero();
+  flat.m[0][0] = -1;
+  Mat3d p_svk;
+  svk_first_piola(flat, l.lambda, l.mu, &p_svk);
+  EXPECT_EQ(p_svk.m[0][0], 0.0);
+  EXPECT_LT(snh_stress(Mat3d::identity() + flat, l).m[0][0], -l.lambda);
+}
+
+TEST(FemElement, SnhPushesAnInvertedElementBackAndSaysSo) {
+  // The tetrahedron of ClampedSvkPushesAnInvertedElementBack: F = diag(1, 1, -1), where plain
+  // SVK feels nothing. SNH pushes vertex 3 back up, with a finite energy, and flags the
+  // inversion (informational).
+  const Vec3d x[4] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  const TetShape<double> s = tet_shape_from_rest(x[0], x[1], x[2], x[3]);
+  const Lame l = lame_from_young_poisson(1.0, 0.3);
+  const Vec3d u[4] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, -2}};
+  Vec3d f[4];
+  uint32_t bits = 0;
+  const double w = tet_snh_forces(s, l.lambda, l.mu, u, f, &bits);
+  EXPECT_EQ(bits, uint32_t{kElementInverted});
+  EXPECT_TRUE(std::isfinite(w));
+  EXPECT_GT(w, 0.0);
+  EXPECT_GT(f[3].z, 0.1 * l.mu * s.volume);
+  EXPECT_NEAR(f[3].x, 0.0, 1e-12);
+  EXPECT_NEAR(f[3].y, 0.0, 1e-12);
+  // Flat (J = 0): defined, flagged, pushing back.
+  const Vec3d flat[4] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, -1}};
+  EXPECT_TRUE(std::isfinite(tet_snh_forces(s, l.lambda, l.mu, flat, f, &bits)));
+  EXPECT_EQ(bits, uint32_t{kElementInverted});
+  EXPECT_GT(f[3].z, 0.1 * l.mu * s.volume);
+}
+
+TEST(FemElement, SnhFloat32ElementKeepsSmallStrains) {
+  // The stress is formed from H without subtracting numbers of order one, so float32 keeps
+  // the digits of small strains (the CUDA kernels run it in float32).
+  Fixture fx;
+  const TetShape<float> sf = tet_shape_cast<float>(fx.shape);
+  char text[200];
+  double errors[3];
+  const double strains[3] = {1e-6, 1e-3, 0.2};
+  for (int k = 0; k < 3; ++k) {
+    Vec3d u[4], fd[4];
+    displacements(strains[k], u);
+    uint32_t bits;
+    tet_snh_forces(fx.shape, fx.lame.lambda, fx.lame.mu, u, fd, &bits);
+    Vec3f uf[4], ff[4];
+    for (int j = 0; j < 4; ++j) uf[j] = vec_cast<float>(u[j]);
+    tet_snh_forces(sf, static_cast<float>(fx.lame.lambda), static_cast<float>(fx.lame.mu), uf, ff,
+                   &bits);
+    double err = 0;
+    for (int j = 0; j < 4; ++j) err = std::max(err, norm(vec_cast<double>(ff[j]) - fd[j]));
+    errors[k] = err / max_norm(fd);
+  }
+  // The same stress written with F (P = mu (F - cof F) + lambda_s (det F - 1) cof F, F = I + H
+  // rounded to float32 first) at the 1e-6 strain: the order-one terms cancel.
+  Vec3d u[4];
+  displacements(1e-6, u);
+  const Mat3d h = tet_displacement_gradient(fx.shape, u);
+  Mat3d p;
+  double jm1;
+  snh_first_piola(h, fx.lame.lambda, fx.lame.mu, &p, &jm1);
+  Mat3f f;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) f.m[r][c] = static_cast<float>(h.m[r][c]) + (r == c ? 1.0f : 0.0f);
+  const Mat3f cof = cofactor(f);
+  const float mu = static_cast<float>(fx.lame.mu);
+  const float lam = snh_lambda(static_cast<float>(fx.lame.lambda), mu);
+  const float j_minus_one = determinant(f) - 1.0f;
+  double naive_error = 0;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const float pf = mu * (f.m[r][c] - cof.m[r][c]) + lam * j_minus_one * cof.m[r][c];
+      naive_error = std::max(naive_error, std::abs(static_cast<double>(pf) - p.m[r][c]));
+    }
+  naive_error /= max_abs(p);
+  std::snprintf(text, sizeof text,
+                "strain 1e-6: %.2e, 1e-3: %.2e, 0.2: %.2e; F-form stress at 1e-6: %.2e", errors[0],
+                errors[1], errors[2], naive_error);
+  RecordProperty("snh_float32_relative_force_error", text);
+  for (double e : errors) EXPECT_LT(e, 1e-5) << text;
+  EXPECT_GT(naive_error, 1e-2) << text;
 }
 
 }  // namespace

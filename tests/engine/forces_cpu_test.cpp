@@ -1,5 +1,6 @@
 // CPU force assembly: formulations agree on a mesh, patch test, uniaxial stretch against the
-// closed-form SVK answer, rotation, determinism across thread counts, stiffness, frequency.
+// closed-form SVK answer, rotation, determinism across thread counts, stiffness, frequency, the
+// stable neo-Hookean pass.
 #include "engine/forces_cpu.h"
 
 #include <gtest/gtest.h>
@@ -381,9 +382,11 @@ TEST(ForcesCpu, PatchTestAffineDisplacement) {
       if (x[i] < 1e-3 * kL || x[i] > (1 - 1e-3) * kL) return false;
     return true;
   };
-  for (ConstitutiveModel cm : {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear})
+  for (ConstitutiveModel cm :
+       {ConstitutiveModel::kSvk, ConstitutiveModel::kLinear, ConstitutiveModel::kStableNeoHookean})
     for (Formulation fm :
          {Formulation::kGradient, Formulation::kTensorStored, Formulation::kTensorRebuilt}) {
+      if (cm == ConstitutiveModel::kStableNeoHookean && fm != Formulation::kGradient) continue;
       const Model model = make_model(mesh, cm, fm);
       const auto f = forces_of(model, u);
       const double scale = max_norm(f);
@@ -452,6 +455,9 @@ TEST(ForcesCpu, RigidRotationOfAMesh) {
   EXPECT_LE(max_norm(forces_of(make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient),
                                u)),
             1e-10 * scale);
+  EXPECT_LE(max_norm(forces_of(
+                make_model(mesh, ConstitutiveModel::kStableNeoHookean, Formulation::kGradient), u)),
+            1e-10 * scale);
   // The linear model sees a strain of 1 - cos(0.7) = 24 % and pushes back hard.
   EXPECT_GT(max_norm(forces_of(
                 make_model(mesh, ConstitutiveModel::kLinear, Formulation::kGradient), u)),
@@ -459,33 +465,83 @@ TEST(ForcesCpu, RigidRotationOfAMesh) {
 }
 
 TEST(ForcesCpu, AssembledStiffnessMatchesForceDifferences) {
-  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 2, 1);
-  const Model model = make_model(mesh, ConstitutiveModel::kSvk, Formulation::kGradient);
-  const std::vector<Vec3d> u = wavy_displacement(mesh, 0.2);
-  const Eigen::SparseMatrix<double> k = assemble_stiffness(model, u);
-  // Direction of the derivative.
-  std::vector<Vec3d> d = wavy_displacement(mesh, 1.0);
-  for (Vec3d& x : d) x = Vec3d{x.y, -x.z, x.x};
-  const double h = 1e-6 * kL;
-  std::vector<Vec3d> up(u), um(u);
-  for (size_t v = 0; v < u.size(); ++v) {
-    up[v] += (h / kL) * d[v];
-    um[v] -= (h / kL) * d[v];
-  }
-  const auto fp = forces_of(model, up), fm = forces_of(model, um);
-  Eigen::VectorXd dv(3 * u.size());
-  for (size_t v = 0; v < u.size(); ++v)
-    for (int i = 0; i < 3; ++i) dv[static_cast<Eigen::Index>(3 * v + i)] = d[v][i] / kL;
-  const Eigen::VectorXd kd = k * dv;
-  double scale = kd.cwiseAbs().maxCoeff();
-  for (size_t v = 0; v < u.size(); ++v)
-    for (int i = 0; i < 3; ++i) {
-      const double fd = -(fp[v][i] - fm[v][i]) / (2 * h);
-      EXPECT_NEAR(kd[static_cast<Eigen::Index>(3 * v + i)], fd, 1e-6 * scale);
+  for (ConstitutiveModel cm : {ConstitutiveModel::kSvk, ConstitutiveModel::kStableNeoHookean}) {
+    SCOPED_TRACE(cm == ConstitutiveModel::kSvk ? "svk" : "neohookean");
+    const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 2, 1);
+    const Model model = make_model(mesh, cm, Formulation::kGradient);
+    const std::vector<Vec3d> u = wavy_displacement(mesh, 0.2);
+    const Eigen::SparseMatrix<double> k = assemble_stiffness(model, u);
+    // Direction of the derivative.
+    std::vector<Vec3d> d = wavy_displacement(mesh, 1.0);
+    for (Vec3d& x : d) x = Vec3d{x.y, -x.z, x.x};
+    const double h = 1e-6 * kL;
+    std::vector<Vec3d> up(u), um(u);
+    for (size_t v = 0; v < u.size(); ++v) {
+      up[v] += (h / kL) * d[v];
+      um[v] -= (h / kL) * d[v];
     }
-  // Symmetric.
-  const Eigen::SparseMatrix<double> kt = k.transpose();
-  EXPECT_LE((k - kt).norm(), 1e-12 * k.norm());
+    const auto fp = forces_of(model, up), fm = forces_of(model, um);
+    Eigen::VectorXd dv(3 * u.size());
+    for (size_t v = 0; v < u.size(); ++v)
+      for (int i = 0; i < 3; ++i) dv[static_cast<Eigen::Index>(3 * v + i)] = d[v][i] / kL;
+    const Eigen::VectorXd kd = k * dv;
+    double scale = kd.cwiseAbs().maxCoeff();
+    for (size_t v = 0; v < u.size(); ++v)
+      for (int i = 0; i < 3; ++i) {
+        const double fd = -(fp[v][i] - fm[v][i]) / (2 * h);
+        EXPECT_NEAR(kd[static_cast<Eigen::Index>(3 * v + i)], fd, 1e-6 * scale);
+      }
+    // Symmetric.
+    const Eigen::SparseMatrix<double> kt = k.transpose();
+    EXPECT_LE((k - kt).norm(), 1e-12 * k.norm());
+  }
+}
+
+TEST(ForcesCpu, NeoHookeanPassIsItsElementFunctionAndReportsInversion) {
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 5, 4, 4);  // 480 tets: several chunks
+  const Model model =
+      make_model(mesh, ConstitutiveModel::kStableNeoHookean, Formulation::kGradient);
+  std::vector<Vec3d> u = wavy_displacement(mesh, 0.3);
+  // An interior vertex pushed through its neighbours: some elements inverted.
+  size_t centre = 0;
+  for (size_t v = 0; v < u.size(); ++v)
+    if (norm(mesh.rest_positions[v] - Vec3d{0.4, 0.5, 0.5} * kL) <
+        norm(mesh.rest_positions[centre] - Vec3d{0.4, 0.5, 0.5} * kL))
+      centre = v;
+  u[centre] += Vec3d{0, 0, -0.6 * kL};
+  std::vector<Vec3d> ref(u.size(), Vec3d{0, 0, 0});
+  double ref_energy = 0, scale = 0;
+  int64_t inverted = 0;
+  for (size_t t = 0; t < model.tet_count(); ++t) {
+    const Tet& e = model.tets[t];
+    const Vec3d ue[4] = {u[e[0]], u[e[1]], u[e[2]], u[e[3]]};
+    Vec3d fe[4];
+    uint32_t bits = 0;
+    ref_energy += tet_snh_forces(model.tet_shape[t], model.tet_lame(t).lambda, model.tet_lame(t).mu,
+                                 ue, fe, &bits);
+    inverted += bits & kElementInverted ? 1 : 0;
+    for (int c = 0; c < 4; ++c) {
+      ref[e[c]] += fe[c];
+      scale = std::max(scale, norm(fe[c]));
+    }
+  }
+  ASSERT_GT(inverted, 0);
+  State s1 = make_state(model, 1), s3 = make_state(model, 3);
+  for (State* s : {&s1, &s3}) {
+    std::copy(u.begin(), u.end(), s->u.begin());
+    compute_elastic_forces(model, *s);
+  }
+  // The scalar pass sums the same corner forces in ascending tetrahedron order.
+  for (size_t v = 0; v < u.size(); ++v)
+    EXPECT_LE(norm(s1.force[v] - ref[v]), 1e-13 * scale) << "vertex " << v;
+  EXPECT_NEAR(s1.diag.elastic_energy, ref_energy, 1e-13 * ref_energy);
+  // Inversion is reported (not a failure for this law), and no result depends on threads.
+  EXPECT_EQ(s1.diag.inverted_count, inverted);
+  EXPECT_TRUE(s1.diag.element_health & kElementInverted);
+  EXPECT_FALSE(s1.diag.element_health & (kElementCollapsing | kElementClamped));
+  EXPECT_EQ(std::memcmp(s1.force.data(), s3.force.data(), u.size() * sizeof(Vec3d)), 0);
+  EXPECT_EQ(s1.diag.elastic_energy, s3.diag.elastic_energy);
+  EXPECT_EQ(s1.diag.first_inverted, s3.diag.first_inverted);
 }
 
 TEST(ForcesCpu, MaxFrequencyMatchesADenseEigensolver) {

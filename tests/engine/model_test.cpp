@@ -60,6 +60,19 @@ TEST(Model, BadInputsAreRefusedWithOneLineMessages) {
   d.inversion = InversionHandling::kClampStretch;
   d.formulation = Formulation::kTensorStored;
   EXPECT_NE(build_error(mesh, d).find("gradient formulation"), std::string::npos);
+  // Stable neo-Hookean: gradient form, float64 CPU elements, no clamp.
+  d = ModelDesc{};
+  d.constitutive = ConstitutiveModel::kStableNeoHookean;
+  EXPECT_EQ(build_error(mesh, d), "");
+  d.formulation = Formulation::kTensorRebuilt;
+  EXPECT_NE(build_error(mesh, d).find("neohookean model has no mass-tensor form"),
+            std::string::npos);
+  d.formulation = Formulation::kGradient;
+  d.element_precision = ElementPrecision::kFloat32;
+  EXPECT_NE(build_error(mesh, d).find("svk and linear only"), std::string::npos);
+  d.element_precision = ElementPrecision::kFloat64;
+  d.inversion = InversionHandling::kClampStretch;
+  EXPECT_NE(build_error(mesh, d).find("needs the svk model"), std::string::npos);
 
   Mesh flipped = single_tet_mesh();
   std::swap(flipped.tets[0][1], flipped.tets[0][2]);
@@ -123,6 +136,37 @@ TEST(Model, CriticalStepFormula) {
   EXPECT_NEAR(m.dt_critical, bound, 1e-12 * bound);
   EXPECT_EQ(m.dt_critical, m.dt_element_bound);
   EXPECT_NEAR(m.dt, 0.9 * m.dt_critical, 1e-15);
+}
+
+TEST(Model, NeoHookeanCriticalStepUsesItsOwnLameConstants) {
+  // The element bound with lambda_s = lambda + mu in place of lambda: a little below the
+  // linear / SVK step (the tangent at rest is the same; the margin is for deformed elements).
+  const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 2, 2, 2);
+  ModelDesc d;
+  const Model svk = build_model(mesh, d).value();
+  d.constitutive = ConstitutiveModel::kStableNeoHookean;
+  const Model snh = build_model(mesh, d).value();
+  const Lame l = snh.material_lame[0];
+  const double rho = snh.materials[0].density;
+  double bound = 1e300;
+  for (const TetShape<double>& s : snh.tet_shape) {
+    Mat3d ggt = Mat3d::zero();
+    for (int j = 0; j < 4; ++j) ggt = ggt + outer(s.grad[j], s.grad[j]);
+    double ev[3];
+    Mat3d vec;
+    symmetric_eigen3(ggt, ev, &vec);
+    const double lmax = std::max({ev[0], ev[1], ev[2]});
+    bound = std::min(bound, std::sqrt(rho / ((l.lambda + l.mu) * trace(ggt) + 2 * l.mu * lmax)));
+  }
+  EXPECT_NEAR(snh.dt_critical, bound, 1e-12 * bound);
+  EXPECT_LT(snh.dt_critical, svk.dt_critical);
+  EXPECT_GT(snh.dt_critical, 0.98 * svk.dt_critical);  // ~1 % at nu = 0.49
+  // Still below the exact limit of the rest tangent (the linear one).
+  d.critical_step = CriticalStep::kPowerIteration;
+  const Model exact = build_model(mesh, d).value();
+  EXPECT_LT(snh.dt_critical, exact.dt_critical);
+  EXPECT_NE(describe_model(snh).find("neohookean (gradient)"), std::string::npos)
+      << describe_model(snh);
 }
 
 // The critical step against the exact stability limit 2 / omega_max of the lumped-mass

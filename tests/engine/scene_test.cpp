@@ -340,7 +340,7 @@ TEST(Scene, InconsistentSectionsAreRefused) {
   expect_error(j, "boundary.0.type", "not one of: fixed, indent");
   j = minimal();
   j["model"] = "fem";
-  expect_error(j, "model", "\"fem\" is not one of: svk, linear, particles");
+  expect_error(j, "model", "\"fem\" is not one of: svk, linear, neohookean, particles");
 }
 
 TEST(Scene, NeedleGeometryResolvesTheRefinementPoint) {
@@ -518,6 +518,7 @@ TEST(Scene, OverridesApplyBeforeValidation) {
   EXPECT_EQ(find_material(load_ok(mouse, {"materials.default.young=20kPa"}), "zona")->young, 20e3);
   expect_rel(load_ok(mouse, {"needle.speed=0.6 mm/s"}).needle.speed, 6e-4);
   EXPECT_EQ(load_ok(mouse, {"model=linear"}).model, ModelKind::kLinear);
+  EXPECT_EQ(load_ok(mouse, {"model=neohookean"}).model, ModelKind::kStableNeoHookean);
   // A graded mesh keeps its lengths and is scaled to the vertex count.
   const Scene sized = load_ok(mouse, {"mesh.generate.vertices=2000"});
   EXPECT_EQ(sized.mesh.generate.target_vertices, 2000);

@@ -40,6 +40,13 @@ TEST(SceneWrite, WritesSiValuesAndResolvedChoices) {
   EXPECT_FALSE(j["materials"]["default"].contains("young"));
   EXPECT_EQ(j["materials"]["default"]["young_by_speed"][0]["young"], "61000 Pa");
   EXPECT_EQ(j["integrator"]["dt"], "auto");
+  // The constitutive model by its scene-file name.
+  Result<Scene> snh = load_scene(kScenes + "mouse_oocyte.json", {"model=neohookean"});
+  ASSERT_TRUE(snh.ok()) << snh.error().message;
+  EXPECT_EQ(scene_to_json(*snh)["model"], "neohookean");
+  Result<Scene> back = parse_scene(scene_to_json(*snh), "");
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->model, ModelKind::kStableNeoHookean);
 }
 
 TEST(SceneWrite, DisabledToolsAndDefaultsReadBack) {

@@ -1,6 +1,7 @@
 // GPU against CPU on the same inputs (STYLE.md habit 7): elastic forces for every element kind
 // and assembly, 1000-step trajectories with fixed and prescribed vertices, graph replay against
-// single stepping, bitwise-identical deterministic runs, health flags. Every test skips when the
+// single stepping, bitwise-identical deterministic runs, health flags, the stable neo-Hookean law
+// (forces, inversion, trajectory). Every test skips when the
 // CUDA backend cannot be created (no GPU, or built without CUDA); it only uses the Backend
 // interface, so it compiles in the CPU-only build too.
 #include "kernels/cuda_backend.h"
@@ -152,8 +153,15 @@ INSTANTIATE_TEST_SUITE_P(
         ForceCase{ConstitutiveModel::kLinear, Formulation::kGradient, Assembly::kScatterAtomic},
         ForceCase{ConstitutiveModel::kLinear, Formulation::kTensorRebuilt,
                   Assembly::kGatherRecompute},
-        ForceCase{ConstitutiveModel::kLinear, Formulation::kTensorStored,
-                  Assembly::kScatterAtomic}));
+        ForceCase{ConstitutiveModel::kLinear, Formulation::kTensorStored, Assembly::kScatterAtomic},
+        ForceCase{ConstitutiveModel::kStableNeoHookean, Formulation::kGradient,
+                  Assembly::kScatterAtomic},
+        ForceCase{ConstitutiveModel::kStableNeoHookean, Formulation::kGradient,
+                  Assembly::kScatterFixed},
+        ForceCase{ConstitutiveModel::kStableNeoHookean, Formulation::kGradient,
+                  Assembly::kGatherRecompute},
+        ForceCase{ConstitutiveModel::kStableNeoHookean, Formulation::kGradient,
+                  Assembly::kGatherStored}));
 
 // The needle scenario: bottom cap fixed, a patch at the north pole pushed 1.5 um inwards over
 // 1000 steps in 10 calls of 100 sub-steps.
@@ -172,8 +180,9 @@ struct NeedleSetup {
 };
 
 // `initial_strain` > 0 starts from a deformed, resting configuration (the patch held there).
-NeedleSetup needle_setup(const Mesh& mesh, double initial_strain = 0) {
-  ModelDesc desc = cell_desc(ConstitutiveModel::kSvk, Formulation::kGradient);
+NeedleSetup needle_setup(const Mesh& mesh, double initial_strain = 0,
+                         ConstitutiveModel law = ConstitutiveModel::kSvk) {
+  ModelDesc desc = cell_desc(law, Formulation::kGradient);
   const double r = 28e-6;
   for (size_t v = 0; v < mesh.vertex_count(); ++v)
     if (mesh.rest_positions[v].z < -0.85 * r) desc.fixed_vertices.push_back(int32_t(v));
@@ -380,6 +389,92 @@ TEST(CudaHealth, InvertedElementIsFlaggedLikeOnTheCpu) {
   ASSERT_TRUE(gpu->download(b).ok());
   EXPECT_EQ(b.diag.inverted_count, a.diag.inverted_count);
   EXPECT_EQ(b.diag.first_inverted, a.diag.first_inverted);
+}
+
+// Stable neo-Hookean where SVK gives way: strongly compressed and inverted elements (a corner
+// of every tenth tetrahedron pushed through its opposite face). Forces match the CPU's, and the
+// inversion is flagged alike (informational for this law: the step goes on).
+TEST(CudaNeoHookean, CompressedAndInvertedElementsMatchCpu) {
+  BackendOptions options;
+  options.poison_outputs = true;
+  ZONA_CUDA_BACKEND_OR_SKIP(gpu, options);
+  const Mesh mesh = small_cell();
+  Result<Model> model =
+      build_model(mesh, cell_desc(ConstitutiveModel::kStableNeoHookean, Formulation::kGradient));
+  ASSERT_TRUE(model.ok()) << model.error().message;
+  std::vector<Vec3d> u = test_displacement(*model, 0.05, 4);
+  std::vector<uint8_t> moved(model->vertex_count(), 0);
+  for (size_t k = 0; k < model->tet_count(); k += 10) {
+    const Tet& t = model->tets[k];
+    if (moved[t[0]] || moved[t[1]] || moved[t[2]] || moved[t[3]]) continue;
+    const Vec3d face_centre =
+        (model->rest_positions[t[1]] + model->rest_positions[t[2]] + model->rest_positions[t[3]]) /
+        3.0;
+    u[t[0]] = 1.6 * (face_centre - model->rest_positions[t[0]]);
+    for (int c = 0; c < 4; ++c) moved[t[c]] = 1;
+  }
+  State state = make_state(*model, 1);
+  set_displacement(state, u);
+  std::unique_ptr<Backend> cpu = make_cpu_backend(BackendOptions{});
+  ASSERT_TRUE(cpu->upload(*model, state).ok());
+  const Status up = gpu->upload(*model, state);
+  ASSERT_TRUE(up.ok()) << up.error().message;
+  std::vector<Vec3d> f_cpu = poisoned(u.size()), f_gpu = poisoned(u.size());
+  ASSERT_TRUE(cpu->elastic_forces(u, f_cpu).ok());
+  ASSERT_TRUE(gpu->elastic_forces(u, f_gpu).ok());
+  for (const Vec3d& f : f_gpu) ASSERT_TRUE(std::isfinite(f.x + f.y + f.z));
+  const double error = max_diff(f_cpu, f_gpu) / max_norm(f_cpu);
+  std::printf("[ measured ] neohookean inverted-field force error %.3g of max |f|\n", error);
+  EXPECT_LE(error, kForceTolerance);
+  const StepReport rc = cpu->step(1);
+  const StepReport rg = gpu->step(1);
+  EXPECT_TRUE(rc.status & kStepInvertedElement);
+  EXPECT_TRUE(rg.status & kStepInvertedElement);
+  EXPECT_FALSE((rc.status | rg.status) & kStepNotAdvanced);
+  EXPECT_EQ(rg.steps, 1);
+  State a = make_state(*model, 1), b = make_state(*model, 1);
+  ASSERT_TRUE(cpu->download(a).ok());
+  ASSERT_TRUE(gpu->download(b).ok());
+  EXPECT_GT(a.diag.inverted_count, 10);
+  EXPECT_EQ(b.diag.inverted_count, a.diag.inverted_count);
+  EXPECT_EQ(b.diag.first_inverted, a.diag.first_inverted);
+  EXPECT_NE(gpu->description().find("neohookean/gradient"), std::string::npos)
+      << gpu->description();
+}
+
+TEST(CudaNeoHookean, TensorFormulationIsRefused) {
+  BackendOptions options;
+  options.formulation = static_cast<int32_t>(Formulation::kTensorStored);
+  ZONA_CUDA_BACKEND_OR_SKIP(gpu, options);
+  Result<Model> model = build_model(
+      small_cell(), cell_desc(ConstitutiveModel::kStableNeoHookean, Formulation::kGradient));
+  ASSERT_TRUE(model.ok());
+  const Status s = gpu->upload(*model, make_state(*model, 1));
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("no mass-tensor form"), std::string::npos) << s.error().message;
+}
+
+TEST(CudaNeoHookean, ThousandStepsMatchCpu) {
+  BackendOptions options;
+  options.poison_outputs = true;
+  ZONA_CUDA_BACKEND_OR_SKIP(gpu, options);
+  NeedleSetup s = needle_setup(small_cell(), 0, ConstitutiveModel::kStableNeoHookean);
+  ASSERT_FALSE(s.start.empty());
+  std::unique_ptr<Backend> cpu = make_cpu_backend(BackendOptions{});
+  const NeedleRun a = run_needle(*cpu, s, 10, 100);
+  const NeedleRun b = run_needle(*gpu, s, 10, 100);
+  EXPECT_EQ(a.steps, 1000);
+  EXPECT_EQ(b.steps, 1000);
+  EXPECT_EQ(a.status, kStepOk);
+  EXPECT_EQ(b.status, kStepOk);
+  const double scale = max_norm(a.u);
+  ASSERT_GT(scale, 1e-6);
+  std::printf("[ measured ] neohookean 1000-step displacement error %.3g of max |u|\n",
+              max_diff(a.u, b.u) / scale);
+  EXPECT_LE(max_diff(a.u, b.u), kTrajectoryTolerance * scale);
+  ASSERT_GT(norm(a.constraint_force), 0);
+  EXPECT_LE(norm(a.constraint_force - b.constraint_force),
+            kConstraintForceTolerance * norm(a.constraint_force));
 }
 
 TEST(CudaSummary, MatchesCpu) {
