@@ -118,7 +118,9 @@ std::string format_double(double x, const char* format = "%.6g") {
 std::span<const SeedTable2Row> seed_table2() { return kSeedTable2; }
 
 const char* constitutive_name(ConstitutiveModel model) {
-  return model == ConstitutiveModel::kSvk ? "svk" : "linear";
+  return model == ConstitutiveModel::kSvk      ? "svk"
+         : model == ConstitutiveModel::kLinear ? "linear"
+                                               : "neohookean";
 }
 
 const char* formulation_name(Formulation formulation) {

@@ -165,7 +165,7 @@ Result<std::vector<Formulation>> parse_bench_formulations(std::string_view text)
 /// Comma list of thread counts >= 0 (0: the CPU backend's automatic choice).
 Result<std::vector<int>> parse_thread_list(std::string_view text);
 
-/// "svk" / "linear".
+/// "svk" / "linear" / "neohookean".
 const char* constitutive_name(ConstitutiveModel model);
 /// "gradient" / "tensor_rebuilt" / "tensor_stored".
 const char* formulation_name(Formulation formulation);
