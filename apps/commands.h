@@ -17,6 +17,10 @@ namespace zona::cli {
 int& exit_code();
 /// Prints "zona: error: MESSAGE" on one line to stderr and sets the exit code to 1.
 void fail(const std::string& message);
+/// The source revision (12 hex digits), read from the checkout the binary was built from with
+/// no git process: HEAD, its branch ref, or packed-refs. Empty when the tree has no .git (a
+/// copied tree).
+std::string source_commit();
 
 void add_info_command(CLI::App& app);
 void add_mesh_commands(CLI::App& app);
