@@ -49,6 +49,7 @@ int main(int argc, char** argv) {
   zona::cli::add_haptics_command(app);
   zona::cli::add_analytic_commands(app);
   zona::cli::add_calibrate_command(app);
+  zona::cli::add_study_commands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
