@@ -60,25 +60,6 @@ struct BenchArgs {
   double max_run_seconds = 120;
 };
 
-// The source revision, read from the checkout the binary was built from (no git process):
-// HEAD, its branch ref, or packed-refs. Empty when the tree has no .git (a copied tree).
-std::string source_commit() {
-  const std::string git = std::string(ZONA_SOURCE_DIR) + "/.git/";
-  std::ifstream head(git + "HEAD");
-  std::string line;
-  if (!std::getline(head, line)) return "";
-  if (line.rfind("ref: ", 0) != 0) return line.substr(0, 12);
-  const std::string ref = line.substr(5);
-  std::ifstream loose(git + ref);
-  if (std::getline(loose, line) && line.size() >= 12) return line.substr(0, 12);
-  std::ifstream packed(git + "packed-refs");
-  while (std::getline(packed, line)) {
-    const size_t space = line.find(' ');
-    if (space != std::string::npos && line.substr(space + 1) == ref) return line.substr(0, 12);
-  }
-  return "";
-}
-
 // The run's options in full (defaults included), for the CSV's comment lines.
 std::string command_line(const BenchArgs& a) {
   std::string c = "zona bench --backend " + a.backend + " --model " + a.model +

@@ -17,6 +17,10 @@ namespace zona::cli {
 int& exit_code();
 /// Prints "zona: error: MESSAGE" on one line to stderr and sets the exit code to 1.
 void fail(const std::string& message);
+/// The source revision (12 hex digits), read from the checkout the binary was built from with
+/// no git process: HEAD, its branch ref, or packed-refs. Empty when the tree has no .git (a
+/// copied tree).
+std::string source_commit();
 
 void add_info_command(CLI::App& app);
 void add_mesh_commands(CLI::App& app);
@@ -27,6 +31,7 @@ void add_render_commands(CLI::App& app);
 void add_haptics_command(CLI::App& app);
 void add_analytic_commands(CLI::App& app);
 void add_calibrate_command(CLI::App& app);
+void add_study_commands(CLI::App& app);
 
 /// Writes one PNG frame of a simulation (DIR/frame_00000.png, ...), for `zona run --frames DIR`.
 using PngFrameWriter = std::function<zona::Status(const zona::Simulation&)>;

@@ -1,5 +1,7 @@
 // zona: command-line entry point. Each command group registers itself from apps/cmd_*.cpp.
 #include <cstdio>
+#include <fstream>
+#include <string>
 
 #include "apps/commands.h"
 
@@ -13,6 +15,23 @@ int& exit_code() {
 void fail(const std::string& message) {
   std::fprintf(stderr, "zona: error: %s\n", message.c_str());
   exit_code() = 1;
+}
+
+std::string source_commit() {
+  const std::string git = std::string(ZONA_SOURCE_DIR) + "/.git/";
+  std::ifstream head(git + "HEAD");
+  std::string line;
+  if (!std::getline(head, line)) return "";
+  if (line.rfind("ref: ", 0) != 0) return line.substr(0, 12);
+  const std::string ref = line.substr(5);
+  std::ifstream loose(git + ref);
+  if (std::getline(loose, line) && line.size() >= 12) return line.substr(0, 12);
+  std::ifstream packed(git + "packed-refs");
+  while (std::getline(packed, line)) {
+    const size_t space = line.find(' ');
+    if (space != std::string::npos && line.substr(space + 1) == ref) return line.substr(0, 12);
+  }
+  return "";
 }
 
 }  // namespace zona::cli
@@ -30,6 +49,7 @@ int main(int argc, char** argv) {
   zona::cli::add_haptics_command(app);
   zona::cli::add_analytic_commands(app);
   zona::cli::add_calibrate_command(app);
+  zona::cli::add_study_commands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

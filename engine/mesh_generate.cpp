@@ -20,7 +20,7 @@ constexpr double kResolvedFraction = 0.75;
 // Elements whose smallest (or 180 minus largest) dihedral angle is below this get repaired.
 constexpr double kRepairBelowDeg = 15.0;
 // Refuse specs whose estimated size would not fit in memory (or in int32 indices).
-constexpr double kMaxVertices = 4e8;
+constexpr double kMaxVertices = static_cast<double>(kMaxCellMeshVertices);
 
 bool finite_positive(double x) { return std::isfinite(x) && x > 0; }
 
@@ -51,8 +51,9 @@ Status check_spec(const CellMeshSpec& s) {
     return make_error("cell mesh: edge_length must be >= 0 and finite (got %g m)", s.edge_length);
   if (s.target_vertices == 0 && s.edge_length == 0)
     return make_error("cell mesh: set target_vertices or edge_length");
-  if (s.target_vertices > 0 && s.target_vertices < 8)
-    return make_error("cell mesh: target_vertices must be at least 8 (got %lld)",
+  if (s.target_vertices > 0 && s.target_vertices < kMinCellMeshVertices)
+    return make_error("cell mesh: target_vertices must be at least %lld (got %lld)",
+                      static_cast<long long>(kMinCellMeshVertices),
                       static_cast<long long>(s.target_vertices));
   if (s.target_vertices > static_cast<int64_t>(kMaxVertices))
     return make_error("cell mesh: target_vertices %lld exceeds the limit %.0f",

@@ -22,6 +22,11 @@
 
 namespace zona {
 
+/// Fewest vertices the generator may be asked for (CellMeshSpec::target_vertices).
+inline constexpr int64_t kMinCellMeshVertices = 8;
+/// Most vertices the generator will build.
+inline constexpr int64_t kMaxCellMeshVertices = 400'000'000;
+
 /// What to mesh and how finely. Defaults: a 56 um mouse-oocyte-like ball (set a resolution).
 ///
 /// Resolution, one of:

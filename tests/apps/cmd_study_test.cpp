@@ -1,0 +1,158 @@
+// End-to-end tests of `zona study convergence`: two small sizes of the mouse oocyte give both
+// CSVs (comment lines, header, the right rows) and the plot; bad input is a one-line error.
+//
+// The sizes are 600 and 1200 vertices: at 300 the mouse scene's 4 um tip passes between the
+// surface vertices at the entry and touches none over its whole travel (zero force), which
+// would leave a curve empty.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "engine/plot.h"
+#include "tests/apps/cli_runner.h"
+
+namespace {
+
+using zona::test::CliRun;
+using zona::test::run_zona;
+using zona::test::TempDir;
+
+namespace fs = std::filesystem;
+
+// A CSV file: its comment lines, and its other lines split on commas (header first).
+struct Csv {
+  std::vector<std::string> comments;
+  std::vector<std::string> header;
+  std::vector<std::map<std::string, std::string>> rows;  // column name -> field
+  bool ragged = false;                                   // a row with a different field count
+};
+
+Csv read_csv(const fs::path& path) {
+  Csv csv;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line[0] == '#') {
+      csv.comments.push_back(line);
+      continue;
+    }
+    std::vector<std::string> fields;
+    for (size_t start = 0; start <= line.size();) {
+      const size_t comma = std::min(line.find(',', start), line.size());
+      fields.push_back(line.substr(start, comma - start));
+      start = comma + 1;
+    }
+    if (csv.header.empty()) {
+      csv.header = fields;
+      continue;
+    }
+    if (fields.size() != csv.header.size()) csv.ragged = true;
+    std::map<std::string, std::string> row;
+    for (size_t i = 0; i < fields.size() && i < csv.header.size(); ++i)
+      row[csv.header[i]] = fields[i];
+    csv.rows.push_back(row);
+  }
+  return csv;
+}
+
+bool has_comment(const Csv& csv, const std::string& prefix) {
+  return std::any_of(csv.comments.begin(), csv.comments.end(),
+                     [&](const std::string& c) { return c.rfind(prefix, 0) == 0; });
+}
+
+TEST(CmdStudy, ConvergenceWritesBothCsvsAndThePlot) {
+  TempDir dir;
+  const fs::path out = dir.path / "study";
+  // 5 um of travel and a low force threshold: both sizes puncture within about 1.5 um.
+  const CliRun r = run_zona(
+      "study convergence mouse_oocyte --vertices 600,1200 --set "
+      "needle.max_travel=5um --set puncture.criterion=force --set "
+      "puncture.threshold=0.25uN --deformations 0.5,10 --quiet --out " +
+          out.string(),
+      dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  EXPECT_NE(r.out.find("wrote "), std::string::npos) << r.out;
+
+  // convergence.csv: provenance, header, samples of both sizes.
+  const Csv curves = read_csv(out / "convergence.csv");
+  for (const char* c :
+       {"# command: zona study convergence mouse_oocyte", "# date: ", "# commit: ", "# machine: "})
+    EXPECT_TRUE(has_comment(curves, c)) << c;
+  EXPECT_EQ(curves.header,
+            (std::vector<std::string>{"target_vertices", "vertices", "tets", "time_s", "travel_um",
+                                      "deformation_um", "force_un", "punctured"}));
+  EXPECT_FALSE(curves.ragged);
+  std::map<std::string, int> samples_per_size;
+  for (const auto& row : curves.rows) ++samples_per_size[row.at("target_vertices")];
+  ASSERT_EQ(samples_per_size.size(), 2u);
+  EXPECT_GT(samples_per_size["600"], 10);
+  EXPECT_GT(samples_per_size["1200"], 10);
+
+  // convergence_summary.csv: one row per size, in the order asked.
+  const Csv summary = read_csv(out / "convergence_summary.csv");
+  EXPECT_TRUE(has_comment(summary, "# commit: "));
+  EXPECT_FALSE(summary.ragged);
+  for (const char* column :
+       {"vertices", "tets", "dt_s", "steps", "wall_s", "backend", "puncture_deformation_um",
+        "puncture_force_un", "peak_force_un", "force_at_0.5um_un", "force_at_10um_un",
+        "rel_diff_at_0.5um", "largest_drop_rel", "step_flags", "stop_reason"})
+    EXPECT_NE(std::find(summary.header.begin(), summary.header.end(), column), summary.header.end())
+        << column;
+  ASSERT_EQ(summary.rows.size(), 2u);
+  EXPECT_EQ(summary.rows[0].at("target_vertices"), "600");
+  EXPECT_EQ(summary.rows[1].at("target_vertices"), "1200");
+  for (const auto& row : summary.rows) {
+    EXPECT_GT(std::stoll(row.at("vertices")), 0);
+    EXPECT_GT(std::stoll(row.at("tets")), std::stoll(row.at("vertices")));
+    EXPECT_GT(std::stod(row.at("dt_s")), 0.0);
+    EXPECT_EQ(row.at("punctured"), "1");
+    EXPECT_GE(std::stod(row.at("puncture_force_un")), 0.25);
+    EXPECT_GT(std::stod(row.at("puncture_deformation_um")), 0.5);
+    EXPECT_FALSE(row.at("force_at_0.5um_un").empty());  // reached before puncture
+    EXPECT_TRUE(row.at("force_at_10um_un").empty());    // past the puncture: not on the branch
+    EXPECT_FALSE(row.at("largest_drop_rel").empty());
+    EXPECT_EQ(row.at("stopped_early"), "0") << row.at("stop_reason");
+  }
+  EXPECT_EQ(std::stod(summary.rows[1].at("rel_diff_at_0.5um")), 0.0);  // the finest
+  EXPECT_FALSE(summary.rows[0].at("rel_diff_at_0.5um").empty());
+  if (zona::plot_png_available()) {
+    EXPECT_TRUE(fs::exists(out / "convergence.png"));
+  }
+}
+
+// One line on stderr, an error exit code.
+void expect_one_line_error(const CliRun& r, const std::string& what) {
+  EXPECT_NE(r.exit_code, 0) << what;
+  EXPECT_EQ(r.err.rfind("zona: error: ", 0), 0u) << what << ": " << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << what << ": " << r.err;
+}
+
+TEST(CmdStudy, BadInputIsAOneLineError) {
+  TempDir dir;
+  const std::string out = " --quiet --out " + (dir.path / "bad").string();
+  expect_one_line_error(run_zona("study convergence no_such_scene --vertices 300" + out, dir.path),
+                        "unknown scene");
+  expect_one_line_error(run_zona("study convergence mouse_oocyte --vertices ''" + out, dir.path),
+                        "empty vertex list");
+  expect_one_line_error(run_zona("study convergence mouse_oocyte --vertices 300,4" + out, dir.path),
+                        "below the mesher's minimum");
+  expect_one_line_error(
+      run_zona("study convergence mouse_oocyte --vertices 300 --deformations ten" + out, dir.path),
+      "bad deformation list");
+  expect_one_line_error(
+      run_zona("study convergence mouse_oocyte --vertices 300 --set model=nonsense" + out,
+               dir.path),
+      "bad --set");
+  expect_one_line_error(
+      run_zona("study convergence mouse_oocyte --vertices 300 --backend gpu" + out, dir.path),
+      "unknown backend");
+  EXPECT_FALSE(fs::exists(dir.path / "bad"));  // nothing ran, nothing written
+}
+
+}  // namespace
