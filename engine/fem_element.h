@@ -475,6 +475,61 @@ ZONA_HOST_DEVICE ZONA_INLINE void tet_snh_stiffness(const TetShape<T>& s, T lamb
 }
 
 // ---------------------------------------------------------------------------------------------
+// Stiffening of a deformed element (the dynamic mass scaling's measure)
+//
+// An explicit step is stable for an element while omega_e dt < 2; at build the step is chosen
+// from the rest stiffness (Model::dt_critical). Under a needle tip the elements are flattened
+// and stretched together (principal stretches 0.02 / 3 / 6 measured at 10k vertices) and their
+// tangent grows two orders of magnitude. tet_stiffening() estimates that growth: the ratio of a
+// bound on the element tangent's largest eigenvalue at F = I + H to the same bound at rest,
+//   lambda_max(K_e) <= V (lambda_s sum_j |cof(F) g_j|^2 + c(F) sum_j |g_j|^2)    (SNH)
+// where the first term is the volumetric rank-one part lambda_s cof(F) (x) cof(F), maximised
+// exactly over corner displacements, and c(F) = mu (1 + 2|F|) + 2 lambda_s |J - 1| |F| bounds the
+// deviatoric part and the (J - 1) d cof term (|d cof(F)[dF]| <= 2 |F| |dF|). For SVK,
+// |dP| <= (|S| + (sqrt(3) lambda + 2 mu) |F|^2) |dF|. The linear law does not stiffen (1).
+// Norms are Frobenius. The ratio is 1 at rest and not below 1 (a softened element keeps the
+// mass it has). It is an estimate for raising masses with a safety factor, not a proof.
+
+/// The laws tet_stiffening() knows.
+enum class StiffeningLaw : int { kLinear = 0, kSvk = 1, kStableNeoHookean = 2 };
+
+/// Growth factor (>= 1) of the element's largest stiffness eigenvalue at displacement gradient
+/// h against rest, for the law with the material's Lame constants (lambda, mu) [Pa].
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T tet_stiffening(const TetShape<T>& s, const Mat3<T>& h, T lambda,
+                                              T mu, StiffeningLaw law) {
+  if (law == StiffeningLaw::kLinear) return T(1);
+  // |F|^2 = 3 + 2 tr H + |H|^2, formed without cancellation.
+  const T f_sq = T(3) + T(2) * trace(h) + frobenius_dot(h, h);
+  const T f_norm = std::sqrt(f_sq > T(0) ? f_sq : T(0));
+  T ratio;
+  if (law == StiffeningLaw::kSvk) {
+    const Mat3<T> e = green_strain(h);
+    const T tr = trace(e);
+    Mat3<T> stress = (T(2) * mu) * e;
+    for (int i = 0; i < 3; ++i) stress.m[i][i] += lambda * tr;
+    const T c = T(1.7320508075688772) * lambda + T(2) * mu;
+    ratio = (std::sqrt(frobenius_dot(stress, stress)) / c + f_sq) / T(3);
+  } else {
+    const T lam = snh_lambda(lambda, mu);
+    const Mat3<T> cof = snh_cofactor_of_f(h);
+    T cof_g = 0, g_sq = 0;
+    for (int j = 0; j < 4; ++j) {
+      const Vec3<T> cg = cof * s.grad[j];
+      cof_g += dot(cg, cg);
+      g_sq += dot(s.grad[j], s.grad[j]);
+    }
+    const T j_minus_one = snh_volume_change(h);
+    const T abs_j = j_minus_one < T(0) ? -j_minus_one : j_minus_one;
+    const T deformed = lam * (g_sq > T(0) ? cof_g / g_sq : T(1)) + mu * (T(1) + T(2) * f_norm) +
+                       T(2) * lam * abs_j * f_norm;
+    const T rest = lam + mu * (T(1) + T(2) * T(1.7320508075688772));
+    ratio = deformed / rest;
+  }
+  return ratio > T(1) ? ratio : T(1);
+}
+
+// ---------------------------------------------------------------------------------------------
 // Mass-tensor form (seed 000 eqs. 3-6, DESIGN.md section 3). Per tetrahedron:
 //   B_jk   = (lambda m_j m_k^T + mu m_k m_j^T + mu (m_j.m_k) I) / (72 V)      (K = 2 B)
 //   C_jkl  = (lambda (m_j.m_k) m_l + mu (m_k.m_l) m_j + mu (m_j.m_l) m_k) / (432 V^2)

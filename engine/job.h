@@ -175,7 +175,20 @@ struct JobParams {
   // Health.
   double energy_blowup_factor = 10;  ///< kinetic + elastic above this x the budget is a blow-up
   double energy_floor = 0;           ///< energies below this are noise [J]
+  // Dynamic mass scaling (engine/mass_scaling.h): every mass_interval steps each element's
+  // stiffening (tet_stiffening) is measured; where it passes mass_gate the element asks its
+  // corners for density growth x its rest need (JobSetup::tet_rest_need), and a vertex whose
+  // mass falls short is raised to it. Masses only grow. Off when mass_interval is 0.
+  int32_t mass_interval = 0;  ///< steps between checks; 0: off
+  int32_t mass_law = 0;       ///< StiffeningLaw of the model
+  double mass_gate = 1;       ///< stiffening that every element's current masses carry [-]
 };
+
+/// Density [kg/m^3] an element of rest need `rest_need` (JobSetup::tet_rest_need) asks of its
+/// corners at stiffening `growth`; 0 while the masses it had at the start carry it.
+ZONA_HOST_DEVICE inline double job_mass_need(const JobParams& p, double growth, double rest_need) {
+  return growth > p.mass_gate ? growth * rest_need : 0.0;
+}
 
 /// Where a tool vertex is and how it moves, and what it may carry.
 struct ToolVertexInput {

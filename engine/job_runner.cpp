@@ -4,19 +4,22 @@
 #include <algorithm>
 #include <cmath>
 
+#include "engine/fem_element.h"
 #include "engine/integrator.h"
+#include "engine/mass_scaling.h"
 
 namespace zona {
 namespace {
 
 class CpuJobRunner final : public JobRunner {
  public:
-  CpuJobRunner(const Model& model, State& state, const JobSetup& setup)
+  CpuJobRunner(Model& model, State& state, const JobSetup& setup)
       : model_(model), state_(state), setup_(setup) {
     samples_.reserve(setup.sample_capacity);
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
+    if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
     job_set_pose(setup_.params, job_, setup_.params.needle_start);
     // The state starts without loads: the stages own external_force from here on.
@@ -54,6 +57,7 @@ class CpuJobRunner final : public JobRunner {
 
   int64_t steps_advanced() const override { return advanced_; }
   uint64_t host_bytes_moved() const override { return 0; }
+  int64_t mass_raises() override { return mass_raises_; }
 
   std::string description() const override {
     return "cpu: " + std::to_string(state_.pool->thread_count()) +
@@ -61,8 +65,46 @@ class CpuJobRunner final : public JobRunner {
   }
 
  private:
+  // Dynamic mass scaling (JobParams::mass_interval): every element's stiffening at u_n, in
+  // parallel; then, serially, the elements past the gate raise their corners' masses.
+  void raise_masses() {
+    const size_t nt = model_.tet_count();
+    constexpr int64_t kChunk = 2048;
+    const int64_t chunks = static_cast<int64_t>((nt + kChunk - 1) / kChunk);
+    state_.pool->run(
+        chunks,
+        [](void* context, int64_t begin, int64_t end) {
+          auto* self = static_cast<CpuJobRunner*>(context);
+          const Model& m = self->model_;
+          const auto law = static_cast<StiffeningLaw>(self->setup_.params.mass_law);
+          const size_t last = std::min(m.tet_count(), static_cast<size_t>(end * kChunk));
+          for (size_t t = static_cast<size_t>(begin * kChunk); t < last; ++t) {
+            Vec3d u[4];
+            for (int c = 0; c < 4; ++c) u[c] = self->state_.u[static_cast<size_t>(m.tets[t][c])];
+            const Mat3d h = tet_displacement_gradient(m.tet_shape[t], u);
+            const Lame& lame = m.tet_lame(t);
+            self->growth_[t] = tet_stiffening(m.tet_shape[t], h, lame.lambda, lame.mu, law);
+          }
+        },
+        this);
+    for (size_t t = 0; t < nt; ++t) {
+      const double need = job_mass_need(setup_.params, growth_[t], setup_.tet_rest_need[t]);
+      if (!(need > 0)) continue;
+      for (int32_t corner : model_.tets[t]) {
+        const size_t v = static_cast<size_t>(corner);
+        const double mass = need * setup_.vertex_volume[v];
+        if (mass > model_.vertex_mass[v] && !model_.vertex_fixed[v]) {
+          set_vertex_mass(model_, v, mass);
+          ++mass_raises_;
+        }
+      }
+    }
+  }
+
   void step_once() {
     const JobParams& p = setup_.params;
+    if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();
+    ++steps_run_;
     const size_t nv = model_.vertex_count();
     std::vector<Vec3d>& ext = state_.external_force;
     // 2. loads: stiffness damping, lagged one step (f(u_{n-1}) - f(u_{n-2})), on every vertex.
@@ -131,13 +173,16 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
-  const Model& model_;
+  Model& model_;
   State& state_;
   JobSetup setup_;
   JobState job_;
   std::vector<Vec3d> force_prev_;  // f(u_{n-2}) for the damping stage [N], (vertex_count)
   std::vector<Vec3d> tool_force_;     // this step's tool loads [N], (tool vertex count)
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
+  std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
+  int64_t steps_run_ = 0;
+  int64_t mass_raises_ = 0;     // vertex mass raises by the dynamic scaling
   std::vector<JobRecord> samples_;
   JobRecord latest_;
   bool has_latest_ = false, lost_ = false;
@@ -146,7 +191,7 @@ class CpuJobRunner final : public JobRunner {
 
 }  // namespace
 
-std::unique_ptr<JobRunner> make_cpu_job_runner(const Model& model, State& state,
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
                                                const JobSetup& setup) {
   return std::make_unique<CpuJobRunner>(model, state, setup);
 }

@@ -22,6 +22,11 @@ struct JobSetup {
   std::vector<int32_t> tool_vertices;
   std::vector<double> tool_area;    ///< rest tributary area [m^2], (tool vertex count)
   std::vector<Vec3d> tool_suction;  ///< full suction load [N], (tool vertex count)
+  /// Dynamic mass scaling (JobParams::mass_interval > 0): the density [kg/m^3] each element
+  /// needs at rest for the scaling's safety, (S_e (dt / safety)^2 with S_e its stiffness
+  /// measure), (tet_count); and each vertex's lumped volume [m^3], (vertex_count).
+  std::vector<double> tet_rest_need;
+  std::vector<double> vertex_volume;
   /// Most samples kept before the host takes them (a full buffer is reported, never grown).
   size_t sample_capacity = 1 << 16;
 };
@@ -53,10 +58,12 @@ class JobRunner {
   virtual uint64_t host_bytes_moved() const = 0;
   /// One line: where the stages run.
   virtual std::string description() const = 0;
+  /// Vertex masses the dynamic mass scaling raised so far (call after finish()).
+  virtual int64_t mass_raises() = 0;
 };
 
 /// The CPU runner over the simulation's own model and state (kept by reference).
-std::unique_ptr<JobRunner> make_cpu_job_runner(const Model& model, State& state,
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
                                                const JobSetup& setup);
 
 }  // namespace zona

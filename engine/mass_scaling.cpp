@@ -93,4 +93,19 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
   return report;
 }
 
+void set_vertex_mass(Model& model, size_t v, double mass) {
+  const double m = model.vertex_mass[v];
+  const double rate = m > 0 ? model.vertex_damping[v] / m : 0.0;
+  model.vertex_mass[v] = mass;
+  model.vertex_damping[v] = rate * mass;
+  const double gamma = model.vertex_damping[v], dt = model.dt;
+  if (mass > 0) {
+    const double denom = mass + 0.5 * gamma * dt;
+    model.vertex_coefficients[v] = {2.0 * mass / denom, (mass - 0.5 * gamma * dt) / denom,
+                                    dt * dt / denom};
+  } else {
+    model.vertex_coefficients[v] = {1.0, 0.0, 0.0};
+  }
+}
+
 }  // namespace zona

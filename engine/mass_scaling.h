@@ -33,4 +33,8 @@ struct SelectiveScalingReport {
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
                                                             double dt_safety);
 
+/// Sets vertex v's mass [kg], keeping its damping rate gamma / M, and its update coefficients
+/// at the model's step.
+void set_vertex_mass(Model& model, size_t v, double mass);
+
 }  // namespace zona

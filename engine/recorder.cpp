@@ -248,6 +248,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
       {"flags_seen", step_flag_names(run.status)},
       {"stopped_early", run.stopped_early},
       {"sample_buffer_full", run.sample_buffer_full},
+      {"mass_raises", run.mass_raises},
       {"samples", run.samples.size()}};
   if (run.stopped_early) j["numerics"]["stop_reason"] = run.stop_reason;
   if (const ParticleModel* pm = sim.particle_model()) {

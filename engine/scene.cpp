@@ -206,7 +206,8 @@ void read_materials(Reader& root, Scene& scene) {
 
 void read_integrator(Reader& root, Scene& scene) {
   Reader r = root.object("integrator", {"dt", "dt_safety", "mass_scaling", "target_dt",
-                                        "mass_scaling_mode", "stiffness_damping", "duration"});
+                                        "mass_scaling_mode", "stiffness_damping", "dynamic_mass_safety",
+                                        "duration"});
   if (!r.present()) return;
   IntegratorDef& in = scene.integrator;
   r.auto_or_quantity("dt", dim::kTime, &in.dt, Range::positive());
@@ -226,6 +227,8 @@ void read_integrator(Reader& root, Scene& scene) {
             Choice<MassScalingMode>{"selective", MassScalingMode::kSelective}},
            &in.mass_scaling_mode);
   r.quantity("stiffness_damping", dim::kTime, &in.stiffness_damping, Range::non_negative());
+  r.number("dynamic_mass_safety", &in.dynamic_mass_safety,
+           Range{0.0, 1.0, false, false, "0 switches it off; at most 1 (the stability limit)"});
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 

@@ -115,6 +115,10 @@ struct IntegratorDef {
   /// Stiffness-proportional (Kelvin-Voigt) damping coefficient beta [s]: damping force -beta K v,
   /// for the element-scale ringing that mass-proportional damping cannot reach. 0: none.
   double stiffness_damping = 0.0;
+  /// Dynamic mass scaling on the penalty-contact step: the fraction of an element's stability
+  /// limit (omega dt / 2) that its stiffening may reach before its corners' masses are raised
+  /// (engine/mass_scaling.h); 0: off.
+  double dynamic_mass_safety = 0.5;
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 

@@ -325,6 +325,8 @@ struct RunResult {
   bool stopped_early = false;         ///< a step was not advanced
   std::string stop_reason;            ///< describe_step_status of the failing step
   bool sample_buffer_full = false;    ///< output.sample_interval too small for the buffer
+  /// Vertex masses raised by the dynamic mass scaling (penalty step; 0 elsewhere).
+  int64_t mass_raises = 0;
   bool interrupted = false;           ///< RunOptions::stop ended the run before its end
 };
 

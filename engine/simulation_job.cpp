@@ -4,7 +4,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
+#include "engine/fem_element.h"
+#include "engine/mass_scaling.h"
 #include "engine/simulation.h"
 
 namespace zona {
@@ -120,13 +123,7 @@ Status Simulation::prepare_job() {
     const double need = kappa * js.tool_area[i] * dt * dt;
     const double m = model_.vertex_mass[v];
     if (!(need > m) || model_.vertex_fixed[v]) continue;
-    const double rate = m > 0 ? model_.vertex_damping[v] / m : 0.0;
-    model_.vertex_mass[v] = need;
-    model_.vertex_damping[v] = rate * need;
-    const double gamma = model_.vertex_damping[v];
-    const double denom = need + 0.5 * gamma * dt;
-    model_.vertex_coefficients[v] = {2.0 * need / denom, (need - 0.5 * gamma * dt) / denom,
-                                     dt * dt / denom};
+    set_vertex_mass(model_, v, need);
     added += need - m;
     ++raised;
   }
@@ -137,6 +134,44 @@ Status Simulation::prepare_job() {
                   "(total mass x %.4g)",
                   static_cast<long long>(raised), total > 0 ? (total + added) / total : 1.0);
     notes_.push_back(line);
+  }
+
+  // Dynamic mass scaling: each element's density need at rest for the scaling's safety, with
+  // the conservative stiffness measure (lambda_s + 2 mu) sum_j |g_j|^2 (>= the build bound's
+  // lambda_s sum|g|^2 + 2 mu lambda_max(G G^T), without its eigenvalue), and the stiffening
+  // that the current masses carry for every element (the gate: below it no element asks).
+  const double safety = scene_.integrator.dynamic_mass_safety;
+  const ConstitutiveModel law = model_.constitutive;
+  if (safety > 0 && law != ConstitutiveModel::kLinear) {
+    p.mass_interval = 8;
+    p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
+                                          ? StiffeningLaw::kStableNeoHookean
+                                          : StiffeningLaw::kSvk);
+    const size_t nv = model_.vertex_count(), nt = model_.tet_count();
+    js.vertex_volume.assign(nv, 0.0);
+    js.tet_rest_need.assign(nt, 0.0);
+    for (size_t t = 0; t < nt; ++t)
+      for (int32_t v : model_.tets[t])
+        js.vertex_volume[static_cast<size_t>(v)] += 0.25 * model_.tet_shape[t].volume;
+    const double scale = (dt / safety) * (dt / safety);
+    double gate = std::numeric_limits<double>::infinity();
+    for (size_t t = 0; t < nt; ++t) {
+      const Lame& lame = model_.tet_lame(t);
+      const double lam = law == ConstitutiveModel::kStableNeoHookean
+                             ? snh_lambda(lame.lambda, lame.mu)
+                             : lame.lambda;
+      double g_sq = 0;
+      for (const Vec3d& g : model_.tet_shape[t].grad) g_sq += dot(g, g);
+      const double need = (lam + 2.0 * lame.mu) * g_sq * scale;
+      js.tet_rest_need[t] = need;
+      double rho = std::numeric_limits<double>::infinity();
+      for (int32_t v : model_.tets[t]) {
+        const size_t k = static_cast<size_t>(v);
+        if (js.vertex_volume[k] > 0) rho = std::min(rho, model_.vertex_mass[k] / js.vertex_volume[k]);
+      }
+      if (need > 0) gate = std::min(gate, rho / need);
+    }
+    p.mass_gate = std::isfinite(gate) ? std::max(1.0, gate) : 1.0;
   }
   return Status::ok_status();
 }
@@ -370,6 +405,7 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     result.stop_reason = s.error().message;
   }
   drain();
+  result.mass_raises = std::max<int64_t>(0, job.mass_raises());
   JobRecord last;
   if (job.latest(&last)) {
     sim.report_from_record(last);

@@ -51,6 +51,7 @@ Status CudaBackend::upload(const Model& model, const State& state) {
   nt_ = L.tet_count();
   new_to_old_ = L.vertex_new_to_old;
   old_to_new_ = L.vertex_old_to_new;
+  tet_new_to_old_ = L.tet_new_to_old;
   length_unit_ = L.length_unit;
   force_unit_ = L.force_unit;
 

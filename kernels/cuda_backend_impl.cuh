@@ -160,6 +160,7 @@ class CudaBackend final : public Backend {
   const Model* model_ = nullptr;
   ElementKind kind_ = ElementKind::kSvkGradient;
   std::vector<int32_t> new_to_old_, old_to_new_;  // vertex permutations
+  std::vector<int32_t> tet_new_to_old_;           // model tet of each device tet
   double length_unit_ = 1, force_unit_ = 1;
   size_t nv_ = 0, nt_ = 0;
 

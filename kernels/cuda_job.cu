@@ -35,6 +35,12 @@ class CudaJob final : public JobRunner {
            static_cast<uint64_t>(*published) * (sizeof(JobRecord) + sizeof(TipMailbox)) +
            static_cast<uint64_t>(*count) * sizeof(JobRecord);
   }
+  int64_t mass_raises() override {
+    unsigned long long n = 0;
+    if (cudaMemcpy(&n, d_mass_raises_.data(), sizeof n, cudaMemcpyDeviceToHost) != cudaSuccess)
+      return -1;
+    return static_cast<int64_t>(n);
+  }
   std::string description() const override {
     return b_.description() + ", device-resident injection step";
   }
@@ -51,8 +57,9 @@ class CudaJob final : public JobRunner {
   /// between: the energy criterion and the blow-up test see it at most 3 steps late, the
   /// kinetic energy and non-finite values every step.
   static constexpr int kEnergyInterval = 4;
-  /// Graphs depend on the step index modulo this (6 buffer phases, 4 energy phases).
-  static constexpr int kPhases = 12;
+  /// Graphs depend on the step index modulo this (6 buffer phases, 4 energy phases, 8 phases
+  /// of the dynamic mass scaling).
+  static constexpr int kPhases = 24;
   Result<cudaGraphExec_t> graph(int steps, int phase);
   // Steps finished on the device (from the published sequence number; no synchronisation).
   int64_t steps_done() const {
@@ -72,6 +79,10 @@ class CudaJob final : public JobRunner {
   DeviceBuffer<JobState> d_job_;
   DeviceBuffer<JobSums> d_sums_;
   DeviceBuffer<JobCounters> d_counters_;
+  // Dynamic mass scaling: rest need per device tet [kg/m^3], need per device vertex (running
+  // maximum), lumped volume per device vertex [m^3], and the number of raises.
+  DeviceBuffer<float> d_tet_need_, d_vertex_need_, d_vertex_volume_;
+  DeviceBuffer<unsigned long long> d_mass_raises_;
   PinnedBuffer<JobRecord> h_samples_;
   PinnedBuffer<unsigned long long> h_sample_count_;
   PinnedBuffer<LatestRecord> h_latest_;
@@ -167,6 +178,24 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = d_sums_.fill_bytes(0); !s) return s;
   if (Status s = d_counters_.allocate(1, "job counters"); !s) return s;
   if (Status s = d_counters_.fill_bytes(0); !s) return s;
+  if (params_.mass_interval > 0) {
+    if (kPhases % params_.mass_interval != 0)
+      return make_error("cuda job: mass check interval %d does not divide %d", params_.mass_interval,
+                        kPhases);
+    if (setup.tet_rest_need.size() != b_.nt_ || setup.vertex_volume.size() != b_.nv_)
+      return make_error("cuda job: dynamic mass scaling arrays of the wrong size");
+    std::vector<float> need(b_.nt_), volume(b_.nv_);
+    for (size_t t = 0; t < b_.nt_; ++t)
+      need[t] = static_cast<float>(setup.tet_rest_need[static_cast<size_t>(b_.tet_new_to_old_[t])]);
+    for (size_t v = 0; v < b_.nv_; ++v)
+      volume[v] = static_cast<float>(setup.vertex_volume[static_cast<size_t>(b_.new_to_old_[v])]);
+    if (Status s = d_tet_need_.upload(need, "tet mass needs"); !s) return s;
+    if (Status s = d_vertex_volume_.upload(volume, "vertex volumes"); !s) return s;
+    if (Status s = d_vertex_need_.allocate(b_.nv_, "vertex mass needs"); !s) return s;
+    if (Status s = d_vertex_need_.fill_bytes(0); !s) return s;
+  }
+  if (Status s = d_mass_raises_.allocate(1, "mass raises"); !s) return s;
+  if (Status s = d_mass_raises_.fill_bytes(0); !s) return s;
   const DeviceStatus fresh{};
   ZONA_CUDA_TRY(cudaMemcpy(b_.d_status_.data(), &fresh, sizeof fresh, cudaMemcpyHostToDevice));
 
@@ -199,6 +228,14 @@ Status CudaJob::enqueue_step(int64_t g) {
   };
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   const bool energy = g % kEnergyInterval == 0;
+  if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
+    keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
+                static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
+                static_cast<float>(params_.mass_gate), params_.mass_law));
+    keep(launch(pdl, mass_raise_kernel, vb, s, static_cast<const float*>(d_vertex_need_.data()),
+                static_cast<const float*>(d_vertex_volume_.data()), b_.d_mass_.data(),
+                b_.d_update_.data(), d_mass_raises_.data(), static_cast<int>(b_.nv_)));
+  }
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;
     with_bool(energy, [&](auto dc) {

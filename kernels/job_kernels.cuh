@@ -263,4 +263,52 @@ __global__ void __launch_bounds__(kBlock)
   }
 }
 
+// Dynamic mass scaling (JobParams::mass_interval), element side: each tetrahedron's
+// stiffening at u_n; past the gate it asks its corners for growth x its rest need [kg/m^3]
+// (atomicMax on the float bits: the values are positive).
+__global__ void __launch_bounds__(kBlock)
+    mass_check_kernel(TetParams tp, const double* __restrict__ u, const float* __restrict__ tet_need,
+                      float* __restrict__ vertex_need, float gate, int law) {
+  wait_for_previous_kernel();
+  const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
+  if (t >= tp.tet_count) return;
+  const int4 id = tp.vertices[t];
+  float lambda, mu;
+  const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
+  const int v[4] = {id.x, id.y, id.z, id.w};
+  const double* p0 = u + 3 * static_cast<size_t>(v[0]);
+  Vec3f du[3];
+  for (int c = 1; c < 4; ++c) {
+    const double* pc = u + 3 * static_cast<size_t>(v[c]);
+    du[c - 1] = Vec3f{float(pc[0] - p0[0]), float(pc[1] - p0[1]), float(pc[2] - p0[2])};
+  }
+  const Mat3f h = tet_displacement_gradient_from_edges(s, du);
+  const float growth = tet_stiffening(s, h, lambda, mu, static_cast<StiffeningLaw>(law));
+  if (!(growth > gate)) return;
+  const float need = growth * tet_need[t];
+  for (int c = 0; c < 4; ++c)
+    atomicMax(reinterpret_cast<int*>(vertex_need + v[c]), __float_as_int(need));
+}
+
+// Dynamic mass scaling, vertex side: a free vertex whose mass falls short of its elements' need
+// takes it (the update's c scales with 1 / M; b depends on the damping rate only).
+__global__ void __launch_bounds__(kBlock)
+    mass_raise_kernel(const float* __restrict__ vertex_need, const float* __restrict__ volume,
+                      double* __restrict__ mass, float2* __restrict__ update,
+                      unsigned long long* __restrict__ raises, int vertex_count) {
+  wait_for_previous_kernel();
+  const int v = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
+  if (v >= vertex_count) return;
+  const float need = vertex_need[v];
+  if (!(need > 0)) return;
+  const double m_new = static_cast<double>(need) * static_cast<double>(volume[v]);
+  const double m = mass[v];
+  float2 k = update[v];
+  if (!(m_new > m) || !(k.y > 0)) return;
+  k.y = static_cast<float>(k.y * (m / m_new));
+  update[v] = k;
+  mass[v] = m_new;
+  atomicAdd(raises, 1ull);
+}
+
 }  // namespace zona::cuda

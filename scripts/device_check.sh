@@ -11,7 +11,7 @@
 # `zona info --json`, the GPU tests, compute-sanitizer memcheck and racecheck over them, the
 # GPU benchmark, and a summary (printed last). Environment:
 #   DEVICE_CHECK_STAGES  comma list of smi,tests,memcheck,racecheck,bench,scaling,interop,job,
-#                        haptics (default: all)
+#                        haptics,study (default: all but study)
 #   JOB_SIZES            vertex counts of the job benchmark (default 1e3,1e4,1e5,1e6,4e6)
 #   SCALING_MAX          largest size of the `zona bench --vertices sweep` stage (default 1.6e7)
 #   TEST_FILTER          gtest filter of the GPU tests (default 'Cuda*')
@@ -154,6 +154,13 @@ run() {
       --duration "${HAPTICS_SECONDS:-15}" --json >"$out/haptics_fine.json" 2>"$out/haptics.log"
     note "haptics fine scene: rc $? ; $(grep -E '"(rate_hz|period_p99_us|sim_real_time_ratio|puncture_felt_delay_ms|punctured)"' \
       "$out/haptics_fine.json" | tr -d ' \n')"
+  fi
+  if has study; then
+    # The convergence study (docs/validation.md) on the GPU, neo-Hookean, STUDY_SIZES.
+    timeout "${STUDY_TIMEOUT:-420}" "$carry/zona" study convergence mouse_oocyte --backend cuda \
+      --vertices "${STUDY_SIZES:-4e3,16e3,64e3,256e3,1e6}" --set model=neohookean ${STUDY_ARGS:-} \
+      --out "$out/study" >"$out/study.log" 2>&1
+    note "study: rc $? ; $(tail -3 "$out/study.log" | tr '\n' ' ')"
   fi
   local sfilter=${SANITIZER_FILTER:-$filter}
   if has memcheck; then
