@@ -26,6 +26,7 @@
 // the stiffness, the stable step and the friction law.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 
 #include "engine/base.h"
@@ -140,6 +141,9 @@ struct JobParams {
   // Needle (a scripted straight insertion, or a pose handed in by the haptic thread).
   int32_t has_needle = 0;
   int32_t needle_flat = 0;         ///< flat tip instead of the hemisphere
+  /// The needle's pressure is integrated over the surface triangles (needle_face_force) instead
+  /// of lumped at the vertices: the tip cannot pass between vertices that it pushes apart.
+  int32_t needle_on_faces = 0;
   Vec3d needle_start{0, 0, 0};     ///< tip at t = 0 [m]
   Vec3d needle_direction{1, 0, 0}; ///< unit direction of travel [-]
   double needle_speed = 0;         ///< [m/s]
@@ -238,7 +242,7 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
                                                               const ToolPose& pose,
                                                               const ToolVertexInput& in) {
   ToolVertexForce out;
-  if (p.has_needle) {
+  if (p.has_needle && !p.needle_on_faces) {
     const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius,
                                    p.needle_flat != 0, in.x);
     if (sdf.distance < 0) {
@@ -260,6 +264,76 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
     out.rim += pose.suction_ramp * in.suction;
   }
   out.force = out.needle + out.rim;
+  return out;
+}
+
+/// Subdivisions per edge of the needle's surface quadrature: each triangle is cut into
+/// kFaceSubdivisions^2 equal sub-triangles whose centroids are the quadrature points (weights
+/// 1 / kFaceSubdivisions^2). With 4, a triangle stretched to twice the tip's radius still has
+/// points half a radius apart.
+inline constexpr int kFaceSubdivisions = 4;
+
+/// One surface triangle of the needle stage: its corners' positions rest + u_n [m], velocities
+/// [m/s], lumped masses [kg], and its rest area [m^2].
+struct ToolFaceInput {
+  Vec3d x[3] = {};
+  Vec3d velocity[3] = {};
+  double mass[3] = {0, 0, 0};
+  double area = 0;
+};
+
+/// The needle's load on one triangle, as corner loads [N], and the number of quadrature points
+/// inside the needle.
+struct ToolFaceForce {
+  Vec3d corner[3] = {};
+  int32_t contacts = 0;
+};
+
+/// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces): the penalty
+/// pressure and friction of penalty_contact_force at each quadrature point, over the point's
+/// share of the rest area, with the point's share of the corner masses (a sixth of the three
+/// corners' masses per triangle: a surface vertex has about six triangles), spread to the corners
+/// by the point's barycentric weights. A triangle whose centroid lies farther from the needle
+/// than from its farthest corner cannot touch it (the distance field is 1-Lipschitz): skipped.
+ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
+                                                            const ToolPose& pose,
+                                                            const ToolFaceInput& in) {
+  ToolFaceForce out;
+  for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
+  const Vec3d centroid = (1.0 / 3.0) * (in.x[0] + in.x[1] + in.x[2]);
+  double reach = 0;
+  for (int c = 0; c < 3; ++c) {
+    const Vec3d d = in.x[c] - centroid;
+    reach = reach > dot(d, d) ? reach : dot(d, d);
+  }
+  const bool flat = p.needle_flat != 0;
+  if (needle_sdf(pose.tip, p.needle_direction, p.needle_radius, flat, centroid).distance >=
+      std::sqrt(reach))
+    return out;
+  constexpr int n = kFaceSubdivisions;
+  constexpr double w = 1.0 / (n * n);
+  ToolVertexInput q;
+  q.area = w * in.area;
+  q.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; i + j < n; ++j)
+      for (int down = 0; down < 2; ++down) {
+        if (down && i + j > n - 2) continue;
+        const double off = down ? 2.0 / 3.0 : 1.0 / 3.0;
+        const double b1 = (i + off) / n, b2 = (j + off) / n, b0 = 1.0 - b1 - b2;
+        q.x = b0 * in.x[0] + b1 * in.x[1] + b2 * in.x[2];
+        const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius, flat, q.x);
+        if (!(sdf.distance < 0)) continue;
+        q.velocity = b0 * in.velocity[0] + b1 * in.velocity[1] + b2 * in.velocity[2];
+        const Vec3d f = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
+                                                                  p.needle_friction, q,
+                                                                  pose.tip_velocity, p.dt) +
+                        pose.drag_per_contact;
+        out.corner[0] += b0 * f;
+        out.corner[1] += b1 * f;
+        out.corner[2] += b2 * f;
+        ++out.contacts;
+      }
   return out;
 }
 
@@ -299,7 +373,7 @@ struct JobRecord {
   double elastic_energy = 0;    ///< [J]
   double kinetic_energy = 0;    ///< [J]
   double energy_budget = 0;     ///< initial energy + work of the tools so far [J]
-  int32_t contacts = 0;         ///< vertices inside the needle
+  int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
   int32_t holding_contacts = 0; ///< vertices inside the rim
   uint32_t status = 0;          ///< StepStatusBits of the step (kStepNonFinite, kStepEnergyBlowUp...)
   int32_t halted = 0;           ///< the state failed its check: no later step was advanced

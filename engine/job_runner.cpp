@@ -18,6 +18,7 @@ class CpuJobRunner final : public JobRunner {
     samples_.reserve(setup.sample_capacity);
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
+    face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
     if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
@@ -115,10 +116,32 @@ class CpuJobRunner final : public JobRunner {
         force_prev_[v] = state_.force[v];
       }
     }
-    // 1. tools on the surface vertices.
+    // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
+    // surface vertices.
     JobSums sums;
     const double inv_dt = 1.0 / p.dt;
     const bool damping = p.stiffness_damping_rate > 0;
+    if (p.needle_on_faces) {
+      std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
+      for (size_t f = 0; f < setup_.tool_faces.size(); ++f) {
+        ToolFaceInput in;
+        for (int c = 0; c < 3; ++c) {
+          const size_t v = static_cast<size_t>(
+              setup_.tool_vertices[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])]);
+          in.x[c] = model_.rest_positions[v] + state_.u[v];
+          in.velocity[c] = inv_dt * (state_.u[v] - state_.u_prev[v]);
+          in.mass[c] = model_.vertex_mass[v];
+        }
+        in.area = setup_.tool_face_area[f];
+        const ToolFaceForce ff = needle_face_force(p, job_.pose, in);
+        if (ff.contacts == 0) continue;
+        for (int c = 0; c < 3; ++c) {
+          face_force_[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])] += ff.corner[c];
+          for (int k = 0; k < 3; ++k) sums.needle_force[k] += ff.corner[c][k];
+        }
+        sums.needle_contacts += ff.contacts;
+      }
+    }
     for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
       const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
       ToolVertexInput in;
@@ -128,7 +151,8 @@ class CpuJobRunner final : public JobRunner {
       in.area = setup_.tool_area[i];
       in.mass = model_.vertex_mass[v];
       in.suction = setup_.tool_suction[i];
-      const ToolVertexForce f = tool_vertex_force(p, job_.pose, in);
+      ToolVertexForce f = tool_vertex_force(p, job_.pose, in);
+      f.force += face_force_[i];
       ext[v] = damping ? ext[v] + f.force : f.force;
       for (int c = 0; c < 3; ++c) {
         sums.needle_force[c] += f.needle[c];
@@ -179,6 +203,7 @@ class CpuJobRunner final : public JobRunner {
   JobState job_;
   std::vector<Vec3d> force_prev_;  // f(u_{n-2}) for the damping stage [N], (vertex_count)
   std::vector<Vec3d> tool_force_;     // this step's tool loads [N], (tool vertex count)
+  std::vector<Vec3d> face_force_;     // the needle's face-quadrature loads [N], (tool vertex count)
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;

@@ -3,6 +3,7 @@
 // the same JobSetup and produce the same JobRecords; the simulation never looks at which.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -22,6 +23,10 @@ struct JobSetup {
   std::vector<int32_t> tool_vertices;
   std::vector<double> tool_area;    ///< rest tributary area [m^2], (tool vertex count)
   std::vector<Vec3d> tool_suction;  ///< full suction load [N], (tool vertex count)
+  /// Surface triangles for the needle's face quadrature (JobParams::needle_on_faces): corners as
+  /// indices into tool_vertices, and rest areas [m^2], (triangle count).
+  std::vector<std::array<int32_t, 3>> tool_faces;
+  std::vector<double> tool_face_area;
   /// Dynamic mass scaling (JobParams::mass_interval > 0): the density [kg/m^3] each element
   /// needs at rest for the scaling's safety, (S_e (dt / safety)^2 with S_e its stiffness
   /// measure), (tet_count); and each vertex's lumped volume [m^3], (vertex_count).

@@ -416,13 +416,15 @@ void read_puncture(Reader& root, Scene& scene) {
 }
 
 void read_contact(Reader& root, Scene& scene) {
-  Reader r = root.object("contact", {"model", "stiffness", "note"});
+  Reader r = root.object("contact", {"model", "stiffness", "needle_quadrature", "note"});
   if (!r.present()) return;
   ContactDef& c = scene.contact;
   r.choice("model", {Choice<ContactModel>{"penalty", ContactModel::kPenalty},
                      Choice<ContactModel>{"kinematic", ContactModel::kKinematic}},
            &c.model);
   r.number("stiffness", &c.stiffness, Range::positive());
+  r.choice("needle_quadrature", {Choice<bool>{"faces", true}, Choice<bool>{"vertices", false}},
+           &c.needle_on_faces);
 }
 
 void read_holding_pipette(Reader& root, Scene& scene) {

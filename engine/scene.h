@@ -232,6 +232,9 @@ struct ContactDef {
   /// stiffest material's Young's modulus and r the needle's tip radius (the holding pipette's
   /// inner radius without a needle) [-].
   double stiffness = 100.0;
+  /// Penalty: the needle's pressure integrated over the surface triangles (true) or lumped at
+  /// the surface vertices (false; the tip can then pass between vertices it pushes apart).
+  bool needle_on_faces = true;
 };
 
 enum class HoldingMode {

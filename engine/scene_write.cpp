@@ -193,6 +193,7 @@ json scene_to_json(const Scene& scene) {
   json contact = json::object();
   contact["model"] = scene.contact.model == ContactModel::kPenalty ? "penalty" : "kinematic";
   contact["stiffness"] = scene.contact.stiffness;
+  contact["needle_quadrature"] = scene.contact.needle_on_faces ? "faces" : "vertices";
   j["contact"] = contact;
 
   const HoldingPipetteDef& h = scene.holding_pipette;

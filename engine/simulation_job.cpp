@@ -106,6 +106,22 @@ Status Simulation::prepare_job() {
       const int32_t k = surface_.surface_index[static_cast<size_t>(holding_->patch_vertices[i])];
       if (k >= 0) js.tool_suction[static_cast<size_t>(k)] = holding_->suction_force[i];
     }
+  if (has_needle_ && scene_.contact.needle_on_faces) {
+    p.needle_on_faces = 1;
+    const size_t nf = surface_.triangles.size();
+    js.tool_faces.resize(nf);
+    js.tool_face_area.resize(nf);
+    for (size_t f = 0; f < nf; ++f) {
+      const Triangle& tri = surface_.triangles[f];
+      for (int c = 0; c < 3; ++c)
+        js.tool_faces[f][static_cast<size_t>(c)] =
+            surface_.surface_index[static_cast<size_t>(tri[static_cast<size_t>(c)])];
+      const Vec3d a = mesh_.rest_positions[static_cast<size_t>(tri[0])];
+      const Vec3d b = mesh_.rest_positions[static_cast<size_t>(tri[1])];
+      const Vec3d c = mesh_.rest_positions[static_cast<size_t>(tri[2])];
+      js.tool_face_area[f] = 0.5 * norm(cross(b - a, c - a));
+    }
+  }
   const double row_dt = std::max(p.sample_interval, model_.dt);
   js.sample_capacity = std::min<size_t>(
       static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 8, size_t{1} << 22);

@@ -83,6 +83,10 @@ class CudaJob final : public JobRunner {
   // maximum), lumped volume per device vertex [m^3], and the number of raises.
   DeviceBuffer<float> d_tet_need_, d_vertex_need_, d_vertex_volume_;
   DeviceBuffer<unsigned long long> d_mass_raises_;
+  // The needle's face quadrature: corners (tool indices, w unused), rest areas [m^2], and the
+  // corner loads of the step [N] (3 per tool vertex).
+  DeviceBuffer<int4> d_faces_;
+  DeviceBuffer<double> d_face_area_, d_face_force_;
   PinnedBuffer<JobRecord> h_samples_;
   PinnedBuffer<unsigned long long> h_sample_count_;
   PinnedBuffer<LatestRecord> h_latest_;
@@ -195,6 +199,18 @@ Status CudaJob::start(const JobSetup& setup) {
     if (Status s = d_vertex_need_.fill_bytes(0); !s) return s;
   }
   if (Status s = d_mass_raises_.allocate(1, "mass raises"); !s) return s;
+  if (params_.needle_on_faces) {
+    const size_t nf = setup.tool_faces.size();
+    if (setup.tool_face_area.size() != nf || nf == 0)
+      return make_error("cuda job: face quadrature without faces");
+    std::vector<int4> faces(nf);
+    for (size_t f = 0; f < nf; ++f)
+      faces[f] = make_int4(setup.tool_faces[f][0], setup.tool_faces[f][1], setup.tool_faces[f][2], 0);
+    if (Status s = d_faces_.upload(faces, "needle faces"); !s) return s;
+    if (Status s = d_face_area_.upload(setup.tool_face_area, "needle face areas"); !s) return s;
+    if (Status s = d_face_force_.allocate(3 * n, "needle face loads"); !s) return s;
+    if (Status s = d_face_force_.fill_bytes(0); !s) return s;
+  }
   if (Status s = d_mass_raises_.fill_bytes(0); !s) return s;
   const DeviceStatus fresh{};
   ZONA_CUDA_TRY(cudaMemcpy(b_.d_status_.data(), &fresh, sizeof fresh, cudaMemcpyHostToDevice));
@@ -248,13 +264,22 @@ Status CudaJob::enqueue_step(int64_t g) {
       });
     });
   });
+  if (params_.needle_on_faces) {
+    const int nf = static_cast<int>(d_faces_.size());
+    keep(launch(pdl, needle_face_kernel, blocks_for(static_cast<size_t>(nf)), s, params_, tl_,
+                static_cast<const int4*>(d_faces_.data()),
+                static_cast<const double*>(d_face_area_.data()), vp,
+                static_cast<const JobState*>(d_job_.data()), d_face_force_.data(), d_sums_.data(),
+                nf, st, kSubstep));
+  }
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
   keep(launch(pdl, step_kernel, vb, s, params_, tl_,
               static_cast<const int32_t*>(d_tool_index_.data()), vp, d_damp_.data(),
               d_force_prev_.data(), damping_rate_, kSubstep, energy, st, d_job_.data(),
               d_sums_.data(),
-              d_step_counters_.data(), d_counters_.data(), link_));
+              d_step_counters_.data(), d_counters_.data(), link_,
+              params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }

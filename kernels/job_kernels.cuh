@@ -83,6 +83,55 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
   return tool_vertex_force(p, pose, in);
 }
 
+/// Stage 1, the needle on the surface triangles (JobParams::needle_on_faces), one thread per
+/// triangle: needle_face_force's corner loads are added to face_force [N] (3 per tool vertex;
+/// job_step_kernel takes and clears them in the same step), its sums to the step's needle sums.
+__global__ void __launch_bounds__(kBlock)
+    needle_face_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
+                       const double* __restrict__ face_area, VertexParams vp,
+                       const JobState* __restrict__ job, double* __restrict__ face_force,
+                       JobSums* sums, int face_count, DeviceStatus* st, int substep) {
+  wait_for_previous_kernel();
+  if (halted(st, substep)) return;
+  const int f = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
+  double nf[3] = {0, 0, 0};
+  int contacts = 0;
+  if (f < face_count) {
+    const int4 c4 = faces[f];
+    const int corner[3] = {c4.x, c4.y, c4.z};
+    const double lu = tl.length_unit, inv_dt = 1.0 / p.dt;
+    ToolFaceInput in;
+    for (int c = 0; c < 3; ++c) {
+      const int k = corner[c];
+      const size_t v = static_cast<size_t>(tl.vertex[k]);
+      const double* un = vp.u + 3 * v;
+      const double* up = vp.u_prev + 3 * v;
+      in.x[c] = Vec3d{tl.rest[3 * k] + un[0] * lu, tl.rest[3 * k + 1] + un[1] * lu,
+                      tl.rest[3 * k + 2] + un[2] * lu};
+      in.velocity[c] = Vec3d{(un[0] - up[0]) * lu * inv_dt, (un[1] - up[1]) * lu * inv_dt,
+                             (un[2] - up[2]) * lu * inv_dt};
+      in.mass[c] = tl.mass[k];
+    }
+    in.area = face_area[f];
+    const ToolFaceForce ff = needle_face_force(p, job->pose, in);
+    if (ff.contacts > 0) {
+      for (int c = 0; c < 3; ++c)
+        for (int j = 0; j < 3; ++j) {
+          atomicAdd(face_force + 3 * static_cast<size_t>(corner[c]) + j, ff.corner[c][j]);
+          nf[j] += ff.corner[c][j];
+        }
+      contacts = ff.contacts;
+    }
+  }
+  if (__syncthreads_or(contacts > 0)) {
+    for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
+    using Reduce = cub::BlockReduce<int, kBlock>;
+    __shared__ typename Reduce::TempStorage temp;
+    const int nc = Reduce(temp).Sum(contacts);
+    if (threadIdx.x == 0 && nc) atomicAdd(&sums->needle_contacts, nc);
+  }
+}
+
 /// Stages 5 (the deformation) and 6, run by one thread once every vertex of the step is done:
 /// reads the step's sums and status, runs job_finish_step, publishes the record (latest, and a
 /// sample when due) to mapped host memory, and resets the sums for the next step. A halted job
@@ -177,7 +226,7 @@ __global__ void __launch_bounds__(kBlock)
                     VertexParams vp, float4* damp, float4* force_prev, float damping_rate,
                     int substep, bool fresh_energy, DeviceStatus* st, JobState* job,
                     JobSums* sums, JobStepCounters* step_counters, JobCounters* counters,
-                    JobHostLink link) {
+                    JobHostLink link, double* __restrict__ face_force) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
@@ -203,6 +252,11 @@ __global__ void __launch_bounds__(kBlock)
     if (i >= 0) {
       const ToolVertexForce t = tool_stage(p, tl, job->pose, i, un, up);
       tool = t.force;
+      if (face_force) {
+        double* ff = face_force + 3 * static_cast<size_t>(i);
+        tool += Vec3d{ff[0], ff[1], ff[2]};
+        ff[0] = ff[1] = ff[2] = 0;
+      }
       const double inv = 1.0 / tl.force_unit;
       fe = make_float4(float(tool.x * inv), float(tool.y * inv), float(tool.z * inv), 0.0f);
       for (int c = 0; c < 3; ++c) {
