@@ -92,6 +92,7 @@ __global__ void __launch_bounds__(kBlock)
                        const JobState* __restrict__ job, double* __restrict__ face_force,
                        JobSums* sums, int face_count, DeviceStatus* st, int substep) {
   wait_for_previous_kernel();
+  allow_next_kernel();
   if (halted(st, substep)) return;
   const int f = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
   double nf[3] = {0, 0, 0};
@@ -324,6 +325,7 @@ __global__ void __launch_bounds__(kBlock)
     mass_check_kernel(TetParams tp, const double* __restrict__ u, const float* __restrict__ tet_need,
                       float* __restrict__ vertex_need, float gate, int law) {
   wait_for_previous_kernel();
+  allow_next_kernel();
   const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
   if (t >= tp.tet_count) return;
   const int4 id = tp.vertices[t];
@@ -345,12 +347,14 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 // Dynamic mass scaling, vertex side: a free vertex whose mass falls short of its elements' need
-// takes it (the update's c scales with 1 / M; b depends on the damping rate only).
+// takes it, with its damping gamma kept (set_vertex_mass): from b = (M - g)/(M + g) with
+// g = gamma dt / 2, g = M (1 - b) / (1 + b); then b' = (M' - g)/(M' + g), c' = c (M + g)/(M' + g).
 __global__ void __launch_bounds__(kBlock)
     mass_raise_kernel(const float* __restrict__ vertex_need, const float* __restrict__ volume,
                       double* __restrict__ mass, float2* __restrict__ update,
                       unsigned long long* __restrict__ raises, int vertex_count) {
   wait_for_previous_kernel();
+  allow_next_kernel();
   const int v = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
   if (v >= vertex_count) return;
   const float need = vertex_need[v];
@@ -359,7 +363,9 @@ __global__ void __launch_bounds__(kBlock)
   const double m = mass[v];
   float2 k = update[v];
   if (!(m_new > m) || !(k.y > 0)) return;
-  k.y = static_cast<float>(k.y * (m / m_new));
+  const double g = m * (1.0 - static_cast<double>(k.x)) / (1.0 + static_cast<double>(k.x));
+  k.x = static_cast<float>((m_new - g) / (m_new + g));
+  k.y = static_cast<float>(k.y * ((m + g) / (m_new + g)));
   update[v] = k;
   mass[v] = m_new;
   atomicAdd(raises, 1ull);
