@@ -138,6 +138,10 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
         static_cast<double>(job.host_bytes_moved() - bytes_before) /
         static_cast<double>(std::max<int64_t>(1, job.steps_advanced() - steps_before));
     const double job_ms = quantile(ms, 0.5);
+    // A job that halted (a blow-up) within the timed blocks stepped no further: its time is not
+    // a step's. The row says so and the run to puncture is skipped.
+    JobRecord last;
+    const bool halted = job.latest(&last) && last.halted;
 
     // To puncture: run on (the blocks above were its first steps) when it fits the budget.
     const int64_t total = static_cast<int64_t>(std::ceil(sim.end_time() / model.dt - 0.5));
@@ -147,7 +151,10 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
     int64_t puncture_step = -1;
     double deformation_um = 0, force_un = 0;
     std::string status = "ok";
-    if (estimate_s <= a.max_run_seconds) {
+    if (halted) {
+      status = "halted at step " + std::to_string(last.step) +
+               " within the timed blocks (health check failed): job_ms is not a step's time";
+    } else if (estimate_s <= a.max_run_seconds) {
       RunOptions ro;
       ro.stop_after_puncture = 0;
       const RunResult run = run_simulation(sim, ro);
@@ -186,7 +193,7 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
                  "(x%.3g), real time x%.3g, to puncture %.3g s%s\n",
                  static_cast<long long>(model.vertex_count()), job_ms, kernel_ms,
                  kernel_ms > 0 ? job_ms / kernel_ms : 0.0, model.dt / (job_ms * 1e-3),
-                 wall_to_puncture, measured ? "" : " (estimated)");
+                 wall_to_puncture, halted ? " (HALTED: see the CSV's status)" : (measured ? "" : " (estimated)"));
   }
   return {};
 }

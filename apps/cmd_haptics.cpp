@@ -233,6 +233,15 @@ void run_haptics(const HapticsArgs& a) {
       return fail(st.error().message);
   }
   const NeedleReport& r = (*sim)->report();
+  // A simulation that failed its health check (blow-up, non-finite) stopped there: the loop
+  // kept rendering its last healthy sample. Say so.
+  const bool sim_failed = (r.status & (kStepEnergyBlowUp | kStepNonFinite)) != 0;
+  if (sim_failed)
+    std::fprintf(stderr,
+                 "zona haptics: the simulation stopped at t %.6g s (step %lld): %s; the device "
+                 "was sent its last healthy sample from then on\n",
+                 r.time, static_cast<long long>(port.steps()),
+                 (r.status & kStepNonFinite) ? "non-finite state" : "energy blow-up");
   const double puncture_s =
       port.puncture_wall_ns() < 0
           ? -1.0
@@ -267,6 +276,7 @@ void run_haptics(const HapticsArgs& a) {
     j["coupling_damping_Ns_per_m"] = gains->damping;
     j["llewellyn_margin_Ns_per_m"] = llewellyn_margin(*gains, (*device)->info().impedance, period);
     j["sim_steps"] = port.steps();
+    j["sim_failed"] = sim_failed;
     j["sim_samples_received"] = s.samples_received;
     j["sim_time_s"] = r.time;
     j["needle_travel_m"] = r.travel;

@@ -45,11 +45,11 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
   // Each vertex needs mass per lumped volume of at least (dt_crit_target)^2 S_e for every element
   // around it, so that rho_e = min over corners >= dt_crit_target^2 S_e.
   const double crit = target_dt / dt_safety;
-  std::vector<double> gamma_before(nv, 0.0);  // damping gamma = rate x physical mass [kg/s]
+  std::vector<double> rate(nv, 0.0);  // damping rate gamma / M, kept
   int64_t raised = 0;
   for (size_t v = 0; v < nv; ++v) {
     const double m = model.vertex_mass[v];
-    gamma_before[v] = model.vertex_damping[v];
+    rate[v] = m > 0 ? model.vertex_damping[v] / m : 0.0;
     report.mass_before += m;
     double need = 0;
     for (int32_t k = model.adjacency.offsets[v]; k < model.adjacency.offsets[v + 1]; ++k)
@@ -60,16 +60,9 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
       if (m > 0) report.max_vertex_factor = std::max(report.max_vertex_factor, m_new / m);
       model.vertex_mass[v] = m_new;
     }
+    model.vertex_damping[v] = rate[v] * model.vertex_mass[v];
     report.mass_after += model.vertex_mass[v];
   }
-  // Damping follows the physical mass distribution, scaled by the overall mass factor: the
-  // cell's slow modes are damped as uniform scaling to the same total mass would damp them,
-  // but the small elements' added mass (most of it at the refined puncture site, under the
-  // needle) drags nothing. With gamma = rate x scaled mass, the patch that moves with the needle
-  // carried a drag of rate x (its scaled mass) x speed: a third of the needle force at 10k
-  // vertices and 100 1/s, rate-dependent (halving the speed moved the curve by 12 %).
-  const double overall = report.mass_before > 0 ? report.mass_after / report.mass_before : 1.0;
-  for (size_t v = 0; v < nv; ++v) model.vertex_damping[v] = gamma_before[v] * overall;
   report.scaled_fraction = nv > 0 ? static_cast<double>(raised) / static_cast<double>(nv) : 0.0;
 
   // The critical step of the new masses (element bound), the step and the coefficients.
@@ -101,7 +94,10 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
 }
 
 void set_vertex_mass(Model& model, size_t v, double mass) {
+  const double m = model.vertex_mass[v];
+  const double rate = m > 0 ? model.vertex_damping[v] / m : 0.0;
   model.vertex_mass[v] = mass;
+  model.vertex_damping[v] = rate * mass;
   const double gamma = model.vertex_damping[v], dt = model.dt;
   if (mass > 0) {
     const double denom = mass + 0.5 * gamma * dt;

@@ -27,16 +27,14 @@ struct SelectiveScalingReport {
 /// (element e is stable for dt <= sqrt(rho_e / (lambda sum|g|^2 + 2 mu lambda_max(G G^T))), with
 /// rho_e its corners' smallest mass per lumped volume; the vertex masses are raised until every
 /// element around them meets the target), then recomputes damping (the same rate per vertex),
-/// the critical step, dt = dt_safety * dt_critical and the update coefficients. Damping: each
-/// vertex keeps its physical damping gamma times the total mass ratio (the added mass of small
-/// elements adds no drag). The model's
+/// the critical step, dt = dt_safety * dt_critical and the update coefficients. The model's
 /// mass_scaling becomes the total mass ratio. A model already faster than the target is left
 /// as it is. Errors: target_dt <= 0, dt_safety outside (0, 1]. Call right after build_model.
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
                                                             double dt_safety);
 
-/// Sets vertex v's mass [kg] and its update coefficients at the model's step. The damping gamma
-/// is kept: mass added for stability (contact, dynamic scaling) adds inertia, not drag.
+/// Sets vertex v's mass [kg], keeping its damping rate gamma / M, and its update coefficients
+/// at the model's step.
 void set_vertex_mass(Model& model, size_t v, double mass);
 
 }  // namespace zona

@@ -347,8 +347,8 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 // Dynamic mass scaling, vertex side: a free vertex whose mass falls short of its elements' need
-// takes it, with its damping gamma kept (set_vertex_mass): from b = (M - g)/(M + g) with
-// g = gamma dt / 2, g = M (1 - b) / (1 + b); then b' = (M' - g)/(M' + g), c' = c (M + g)/(M' + g).
+// takes it (set_vertex_mass: the damping rate gamma / M is kept, so b stays and c scales with
+// 1 / M).
 __global__ void __launch_bounds__(kBlock)
     mass_raise_kernel(const float* __restrict__ vertex_need, const float* __restrict__ volume,
                       double* __restrict__ mass, float2* __restrict__ update,
@@ -363,9 +363,7 @@ __global__ void __launch_bounds__(kBlock)
   const double m = mass[v];
   float2 k = update[v];
   if (!(m_new > m) || !(k.y > 0)) return;
-  const double g = m * (1.0 - static_cast<double>(k.x)) / (1.0 + static_cast<double>(k.x));
-  k.x = static_cast<float>((m_new - g) / (m_new + g));
-  k.y = static_cast<float>(k.y * ((m + g) / (m_new + g)));
+  k.y = static_cast<float>(k.y * (m / m_new));
   update[v] = k;
   mass[v] = m_new;
   atomicAdd(raises, 1ull);
