@@ -101,6 +101,8 @@ Status write_outputs(const std::filesystem::path& out, ConvergenceStudy study,
       "one row per size: force_at_D_un the force where the loading branch (before puncture) "
       "first reaches D um, linearly interpolated, empty where it does not; rel_diff_at_D "
       "(force - finest's) / finest's, the finest being the size with the most vertices; "
+      "imbalance_at_D (needle force + holding force along the axis) / needle force there, 0 "
+      "in static equilibrium, the share carried by inertia and damping; "
       "largest_drop_rel the largest sample-to-sample fall of the force on the loading branch "
       "over the puncture force (the peak force without puncture); free text has ',' as ';'");
   if (Status s =

@@ -136,12 +136,13 @@ std::vector<CurvePoint> loading_branch(std::span<const ForceSample> samples,
       broken = true;
       break;
     }
-    branch.push_back({s.deformation, s.force});
+    branch.push_back({s.deformation, s.force, s.holding_force});
   }
   // The puncture point closes the branch: the force the criterion fired at, before release.
   if (!broken && puncture.punctured && std::isfinite(puncture.deformation) &&
       std::isfinite(puncture.force))
-    branch.push_back({puncture.deformation, puncture.force});
+    branch.push_back({puncture.deformation, puncture.force,
+                      branch.empty() ? 0.0 : branch.back().holding});
   return branch;
 }
 
@@ -157,6 +158,16 @@ std::optional<double> force_at_deformation(std::span<const CurvePoint> branch, d
     return a.force + t * (b.force - a.force);
   }
   return std::nullopt;
+}
+
+std::optional<double> imbalance_at_deformation(std::span<const CurvePoint> branch,
+                                               double deformation) {
+  std::vector<CurvePoint> net(branch.begin(), branch.end());
+  for (CurvePoint& p : net) p.force += p.holding;
+  const std::optional<double> force = force_at_deformation(branch, deformation);
+  const std::optional<double> sum = force_at_deformation(net, deformation);
+  if (!force || !sum || !(*force > 0)) return std::nullopt;
+  return *sum / *force;
 }
 
 double largest_force_drop(std::span<const CurvePoint> branch, double reference_force) {
@@ -185,6 +196,7 @@ ConvergenceRun summarize_convergence_run(int64_t target_vertices, const RunResul
   const std::vector<CurvePoint> branch = loading_branch(run.samples, run.puncture);
   for (const double d : deformations) out.force_at.push_back(force_at_deformation(branch, d));
   out.relative_to_finest.assign(deformations.size(), std::nullopt);
+  for (const double d : deformations) out.imbalance_at.push_back(imbalance_at_deformation(branch, d));
   out.largest_drop =
       largest_force_drop(branch, out.punctured ? out.puncture_force : out.peak_force);
   std::vector<std::string> flags = step_flag_names(run.status);
@@ -301,6 +313,7 @@ std::string convergence_summary_csv(const ConvergenceStudy& study,
   for (const double d : study.deformations)
     out.append(",force_at_").append(deformation_tag(d)).append("_un");
   for (const double d : study.deformations) out.append(",rel_diff_at_").append(deformation_tag(d));
+  for (const double d : study.deformations) out.append(",imbalance_at_").append(deformation_tag(d));
   out += ",largest_drop_rel,step_flags,stopped_early,stop_reason\n";
   for (const ConvergenceRun& r : study.runs) {
     const bool ran = r.vertices > 0;
@@ -318,6 +331,8 @@ std::string convergence_summary_csv(const ConvergenceStudy& study,
                                   ran ? format(r.peak_force * 1e6) : ""};
     for (const std::optional<double>& x : r.force_at) f.push_back(format_optional(x, 1e6));
     for (const std::optional<double>& x : r.relative_to_finest) f.push_back(format_optional(x));
+    for (size_t k = 0; k < study.deformations.size(); ++k)
+      f.push_back(k < r.imbalance_at.size() ? format_optional(r.imbalance_at[k]) : "");
     f.push_back(ran ? format(r.largest_drop) : "");
     f.push_back(csv_text(r.step_flags));
     f.push_back(r.stopped_early ? "1" : "0");

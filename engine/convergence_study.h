@@ -40,6 +40,7 @@ Result<std::vector<double>> parse_study_deformations(std::string_view text);
 struct CurvePoint {
   double deformation = 0;  ///< membrane deformation at the entry point [m]
   double force = 0;        ///< filtered axial needle force [N]
+  double holding = 0;      ///< holding pipette force along the needle axis [N]
 };
 
 /// The loading branch of a run: its samples before puncture, in time order, then the puncture
@@ -51,6 +52,14 @@ std::vector<CurvePoint> loading_branch(std::span<const ForceSample> samples,
 /// The force where the branch first reaches `deformation` [m], linearly interpolated between
 /// the two points that bracket it [N]; nullopt when the branch never reaches it.
 std::optional<double> force_at_deformation(std::span<const CurvePoint> branch, double deformation);
+
+/// How far the run is from static equilibrium where the branch first reaches `deformation`:
+/// (force + holding) / force, both interpolated as force_at_deformation does [-]. The needle's
+/// resistance (force, positive) and the holding pipette's force along the axis (negative when it
+/// holds the cell against the needle) cancel in a quasi-static injection; what is left is carried
+/// by inertia and damping. nullopt where the level is not reached or the force is not positive.
+std::optional<double> imbalance_at_deformation(std::span<const CurvePoint> branch,
+                                               double deformation);
 
 /// The largest point-to-point fall of the force along the branch, over `reference_force` [-]
 /// (0 when the force never falls, or the reference is not positive). The study uses the
@@ -79,6 +88,8 @@ struct ConvergenceRun {
   /// (force_at - finest's) / finest's [-], (deformation count); nullopt where either is
   /// missing or the finest's is zero. Filled by fill_relative_differences.
   std::vector<std::optional<double>> relative_to_finest;
+  /// imbalance_at_deformation at each requested deformation [-], (deformation count).
+  std::vector<std::optional<double>> imbalance_at;
   double largest_drop = 0;           ///< largest_force_drop of the branch [-]
   std::string step_flags;            ///< step_flag_names of the run, joined by '|'
   bool stopped_early = false;        ///< a step was not advanced, or setup failed

@@ -84,6 +84,18 @@ TEST(ConvergenceStudy, ForceAtDeformationInterpolatesTheLoadingBranch) {
   EXPECT_FALSE(force_at_deformation(branch, 33e-6).has_value());
 }
 
+TEST(ConvergenceStudy, ImbalanceIsWhatTheHoldingDoesNotCarry) {
+  // The needle's resistance 2 -> 6 uN between 10 and 20 um, the holding pipette's axial force
+  // -1 -> -6 uN: at 10 um half the load is carried elsewhere (inertia, damping), at 20 um none.
+  const std::vector<CurvePoint> branch = {{0, 0, 0}, {10e-6, 2e-6, -1e-6}, {20e-6, 6e-6, -6e-6}};
+  EXPECT_NEAR(*imbalance_at_deformation(branch, 10e-6), 0.5, 1e-12);
+  EXPECT_NEAR(*imbalance_at_deformation(branch, 20e-6), 0.0, 1e-12);
+  EXPECT_NEAR(*imbalance_at_deformation(branch, 15e-6), (4.0 - 3.5) / 4.0, 1e-12);
+  EXPECT_FALSE(imbalance_at_deformation(branch, 25e-6).has_value());
+  // No force yet: no ratio.
+  EXPECT_FALSE(imbalance_at_deformation(branch, 0.0).has_value());
+}
+
 TEST(ConvergenceStudy, ForceAtDeformationTakesTheFirstCrossing) {
   // The deformation goes back once (a ringing membrane): the first time 6 um is reached counts.
   const std::vector<CurvePoint> branch = {{0, 0}, {8e-6, 8e-6}, {4e-6, 5e-6}, {10e-6, 20e-6}};
@@ -184,6 +196,7 @@ TEST(ConvergenceStudy, CsvTextHasCommentsHeaderAndRows) {
   for (const auto& row : summary) EXPECT_EQ(row.size(), summary[0].size());
   EXPECT_EQ(summary[0][12], "force_at_10um_un");
   EXPECT_EQ(summary[0][13], "rel_diff_at_10um");
+  EXPECT_EQ(summary[0][14], "imbalance_at_10um");
   EXPECT_EQ(summary[1][7], "cpu reference: 2 thread(s); float64");
   EXPECT_EQ(summary[1][9], "");  // no puncture: empty deformation
 }
