@@ -4,6 +4,7 @@
 #include <string>
 
 #include "apps/commands.h"
+#include "build_commit.h"  // generated: ZONA_BUILD_COMMIT
 
 namespace zona::cli {
 
@@ -18,6 +19,8 @@ void fail(const std::string& message) {
 }
 
 std::string source_commit() {
+  // The build's stamp first (it travels with the binary); the checkout's HEAD otherwise.
+  if (const std::string stamp = ZONA_BUILD_COMMIT; !stamp.empty()) return stamp;
   const std::string git = std::string(ZONA_SOURCE_DIR) + "/.git/";
   std::ifstream head(git + "HEAD");
   std::string line;
