@@ -293,47 +293,77 @@ struct ToolFaceForce {
 /// pressure and friction of penalty_contact_force at each quadrature point, over the point's
 /// share of the rest area, with the point's share of the corner masses (a sixth of the three
 /// corners' masses per triangle: a surface vertex has about six triangles), spread to the corners
-/// by the point's barycentric weights. A triangle whose centroid lies farther from the needle
-/// than from its farthest corner cannot touch it (the distance field is 1-Lipschitz): skipped.
-ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
-                                                            const ToolPose& pose,
-                                                            const ToolFaceInput& in) {
-  ToolFaceForce out;
-  for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
+/// by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
+/// triangle on 16 threads with needle_face_point). A triangle whose centroid lies farther from
+/// the needle than from its farthest corner cannot touch it (the distance field is 1-Lipschitz):
+/// needle_face_may_touch is false and it is skipped.
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, const ToolPose& pose,
+                                                        const ToolFaceInput& in) {
   const Vec3d centroid = (1.0 / 3.0) * (in.x[0] + in.x[1] + in.x[2]);
   double reach = 0;
   for (int c = 0; c < 3; ++c) {
     const Vec3d d = in.x[c] - centroid;
     reach = reach > dot(d, d) ? reach : dot(d, d);
   }
-  const bool flat = p.needle_flat != 0;
-  if (needle_sdf(pose.tip, p.needle_direction, p.needle_radius, flat, centroid).distance >=
-      std::sqrt(reach))
-    return out;
+  return needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, centroid)
+             .distance < std::sqrt(reach);
+}
+
+/// Quadrature points per triangle.
+inline constexpr int kFacePoints = kFaceSubdivisions * kFaceSubdivisions;
+
+/// Barycentric weights of corners 1 and 2 of quadrature point q in [0, kFacePoints): the
+/// centroids of the sub-triangles, row by row (row i: n - i upward, then n - i - 1 downward).
+ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* b2) {
   constexpr int n = kFaceSubdivisions;
-  constexpr double w = 1.0 / (n * n);
-  ToolVertexInput q;
-  q.area = w * in.area;
-  q.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
-  for (int i = 0; i < n; ++i)
-    for (int j = 0; i + j < n; ++j)
-      for (int down = 0; down < 2; ++down) {
-        if (down && i + j > n - 2) continue;
-        const double off = down ? 2.0 / 3.0 : 1.0 / 3.0;
-        const double b1 = (i + off) / n, b2 = (j + off) / n, b0 = 1.0 - b1 - b2;
-        q.x = b0 * in.x[0] + b1 * in.x[1] + b2 * in.x[2];
-        const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius, flat, q.x);
-        if (!(sdf.distance < 0)) continue;
-        q.velocity = b0 * in.velocity[0] + b1 * in.velocity[1] + b2 * in.velocity[2];
-        const Vec3d f = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
-                                                                  p.needle_friction, q,
-                                                                  pose.tip_velocity, p.dt) +
-                        pose.drag_per_contact;
-        out.corner[0] += b0 * f;
-        out.corner[1] += b1 * f;
-        out.corner[2] += b2 * f;
-        ++out.contacts;
-      }
+  int i = 0;
+  while (q >= 2 * (n - i) - 1) {
+    q -= 2 * (n - i) - 1;
+    ++i;
+  }
+  const bool down = q >= n - i;
+  const int j = down ? q - (n - i) : q;
+  const double off = down ? 2.0 / 3.0 : 1.0 / 3.0;
+  *b1 = (i + off) / n;
+  *b2 = (j + off) / n;
+}
+
+/// The needle's load [N] at quadrature point q of a triangle (false, and nothing written, where
+/// the point is outside the needle), and the point's barycentric weights b[3].
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const ToolPose& pose,
+                                                    const ToolFaceInput& in, int q, Vec3d* force,
+                                                    double b[3]) {
+  face_point_weights(q, &b[1], &b[2]);
+  b[0] = 1.0 - b[1] - b[2];
+  ToolVertexInput pt;
+  pt.x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
+  const ToolSdf sdf =
+      needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, pt.x);
+  if (!(sdf.distance < 0)) return false;
+  constexpr double w = 1.0 / kFacePoints;
+  pt.area = w * in.area;
+  pt.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
+  pt.velocity = b[0] * in.velocity[0] + b[1] * in.velocity[1] + b[2] * in.velocity[2];
+  *force = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
+                                                     p.needle_friction, pt, pose.tip_velocity,
+                                                     p.dt) +
+           pose.drag_per_contact;
+  return true;
+}
+
+ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
+                                                            const ToolPose& pose,
+                                                            const ToolFaceInput& in) {
+  ToolFaceForce out;
+  for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
+  if (!needle_face_may_touch(p, pose, in)) return out;
+  for (int q = 0; q < kFacePoints; ++q) {
+    Vec3d f;
+    double b[3];
+    if (!needle_face_point(p, pose, in, q, &f, b)) continue;
+    for (int c = 0; c < 3; ++c) out.corner[c] += b[c] * f;
+    ++out.contacts;
+  }
   return out;
 }
 
