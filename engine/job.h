@@ -294,7 +294,7 @@ struct ToolFaceForce {
 /// share of the rest area, with the point's share of the corner masses (a sixth of the three
 /// corners' masses per triangle: a surface vertex has about six triangles), spread to the corners
 /// by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
-/// triangle on 16 threads with needle_face_point). A triangle whose centroid lies farther from
+/// triangle on a few threads with needle_face_point). A triangle whose centroid lies farther from
 /// the needle than from its farthest corner cannot touch it (the distance field is 1-Lipschitz):
 /// needle_face_may_touch is false and it is skipped.
 ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, const ToolPose& pose,

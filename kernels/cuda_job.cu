@@ -266,7 +266,7 @@ Status CudaJob::enqueue_step(int64_t g) {
   });
   if (params_.needle_on_faces) {
     const int nf = static_cast<int>(d_faces_.size());
-    keep(launch(pdl, needle_face_kernel, blocks_for(static_cast<size_t>(nf) * kFacePoints), s,
+    keep(launch(pdl, needle_face_kernel, blocks_for(static_cast<size_t>(nf) * kFaceLanes), s,
                 params_, tl_,
                 static_cast<const int4*>(d_faces_.data()),
                 static_cast<const double*>(d_face_area_.data()), vp,

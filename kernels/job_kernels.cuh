@@ -83,23 +83,28 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
   return tool_vertex_force(p, pose, in);
 }
 
-/// Stage 1, the needle on the surface triangles (JobParams::needle_on_faces): kFacePoints
-/// threads per triangle, one quadrature point each (needle_face_point), summed over the
-/// triangle by shuffles; its first thread adds the corner loads to face_force [N] (3 per tool
-/// vertex; job_step_kernel takes and clears them in the same step) and the block adds its sums
-/// to the step's needle sums. One point per thread keeps the kernel short: a thread that
-/// evaluated all 16 points in float64 made the stage latency-bound (about 20 us per step).
+/// Threads per triangle in needle_face_kernel, each taking every kFaceLanes-th point.
+inline constexpr int kFaceLanes = 4;
+
+/// Stage 1, the needle on the surface triangles (JobParams::needle_on_faces): kFaceLanes
+/// threads per triangle, each evaluating every kFaceLanes-th quadrature point
+/// (needle_face_point), summed over the triangle by shuffles; its first thread adds the corner
+/// loads to face_force [N] (3 per tool vertex; job_step_kernel takes and clears them in the same
+/// step) and the block adds its sums to the step's needle sums. A thread that evaluated all 16
+/// points in float64 made the stage latency-bound (about 20 us per step at 1k vertices); one
+/// point per thread multiplied the threads and the corner loads by 16 (1.76x the bare step at
+/// 1M vertices against 1.58x); four lanes of four points sit between.
 __global__ void __launch_bounds__(kBlock)
     needle_face_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
                        const double* __restrict__ face_area, VertexParams vp,
                        const JobState* __restrict__ job, double* __restrict__ face_force,
                        JobSums* sums, int face_count, DeviceStatus* st, int substep) {
-  static_assert(kFacePoints == 16 && kBlock % kFacePoints == 0, "16 lanes per triangle");
+  static_assert(kFacePoints % kFaceLanes == 0 && kBlock % kFaceLanes == 0, "lanes per triangle");
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every thread
   const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
-  const int f = t / kFacePoints, q = t % kFacePoints;
+  const int f = t / kFaceLanes, lane = t % kFaceLanes;
   double load[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
   int contact = 0;
   int corner[3] = {0, 0, 0};
@@ -123,22 +128,24 @@ __global__ void __launch_bounds__(kBlock)
     }
     in.area = face_area[f];
     const ToolPose pose = job->pose;
-    Vec3d force;
-    double b[3];
-    if (needle_face_may_touch(p, pose, in) && needle_face_point(p, pose, in, q, &force, b)) {
-      for (int c = 0; c < 3; ++c)
-        for (int j = 0; j < 3; ++j) load[3 * c + j] = b[c] * force[j];
-      contact = 1;
-    }
+    if (needle_face_may_touch(p, pose, in))
+      for (int q = lane; q < kFacePoints; q += kFaceLanes) {
+        Vec3d force;
+        double b[3];
+        if (!needle_face_point(p, pose, in, q, &force, b)) continue;
+        for (int c = 0; c < 3; ++c)
+          for (int j = 0; j < 3; ++j) load[3 * c + j] += b[c] * force[j];
+        ++contact;
+      }
   }
-  // Sum the triangle's 16 points onto its first lane.
-  for (int offset = kFacePoints / 2; offset > 0; offset /= 2) {
-    for (int k = 0; k < 9; ++k) load[k] += __shfl_down_sync(0xffffffffu, load[k], offset, kFacePoints);
-    contact += __shfl_down_sync(0xffffffffu, contact, offset, kFacePoints);
+  // Sum the triangle's lanes onto its first one.
+  for (int offset = kFaceLanes / 2; offset > 0; offset /= 2) {
+    for (int k = 0; k < 9; ++k) load[k] += __shfl_down_sync(0xffffffffu, load[k], offset, kFaceLanes);
+    contact += __shfl_down_sync(0xffffffffu, contact, offset, kFaceLanes);
   }
   double nf[3] = {0, 0, 0};
   int contacts = 0;
-  if (q == 0 && contact > 0) {
+  if (lane == 0 && contact > 0) {
     for (int c = 0; c < 3; ++c)
       for (int j = 0; j < 3; ++j) {
         atomicAdd(face_force + 3 * static_cast<size_t>(corner[c]) + j, load[3 * c + j]);

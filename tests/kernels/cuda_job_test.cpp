@@ -86,10 +86,21 @@ TEST(CudaJob, MouseInjectionToPunctureMatchesCpu) {
   EXPECT_GT(compared, 8);
   EXPECT_LT(worst, 0.05 * rc.peak_force);
   // The same puncture: deformation within 5 %. The force at that instant carries the curve's
-  // ripple on this coarse mesh (the filtered force swings by about +-10 % from sample to sample
-  // near puncture; measured on an H200: 4.81 / 5.65 uN at 34.5 / 34.6 um): within 25 %.
+  // ripple (past 30 um SVK elements reach their compression clamp and the filtered force swings
+  // by +-10-15 % from sample to sample; two CPU runs that differ only in summation order fired at
+  // 4.85 and 4.04 uN): the GPU's puncture force must be one the CPU's own curve takes within
+  // 2 um of deformation before its puncture.
   EXPECT_NEAR(rg.puncture.deformation, rc.puncture.deformation, 0.05 * rc.puncture.deformation);
-  EXPECT_NEAR(rg.puncture.force, rc.puncture.force, 0.25 * rc.puncture.force);
+  double lo = rc.puncture.force, hi = rc.puncture.force;
+  for (const ForceSample& s : rc.samples) {
+    if (s.punctured || s.deformation < rc.puncture.deformation - 2e-6) continue;
+    lo = std::min(lo, s.force);
+    hi = std::max(hi, s.force);
+  }
+  std::printf("[ measured ] cpu force within 2 um before its puncture: %.4g .. %.4g uN\n", lo * 1e6,
+              hi * 1e6);
+  EXPECT_GE(rg.puncture.force, 0.95 * lo);
+  EXPECT_LE(rg.puncture.force, 1.05 * hi);
 }
 
 TEST(CudaJob, BlowUpStopsWithoutAPuncture) {
