@@ -55,8 +55,11 @@ TEST(CudaJob, MouseInjectionToPunctureMatchesCpu) {
   ASSERT_TRUE(rc.puncture.punctured && rg.puncture.punctured);
   // Before the puncture the curves agree: the force averaged over each 2 um of deformation
   // (float32 element forces on the GPU and contact onsets a step apart make single samples
-  // differ; the curve does not).
-  constexpr int kBins = 30;
+  // differ; the curve does not), up to 28 um. Past 30 um SVK elements under the tip reach their
+  // compression clamp and the force jitters by 10-15 % from sample to sample: there two CPU runs
+  // that differ only in the summation order of the needle's quadrature points differ by 12-14 %
+  // (measured), so the bins there compare rounding, not backends.
+  constexpr int kBins = 14;
   double sum_c[kBins] = {}, sum_g[kBins] = {};
   int n_c[kBins] = {}, n_g[kBins] = {};
   auto bin = [](const RunResult& r, double* sum, int* n) {
