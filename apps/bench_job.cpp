@@ -9,8 +9,8 @@
 #include <vector>
 
 #include "apps/bench_job.h"
-#include "engine/scaling_bench.h"
-#include "engine/simulation.h"
+#include "bench/scaling/scaling_bench.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 
 namespace zona::cli {

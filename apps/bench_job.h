@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 
 namespace zona::cli {
 

@@ -1,4 +1,4 @@
-// `zona analytic maxwell|membrane|modulus`: seed 002's analytic models (engine/analytic.h) from
+// `zona analytic maxwell|membrane|modulus`: seed 002's analytic models (engine/analysis/analytic.h) from
 // the command line, values with units in and out, text or --json.
 #include <cmath>
 #include <cstdio>
@@ -10,8 +10,8 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
-#include "engine/analytic.h"
-#include "engine/units.h"
+#include "engine/analysis/analytic.h"
+#include "engine/core/units.h"
 
 namespace zona::cli {
 namespace {

@@ -1,5 +1,5 @@
 // `zona bench`: the vertices-versus-time scaling benchmark (seed 000 Table II and beyond) as a
-// CSV, with a progress bar on stderr. The measurement lives in engine/scaling_bench.h; this file
+// CSV, with a progress bar on stderr. The measurement lives in bench/scaling/scaling_bench.h; this file
 // parses the options and wires in the backend factory and the GPU probes from kernels/.
 #include <unistd.h>
 
@@ -12,7 +12,7 @@
 
 #include "apps/bench_job.h"
 #include "apps/commands.h"
-#include "engine/scaling_bench.h"
+#include "bench/scaling/scaling_bench.h"
 #include "kernels/backend_factory.h"
 #include "kernels/backend_info.h"
 #include "kernels/cuda_probe.h"

@@ -1,5 +1,5 @@
 // `zona calibrate SCENE --data FILE.csv --fit KEY[=LO..HI] ...`: fits scene parameters to a
-// measured force-deformation curve by running the scene repeatedly (engine/calibrate.h).
+// measured force-deformation curve by running the scene repeatedly (engine/analysis/calibrate.h).
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -9,8 +9,8 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
-#include "engine/calibrate.h"
-#include "engine/scene.h"
+#include "engine/analysis/calibrate.h"
+#include "engine/scene/scene.h"
 
 namespace zona::cli {
 namespace {

@@ -8,10 +8,10 @@
 #include <vector>
 
 #include "apps/commands.h"
-#include "engine/backend.h"
-#include "engine/mesh_io.h"
-#include "engine/model.h"
-#include "engine/state.h"
+#include "engine/sim/backend.h"
+#include "engine/mesh/mesh_io.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
 #include "kernels/backend_factory.h"
 
 namespace zona::cli {

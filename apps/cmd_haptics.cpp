@@ -11,9 +11,9 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
-#include "engine/haptics_loop.h"
-#include "engine/scene.h"
-#include "engine/simulation.h"
+#include "engine/haptics/haptics_loop.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 
 namespace zona::cli {

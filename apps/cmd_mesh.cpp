@@ -8,11 +8,11 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
-#include "engine/mesh_generate.h"
-#include "engine/mesh_io.h"
-#include "engine/scene.h"
-#include "engine/scene_mesh.h"
-#include "engine/units.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/mesh/mesh_io.h"
+#include "engine/scene/scene.h"
+#include "engine/scene/scene_mesh.h"
+#include "engine/core/units.h"
 
 namespace zona::cli {
 namespace {

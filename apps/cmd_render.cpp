@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "apps/commands.h"
-#include "engine/scene.h"
-#include "engine/simulation.h"
-#include "engine/units.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
+#include "engine/core/units.h"
 #include "kernels/backend_factory.h"
 #include "kernels/surface_interop.h"
 

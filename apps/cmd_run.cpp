@@ -17,10 +17,10 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
-#include "engine/plot.h"
-#include "engine/recorder.h"
-#include "engine/scene.h"
-#include "engine/simulation.h"
+#include "engine/analysis/plot.h"
+#include "engine/sim/recorder.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 #include "kernels/particle_backend.h"
 

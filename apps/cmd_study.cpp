@@ -1,5 +1,5 @@
 // `zona study convergence SCENE`: the injection experiment at a list of mesh sizes, its curves
-// compared at fixed deformations (engine/convergence_study.h); writes convergence.csv,
+// compared at fixed deformations (engine/analysis/convergence_study.h); writes convergence.csv,
 // convergence_summary.csv and convergence.png.
 #include <unistd.h>
 
@@ -12,11 +12,11 @@
 #include <vector>
 
 #include "apps/commands.h"
-#include "engine/convergence_study.h"
-#include "engine/plot.h"
-#include "engine/scaling_bench.h"
-#include "engine/scene.h"
-#include "engine/simulation.h"
+#include "engine/analysis/convergence_study.h"
+#include "engine/analysis/plot.h"
+#include "bench/scaling/scaling_bench.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 #include "kernels/backend_info.h"
 #include "kernels/particle_backend.h"

@@ -5,7 +5,7 @@
 #include <functional>
 #include <string>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 
 namespace zona {
 class Simulation;

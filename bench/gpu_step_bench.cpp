@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
-#include "engine/backend.h"
-#include "engine/mesh_generate.h"
-#include "engine/model.h"
-#include "engine/state.h"
+#include "engine/sim/backend.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
 #include "kernels/backend_info.h"
 #include "kernels/cuda_backend.h"
 #include "kernels/cuda_probe.h"

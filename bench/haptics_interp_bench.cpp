@@ -11,8 +11,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/haptics_loop.h"
-#include "engine/haptics_render.h"
+#include "engine/haptics/haptics_loop.h"
+#include "engine/haptics/haptics_render.h"
 
 using namespace zona;
 

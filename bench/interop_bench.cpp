@@ -21,8 +21,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/mesh_generate.h"
-#include "engine/state.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/fem/state.h"
 #include "kernels/cuda_backend.h"
 #include "kernels/surface_interop.h"
 #include "render/frame_source.h"

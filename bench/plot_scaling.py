@@ -17,7 +17,7 @@ import sys
 from collections import OrderedDict
 
 # Seed 000 Table II (SVK mass tensors, Intel Core Duo 3.2 GHz, 2009): vertices, tetrahedra,
-# precompute [ms], step [ms]. The same numbers as engine/scaling_bench.cpp's kSeedTable2.
+# precompute [ms], step [ms]. The same numbers as bench/scaling/scaling_bench.cpp's kSeedTable2.
 SEED_TABLE2 = [
     (115, 332, 0.875, 0.047), (123, 379, 0.99, 0.047), (128, 407, 1.094, 0.063),
     (165, 546, 1.718, 0.078), (176, 614, 2.031, 0.094), (192, 672, 2.359, 0.109),

@@ -1,7 +1,7 @@
 // The backend factory: the one place besides kernels/ stubs that decides CPU or CUDA.
 #include "kernels/backend_factory.h"
 
-#include "engine/backend_cpu.h"
+#include "engine/sim/backend_cpu.h"
 #include "kernels/cuda_backend.h"
 
 namespace zona {

@@ -7,7 +7,7 @@
 
 #include <cstdio>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 
 namespace zona::cuda {
 

@@ -1,4 +1,4 @@
-// The device-resident injection step on the CUDA backend (engine/job.h): per step two kernels
+// The device-resident injection step on the CUDA backend (engine/sim/job.h): per step two kernels
 // (the element pass, then tools, update, measurement and record in one) replayed from captured graphs, state in device memory,
 // only the fixed-size record crossing to the host through mapped pinned memory. The host never
 // synchronises the stream on the step path: it bounds the steps in flight by reading the

@@ -4,7 +4,7 @@
 
 #include <cstddef>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 
 namespace zona {
 

@@ -9,7 +9,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "kernels/cuda_check.h"
 
 namespace zona::cuda {

@@ -8,8 +8,8 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/base.h"
-#include "engine/model.h"
+#include "engine/core/base.h"
+#include "engine/fem/model.h"
 
 namespace zona {
 

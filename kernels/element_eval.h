@@ -1,13 +1,13 @@
 // One element evaluation per (constitutive law, formulation), composed from fem_element.h exactly
-// as the CPU element pass composes it (engine/forces_cpu.cpp): forces f[4] written, energy
+// as the CPU element pass composes it (engine/fem/forces_cpu.cpp): forces f[4] written, energy
 // returned, ElementHealth bits in *bits. ZONA_HOST_DEVICE and templated on the scalar, so the
 // CUDA kernels evaluate the same functions in float32 that the CPU evaluates in float64.
 #pragma once
 
 #include <cstdint>
 
-#include "engine/base.h"
-#include "engine/fem_element.h"
+#include "engine/core/base.h"
+#include "engine/fem/fem_element.h"
 
 namespace zona {
 

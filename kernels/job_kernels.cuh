@@ -1,13 +1,13 @@
-// Kernels of the device-resident injection step (engine/job.h's stages): the tools over the
+// Kernels of the device-resident injection step (engine/sim/job.h's stages): the tools over the
 // surface vertices, the centred-difference update with the tool loads and stiffness damping,
 // and the one-thread record that measures, tests and publishes the step. Thin wrappers: the
-// physics is engine/job.h's ZONA_HOST_DEVICE functions, the same the CPU runner calls.
+// physics is engine/sim/job.h's ZONA_HOST_DEVICE functions, the same the CPU runner calls.
 // Included by cuda_job.cu only.
 #pragma once
 
 #include <climits>
 
-#include "engine/job.h"
+#include "engine/sim/job.h"
 #include "kernels/step_kernels.cuh"
 
 namespace zona::cuda {

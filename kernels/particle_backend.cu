@@ -1,5 +1,5 @@
 // The particle model (seed 001) on the GPU: the same per-spring / per-triangle functions as the
-// CPU reference (engine/particle_element.h) in thin kernels, float64 throughout. One sub-step is
+// CPU reference (engine/particles/particle_element.h) in thin kernels, float64 throughout. One sub-step is
 // six launches in stream order: triangle volume partials, the volume and pressure, the membrane
 // pass (forces gathered per particle in CSR order, then the update), the centre particle (its
 // springs' reactions reduced in a fixed order), the prescribed particles, and a one-block finish
@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/particle_element.h"
-#include "engine/state.h"
+#include "engine/particles/particle_element.h"
+#include "engine/fem/state.h"
 #include "kernels/cuda_check.h"
 #include "kernels/device_buffer.h"
 #include "kernels/particle_backend.h"
@@ -104,7 +104,7 @@ __global__ void volume_final_kernel(View p, const double* partial, int count, Pa
   }
 }
 
-// 3. Membrane particles: springs, dashpots, centre spring and pressure (engine/particle_model.cpp
+// 3. Membrane particles: springs, dashpots, centre spring and pressure (engine/particles/particle_model.cpp
 //    particle_forces, same order), then the centred difference with eq. 5's damping.
 __global__ void membrane_kernel(View p, const Vec3d* u, const Vec3d* up, Vec3d* un, Vec3d* force,
                                 const Vec3d* ext, double inv_dt, bool integrate, Vec3d* centre_part,

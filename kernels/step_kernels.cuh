@@ -12,7 +12,7 @@
 #include <cuda/atomic>
 #include <type_traits>
 
-#include "engine/integrator.h"
+#include "engine/sim/integrator.h"
 #include "kernels/device_layout.h"
 #include "kernels/element_eval.h"
 

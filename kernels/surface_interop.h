@@ -18,8 +18,8 @@
 #include <span>
 #include <vector>
 
-#include "engine/backend.h"
-#include "engine/model.h"
+#include "engine/sim/backend.h"
+#include "engine/fem/model.h"
 
 namespace zona {
 

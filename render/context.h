@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "render/vk_loader.h"
 
 namespace zona::render {

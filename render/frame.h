@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/mesh.h"
-#include "engine/vec.h"
+#include "engine/mesh/mesh.h"
+#include "engine/core/vec.h"
 
 namespace zona {
 

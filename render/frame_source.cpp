@@ -5,7 +5,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "engine/recorder.h"
+#include "engine/sim/recorder.h"
 
 namespace zona {
 

@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/mesh.h"
-#include "engine/simulation.h"
+#include "engine/mesh/mesh.h"
+#include "engine/sim/simulation.h"
 #include "render/frame.h"
 
 namespace zona {

@@ -6,7 +6,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "render/frame.h"
 #include "shaders/shared.h"
 

@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "render/frame.h"
 
 struct ImGuiContext;

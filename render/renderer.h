@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "render/frame.h"
 
 namespace zona {

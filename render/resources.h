@@ -4,7 +4,7 @@
 
 #include <functional>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 #include "render/context.h"
 
 namespace zona::render {

@@ -12,9 +12,9 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/simulation.h"
-#include "engine/triple_buffer.h"
-#include "engine/vec.h"
+#include "engine/sim/simulation.h"
+#include "engine/core/triple_buffer.h"
+#include "engine/core/vec.h"
 
 namespace zona {
 

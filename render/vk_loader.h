@@ -12,7 +12,7 @@
 #endif
 #include <vulkan/vulkan.h>
 
-#include "engine/base.h"
+#include "engine/core/base.h"
 
 // Functions callable before an instance exists.
 #define ZONA_VK_GLOBAL_FUNCTIONS(X)         \

@@ -13,8 +13,8 @@
 #include <cstdint>
 #include <string>
 
-#include "engine/base.h"
-#include "engine/simulation.h"
+#include "engine/core/base.h"
+#include "engine/sim/simulation.h"
 #include "render/frame.h"
 #include "render/renderer.h"
 

@@ -8,8 +8,8 @@
 #include <benchmark/benchmark.h>
 
 #include "bench/micro/micro_meshes.h"
-#include "engine/forces_cpu.h"
-#include "engine/integrator.h"
+#include "engine/fem/forces_cpu.h"
+#include "engine/sim/integrator.h"
 
 namespace zona::micro {
 namespace {

@@ -9,10 +9,10 @@
 #include <map>
 #include <memory>
 
-#include "engine/mesh_generate.h"
-#include "engine/model.h"
-#include "engine/scaling_bench.h"
-#include "engine/state.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/fem/model.h"
+#include "bench/scaling/scaling_bench.h"
+#include "engine/fem/state.h"
 
 namespace zona::micro {
 

@@ -5,7 +5,7 @@
 #include <benchmark/benchmark.h>
 
 #include "bench/micro/micro_meshes.h"
-#include "engine/mass_tensor.h"
+#include "engine/fem/mass_tensor.h"
 
 namespace zona::micro {
 namespace {

@@ -9,9 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/forces_cpu.h"
-#include "engine/model.h"
-#include "engine/state.h"
+#include "engine/fem/forces_cpu.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
 #include "tests/engine/physics_test_meshes.h"
 
 namespace zona {

@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/plot.h"
+#include "engine/analysis/plot.h"
 #include "tests/apps/cli_runner.h"
 
 namespace {

@@ -8,8 +8,8 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/mesh.h"
-#include "engine/vec.h"
+#include "engine/mesh/mesh.h"
+#include "engine/core/vec.h"
 
 namespace zona::testing {
 

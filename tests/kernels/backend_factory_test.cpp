@@ -1,4 +1,4 @@
-// Tests for kernels/backend_factory and engine/backend_cpu: backend names, the auto/cpu/cuda
+// Tests for kernels/backend_factory and engine/sim/backend_cpu: backend names, the auto/cpu/cuda
 // choice with and without a GPU, and the CPU backend against the integrator it wraps.
 #include "kernels/backend_factory.h"
 
@@ -6,9 +6,9 @@
 
 #include <cstring>
 
-#include "engine/backend_cpu.h"
-#include "engine/integrator.h"
-#include "engine/mesh_generate.h"
+#include "engine/sim/backend_cpu.h"
+#include "engine/sim/integrator.h"
+#include "engine/mesh/mesh_generate.h"
 #include "kernels/cuda_backend.h"
 
 namespace zona {

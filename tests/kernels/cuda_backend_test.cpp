@@ -17,11 +17,11 @@
 #include <string>
 #include <vector>
 
-#include "engine/backend.h"
-#include "engine/backend_cpu.h"
-#include "engine/mesh_generate.h"
-#include "engine/model.h"
-#include "engine/state.h"
+#include "engine/sim/backend.h"
+#include "engine/sim/backend_cpu.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
 
 namespace zona {
 namespace {

@@ -7,8 +7,8 @@
 #include <cmath>
 #include <cstdio>
 
-#include "engine/scene.h"
-#include "engine/simulation.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 #include "kernels/cuda_backend.h"
 #include "tests/engine/allocation_counter.h"

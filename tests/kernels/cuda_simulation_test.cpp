@@ -7,8 +7,8 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
-#include "engine/scene.h"
-#include "engine/simulation.h"
+#include "engine/scene/scene.h"
+#include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 #include "kernels/cuda_backend.h"
 #include "tests/engine/test_scenes.h"
@@ -21,7 +21,7 @@ TEST(CudaSimulation, InjectionWithStiffnessDampingMatchesCpu) {
     Result<std::unique_ptr<Backend>> probe = make_cuda_backend(BackendOptions{});
     if (!probe) GTEST_SKIP() << probe.error().message;
   }
-  // tests/engine/simulation_test.cpp runs the same cell on the CPU paths; 4 um of travel here.
+  // tests/engine/sim/simulation_test.cpp runs the same cell on the CPU paths; 4 um of travel here.
   nlohmann::json j = test::small_cell_scene();
   j["needle"]["max_travel"] = "4 um";
   Result<Scene> scene = parse_scene(j, "cuda_simulation.json");

@@ -9,7 +9,7 @@
 #include <numeric>
 #include <random>
 
-#include "engine/mesh_generate.h"
+#include "engine/mesh/mesh_generate.h"
 
 namespace zona {
 namespace {

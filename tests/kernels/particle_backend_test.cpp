@@ -18,8 +18,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/particle_model.h"
-#include "engine/simulation.h"
+#include "engine/particles/particle_model.h"
+#include "engine/sim/simulation.h"
 #include "tests/engine/test_scenes.h"
 
 namespace zona {
@@ -31,7 +31,7 @@ constexpr double kForceTolerance = 1e-11;
 /// Displacements after 200 steps, relative to the largest: rounding carried by the dynamics.
 constexpr double kTrajectoryTolerance = 1e-9;
 /// A whole simulated injection, relative. With the contact release rule robust to rounding
-/// (issue 9, engine/contact.h) the GPU and CPU runs take the same contact decisions, so the
+/// (issue 9, engine/tools/contact.h) the GPU and CPU runs take the same contact decisions, so the
 /// force history is compared over the whole run. (With the old rule a release of the tip's first
 /// contacts flipped on rounding: on the H100, 2026-11-21, mean force 14 % and peak force 12 %
 /// apart.)
@@ -252,7 +252,7 @@ TEST(CudaParticleSimulation, InjectionMatchesCpu) {
 // calls (SimulationOptions::keep_cpu_backend): the state within rounding of the CPU's until the
 // first differing contact decision, and over the whole run the same contact set at all but a
 // few steps and the needle force within 1 % of its peak (the decisions no longer act on
-// rounding-level reactions, engine/contact.h).
+// rounding-level reactions, engine/tools/contact.h).
 TEST(CudaParticleSimulation, StepByStepMatchesTheCpuBackend) {
   const nlohmann::json j = injection_scene();
   Result<Scene> scene = parse_scene(j, "cuda_particles_steps.json");

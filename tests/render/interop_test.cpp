@@ -8,8 +8,8 @@
 
 #include <cmath>
 
-#include "engine/mesh_generate.h"
-#include "engine/state.h"
+#include "engine/mesh/mesh_generate.h"
+#include "engine/fem/state.h"
 #include "kernels/backend_factory.h"
 #include "kernels/cuda_backend.h"
 #include "render/frame_source.h"

@@ -9,7 +9,7 @@
 #include <cmath>
 #include <filesystem>
 
-#include "engine/mesh_generate.h"
+#include "engine/mesh/mesh_generate.h"
 #include "render/frame_source.h"
 
 namespace zona {

@@ -1,0 +1,588 @@
+// The injection step as one list of stages that either backend runs where the state lives
+// (DESIGN.md section 2, docs/architecture.md):
+//
+//   1. tools      tool forces on the surface vertices: the needle and the holding pipette's rim
+//                 as penalty contact on the tools' signed distance fields, Coulomb friction,
+//                 suction on the aspirated patch, the released tip load after puncture
+//   2. loads      stiffness-proportional damping from the change of the elastic forces
+//   3. internal   elastic forces (the backend's element pass)
+//   4. integrate  centred difference with the loads of 1 and 2
+//   5. measure    needle force vector, holding force, contacts, deformation at the entry point,
+//                 energies, the work the tools put in (reductions)
+//   6. record     force filter, health and blow-up verdict, puncture test, the next tool pose,
+//                 the step record (and a sample every output interval)
+//
+// Every per-vertex and per-step function here is ZONA_HOST_DEVICE: the CPU runner
+// (engine/job.cpp) loops over them on its threads, the CUDA runner (kernels/job_kernels.cuh)
+// calls the same functions from its kernels, so the two backends cannot drift apart. On the
+// GPU only the fixed-size JobRecord crosses to the host (mapped pinned memory, no stream
+// synchronisation); vertex arrays cross only for a written frame.
+//
+// Why penalty contact on the tools' distance fields (and not the kinematic contact of
+// engine/tools/contact.h): the load a tool puts on the cell is a pressure on the area it covers, so it
+// does not depend on how many vertices the tip happens to touch (the mesh-convergence study of
+// docs/validation.md), and every vertex decides its own contact from its own position, which is
+// one thread per surface vertex on the GPU with no contact set to rebuild. docs/injection.md has
+// the stiffness, the stable step and the friction law.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+
+#include "engine/core/base.h"
+#include "engine/core/vec.h"
+
+namespace zona {
+
+/// Signed distance of a point from a tool surface and the tool's outward normal there.
+struct ToolSdf {
+  double distance = 0;    ///< [m], negative inside the tool
+  Vec3d normal{0, 0, 0};  ///< unit normal pointing out of the tool (into the cell) [-]
+};
+
+/// The needle: a cylinder of radius r along -d behind its tip, ended by a hemisphere whose apex
+/// is `tip` (`flat` = false) or by a flat disk at `tip` (`flat` = true). x, tip [m], d unit.
+ZONA_HOST_DEVICE ZONA_INLINE ToolSdf needle_sdf(Vec3d tip, Vec3d d, double r, bool flat, Vec3d x) {
+  ToolSdf out;
+  // Axial coordinate s (ahead of the reference point positive) and the radial unit vector.
+  const Vec3d ref = flat ? tip : tip - r * d;
+  const Vec3d w = x - ref;
+  const double s = dot(w, d);
+  const Vec3d radial_vec = w - s * d;
+  const double rho = norm(radial_vec);
+  Vec3d radial = rho > 0 ? radial_vec / rho : Vec3d{0, 0, 0};
+  if (!(rho > 0)) {
+    // On the axis: any direction perpendicular to d.
+    const Vec3d a = (d.x < 0.9 && d.x > -0.9) ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
+    const Vec3d c = cross(d, a);
+    radial = c / norm(c);
+  }
+  if (!flat) {
+    if (s > 0) {
+      const double len = norm(w);
+      out.distance = len - r;
+      out.normal = len > 0 ? w / len : d;
+    } else {
+      out.distance = rho - r;
+      out.normal = radial;
+    }
+    return out;
+  }
+  if (s > 0) {
+    if (rho <= r) {
+      out.distance = s;
+      out.normal = d;
+    } else {
+      const Vec3d e = s * d + (rho - r) * radial;
+      out.distance = norm(e);
+      out.normal = e / out.distance;
+    }
+  } else if (rho >= r) {
+    out.distance = rho - r;
+    out.normal = radial;
+  } else if (-s < r - rho) {
+    out.distance = s;  // closer to the end face
+    out.normal = d;
+  } else {
+    out.distance = rho - r;
+    out.normal = radial;
+  }
+  return out;
+}
+
+/// The holding pipette's wall: the tube s >= 0, a <= rho <= b, where s is the distance past the
+/// mouth plane along `axis` (unit, from the cell into the pipette) and rho the distance from
+/// the axis. mouth, x [m]; a, b [m].
+ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double a, double b,
+                                                Vec3d x) {
+  const Vec3d w = x - mouth;
+  const double s = dot(w, axis);
+  const Vec3d rv = w - s * axis;
+  const double rho = norm(rv);
+  Vec3d radial = rho > 0 ? rv / rho : Vec3d{0, 0, 0};
+  if (!(rho > 0)) {
+    const Vec3d t = (axis.x < 0.9 && axis.x > -0.9) ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
+    const Vec3d c = cross(axis, t);
+    radial = c / norm(c);
+  }
+  ToolSdf out;
+  const bool inside = s > 0 && rho > a && rho < b;
+  if (!inside) {
+    // Closest point of the strip in the (s, rho) half-plane, mapped back to 3D.
+    const double qs = s > 0 ? s : 0.0;
+    const double qr = rho < a ? a : (rho > b ? b : rho);
+    const double ds = s - qs, dr = rho - qr;
+    out.distance = sqrt(ds * ds + dr * dr);
+    out.normal = out.distance > 0 ? (ds / out.distance) * axis + (dr / out.distance) * radial
+                                  : -1.0 * axis;
+    return out;
+  }
+  // Inside the wall: leave through the nearest face.
+  const double to_mouth = s, to_bore = rho - a, to_outer = b - rho;
+  if (to_mouth <= to_bore && to_mouth <= to_outer) {
+    out.distance = -to_mouth;
+    out.normal = -1.0 * axis;
+  } else if (to_bore <= to_outer) {
+    out.distance = -to_bore;
+    out.normal = -1.0 * radial;
+  } else {
+    out.distance = -to_outer;
+    out.normal = radial;
+  }
+  return out;
+}
+
+/// Puncture criteria the step evaluates (PunctureCriterion's values; strain is the kinematic
+/// contact's only).
+enum JobCriterion : int32_t { kJobCriterionNone = 0, kJobCriterionForce = 1, kJobCriterionEnergy = 3 };
+
+/// Everything constant the stages need, in SI units. Plain data: passed by value to kernels.
+struct JobParams {
+  // Needle (a scripted straight insertion, or a pose handed in by the haptic thread).
+  int32_t has_needle = 0;
+  int32_t needle_flat = 0;         ///< flat tip instead of the hemisphere
+  /// The needle's pressure is integrated over the surface triangles (needle_face_force) instead
+  /// of lumped at the vertices: the tip cannot pass between vertices that it pushes apart.
+  int32_t needle_on_faces = 0;
+  Vec3d needle_start{0, 0, 0};     ///< tip at t = 0 [m]
+  Vec3d needle_direction{1, 0, 0}; ///< unit direction of travel [-]
+  double needle_speed = 0;         ///< [m/s]
+  double needle_max_travel = 0;    ///< travel after which the tip stops [m]; 0: no limit
+  double needle_radius = 0;        ///< tip and shaft radius [m]
+  double needle_pressure_stiffness = 0;  ///< contact pressure per penetration [Pa/m]
+  double needle_friction = 0;      ///< Coulomb coefficient [-]
+  // Holding pipette (suction mode): the rim as a contact tool, suction ramped in.
+  int32_t has_rim = 0;
+  Vec3d rim_mouth{0, 0, 0};        ///< [m]
+  Vec3d rim_axis{1, 0, 0};         ///< unit, from the cell into the pipette [-]
+  double rim_inner_radius = 0, rim_outer_radius = 0;  ///< [m]
+  double rim_pressure_stiffness = 0;  ///< [Pa/m]
+  double rim_friction = 0;            ///< [-]
+  double suction_ramp_time = 0;       ///< suction reaches full strength after this [s]
+  // Stiffness-proportional damping: load k (f(u_{n-1}) - f(u_{n-2})), k = beta / dt [-].
+  double stiffness_damping_rate = 0;
+  // Puncture.
+  int32_t criterion = kJobCriterionNone;
+  double threshold = 0;        ///< [N] or [J]
+  double force_drop = 1;       ///< fraction of the tip load released [-]
+  double drop_time = 0;        ///< [s]
+  double shaft_friction = 0;   ///< axial drag per inserted length [N/m]
+  // Measurement.
+  int32_t has_entry = 0;          ///< the needle axis meets the rest surface
+  int32_t entry_vertex[3] = {0, 0, 0};  ///< corners of the rest triangle the axis enters
+  double entry_weight[3] = {0, 0, 0};   ///< barycentric weights of the entry point [-]
+  double dt = 0;                  ///< [s]
+  double force_filter = 0;        ///< low-pass time constant of the published force [s]
+  double force_filter_weight = 1; ///< 1 - exp(-dt / force_filter): the filter's step weight [-]
+  double sample_interval = 0;     ///< a sample every this much simulated time [s]; 0: every step
+  double stiffness_window = 20e-9;  ///< travel over which the local stiffness is taken [m]
+  // Health.
+  double energy_blowup_factor = 10;  ///< kinetic + elastic above this x the budget is a blow-up
+  double energy_floor = 0;           ///< energies below this are noise [J]
+  // Dynamic mass scaling (engine/fem/mass_scaling.h): every mass_interval steps each element's
+  // stiffening (tet_stiffening) is measured; where it passes mass_gate the element asks its
+  // corners for density growth x its rest need (JobSetup::tet_rest_need), and a vertex whose
+  // mass falls short is raised to it. Masses only grow. Off when mass_interval is 0.
+  int32_t mass_interval = 0;  ///< steps between checks; 0: off
+  int32_t mass_law = 0;       ///< StiffeningLaw of the model
+  double mass_gate = 1;       ///< stiffening that every element's current masses carry [-]
+};
+
+/// Density [kg/m^3] an element of rest need `rest_need` (JobSetup::tet_rest_need) asks of its
+/// corners at stiffening `growth`; 0 while the masses it had at the start carry it.
+ZONA_HOST_DEVICE inline double job_mass_need(const JobParams& p, double growth, double rest_need) {
+  return growth > p.mass_gate ? growth * rest_need : 0.0;
+}
+
+/// Where a tool vertex is and how it moves, and what it may carry.
+struct ToolVertexInput {
+  Vec3d x{0, 0, 0};         ///< position rest + u_n [m]
+  Vec3d velocity{0, 0, 0};  ///< (u_n - u_{n-1}) / dt [m/s]
+  double area = 0;          ///< rest tributary surface area [m^2]
+  double mass = 0;          ///< lumped (scaled) mass [kg]
+  Vec3d suction{0, 0, 0};   ///< full-strength suction load [N] (zero off the aspirated patch)
+};
+
+/// The tool pose and scalars of one step (JobState's, read by every tool vertex).
+struct ToolPose {
+  Vec3d tip{0, 0, 0};           ///< needle tip at t_n (frozen at puncture) [m]
+  Vec3d tip_velocity{0, 0, 0};  ///< [m/s] (zero after puncture)
+  double suction_ramp = 0;      ///< [-]
+  double needle_scale = 1;      ///< release factor after puncture [-]
+  Vec3d drag_per_contact{0, 0, 0};  ///< shaft drag load on each released contact [N]
+};
+
+/// What one tool vertex gets.
+struct ToolVertexForce {
+  Vec3d force{0, 0, 0};   ///< total tool load on the vertex [N]
+  Vec3d needle{0, 0, 0};  ///< the needle's part [N]
+  Vec3d rim{0, 0, 0};     ///< the rim's and the suction's part [N]
+  int32_t needle_contact = 0, rim_contact = 0;
+};
+
+/// Penalty contact of one vertex against a tool: normal pressure kappa * penetration over the
+/// vertex's area, and Coulomb friction that removes the tangential slip velocity relative to the
+/// tool in one step (m v_t / dt) up to mu times the normal force: it sticks while it can and
+/// slides at the Coulomb limit, and it can never reverse the slip (stable at any step).
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, double kappa,
+                                                       double mu, const ToolVertexInput& in,
+                                                       Vec3d tool_velocity, double dt) {
+  const double fn = kappa * (-sdf.distance) * in.area;  // > 0 inside
+  const Vec3d rel = in.velocity - tool_velocity;
+  const Vec3d vt = rel - dot(rel, sdf.normal) * sdf.normal;
+  Vec3d ft = (-in.mass / dt) * vt;
+  const double ft_len = norm(ft);
+  const double cap = mu * fn;
+  if (ft_len > cap) ft = (ft_len > 0 ? cap / ft_len : 0.0) * ft;
+  return fn * sdf.normal + ft;
+}
+
+/// Stage 1 for one surface vertex: needle, rim and suction.
+ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& p,
+                                                              const ToolPose& pose,
+                                                              const ToolVertexInput& in) {
+  ToolVertexForce out;
+  if (p.has_needle && !p.needle_on_faces) {
+    const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius,
+                                   p.needle_flat != 0, in.x);
+    if (sdf.distance < 0) {
+      out.needle = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
+                                                             p.needle_friction, in,
+                                                             pose.tip_velocity, p.dt) +
+                   pose.drag_per_contact;
+      out.needle_contact = 1;
+    }
+  }
+  if (p.has_rim) {
+    const ToolSdf sdf =
+        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x);
+    if (sdf.distance < 0) {
+      out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in,
+                                      Vec3d{0, 0, 0}, p.dt);
+      out.rim_contact = 1;
+    }
+    out.rim += pose.suction_ramp * in.suction;
+  }
+  out.force = out.needle + out.rim;
+  return out;
+}
+
+/// Subdivisions per edge of the needle's surface quadrature: each triangle is cut into
+/// kFaceSubdivisions^2 equal sub-triangles whose centroids are the quadrature points (weights
+/// 1 / kFaceSubdivisions^2). With 4, a triangle stretched to twice the tip's radius still has
+/// points half a radius apart.
+inline constexpr int kFaceSubdivisions = 4;
+
+/// One surface triangle of the needle stage: its corners' positions rest + u_n [m], velocities
+/// [m/s], lumped masses [kg], and its rest area [m^2].
+struct ToolFaceInput {
+  Vec3d x[3] = {};
+  Vec3d velocity[3] = {};
+  double mass[3] = {0, 0, 0};
+  double area = 0;
+};
+
+/// The needle's load on one triangle, as corner loads [N], and the number of quadrature points
+/// inside the needle.
+struct ToolFaceForce {
+  Vec3d corner[3] = {};
+  int32_t contacts = 0;
+};
+
+/// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces): the penalty
+/// pressure and friction of penalty_contact_force at each quadrature point, over the point's
+/// share of the rest area, with the point's share of the corner masses (a sixth of the three
+/// corners' masses per triangle: a surface vertex has about six triangles), spread to the corners
+/// by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
+/// triangle on a few threads with needle_face_point). A triangle whose centroid lies farther from
+/// the needle than from its farthest corner cannot touch it (the distance field is 1-Lipschitz):
+/// needle_face_may_touch is false and it is skipped.
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, const ToolPose& pose,
+                                                        const ToolFaceInput& in) {
+  const Vec3d centroid = (1.0 / 3.0) * (in.x[0] + in.x[1] + in.x[2]);
+  double reach = 0;
+  for (int c = 0; c < 3; ++c) {
+    const Vec3d d = in.x[c] - centroid;
+    reach = reach > dot(d, d) ? reach : dot(d, d);
+  }
+  return needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, centroid)
+             .distance < std::sqrt(reach);
+}
+
+/// Quadrature points per triangle.
+inline constexpr int kFacePoints = kFaceSubdivisions * kFaceSubdivisions;
+
+/// Barycentric weights of corners 1 and 2 of quadrature point q in [0, kFacePoints): the
+/// centroids of the sub-triangles, row by row (row i: n - i upward, then n - i - 1 downward).
+ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* b2) {
+  constexpr int n = kFaceSubdivisions;
+  int i = 0;
+  while (q >= 2 * (n - i) - 1) {
+    q -= 2 * (n - i) - 1;
+    ++i;
+  }
+  const bool down = q >= n - i;
+  const int j = down ? q - (n - i) : q;
+  const double off = down ? 2.0 / 3.0 : 1.0 / 3.0;
+  *b1 = (i + off) / n;
+  *b2 = (j + off) / n;
+}
+
+/// The needle's load [N] at quadrature point q of a triangle (false, and nothing written, where
+/// the point is outside the needle), and the point's barycentric weights b[3].
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const ToolPose& pose,
+                                                    const ToolFaceInput& in, int q, Vec3d* force,
+                                                    double b[3]) {
+  face_point_weights(q, &b[1], &b[2]);
+  b[0] = 1.0 - b[1] - b[2];
+  ToolVertexInput pt;
+  pt.x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
+  const ToolSdf sdf =
+      needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, pt.x);
+  if (!(sdf.distance < 0)) return false;
+  constexpr double w = 1.0 / kFacePoints;
+  pt.area = w * in.area;
+  pt.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
+  pt.velocity = b[0] * in.velocity[0] + b[1] * in.velocity[1] + b[2] * in.velocity[2];
+  *force = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
+                                                     p.needle_friction, pt, pose.tip_velocity,
+                                                     p.dt) +
+           pose.drag_per_contact;
+  return true;
+}
+
+ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
+                                                            const ToolPose& pose,
+                                                            const ToolFaceInput& in) {
+  ToolFaceForce out;
+  for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
+  if (!needle_face_may_touch(p, pose, in)) return out;
+  for (int q = 0; q < kFacePoints; ++q) {
+    Vec3d f;
+    double b[3];
+    if (!needle_face_point(p, pose, in, q, &f, b)) continue;
+    for (int c = 0; c < 3; ++c) out.corner[c] += b[c] * f;
+    ++out.contacts;
+  }
+  return out;
+}
+
+/// Sums of one step's per-vertex stages (reset every step).
+struct JobSums {
+  double needle_force[3] = {0, 0, 0};  ///< force the needle applies to the cell [N]
+  double rim_force[3] = {0, 0, 0};     ///< force the rim and suction apply to the cell [N]
+  double tool_work = 0;                ///< work of the tool loads over the last increment [J]
+  int32_t needle_contacts = 0;
+  int32_t rim_contacts = 0;
+};
+
+/// Puncture moment, as recorded on the device or the CPU.
+struct JobPuncture {
+  int32_t punctured = 0;
+  int64_t step = 0;
+  double time = 0;           ///< [s]
+  double needle_travel = 0;  ///< [m]
+  double deformation = 0;    ///< [m]
+  double force = 0;          ///< filtered axial force [N]
+  double energy = 0;         ///< [J]
+  Vec3d force_vector{0, 0, 0};  ///< [N]
+};
+
+/// One step's record: what crosses to the host every step (latest) and every sample interval.
+struct JobRecord {
+  int64_t step = 0;
+  double time = 0;              ///< t_{n+1} [s]
+  Vec3d tip{0, 0, 0};           ///< needle tip at t_{n+1} [m]
+  double travel = 0;            ///< [m]
+  double deformation = 0;       ///< membrane advance at the entry point along the axis [m]
+  double force = 0;             ///< filtered axial needle force, resistance positive [N]
+  double raw_force = 0;         ///< [N]
+  Vec3d force_vector{0, 0, 0};  ///< force the needle applies to the cell [N]
+  Vec3d holding_force{0, 0, 0}; ///< force the holding pipette applies to the cell [N]
+  double stiffness = 0;         ///< local d force / d travel [N/m]
+  double elastic_energy = 0;    ///< [J]
+  double kinetic_energy = 0;    ///< [J]
+  double energy_budget = 0;     ///< initial energy + work of the tools so far [J]
+  int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
+  int32_t holding_contacts = 0; ///< vertices inside the rim
+  uint32_t status = 0;          ///< StepStatusBits of the step (kStepNonFinite, kStepEnergyBlowUp...)
+  int32_t halted = 0;           ///< the state failed its check: no later step was advanced
+  int64_t first_bad = -1;       ///< first non-finite vertex or inverted element, -1 if none
+  JobPuncture puncture;
+};
+
+/// The mutable scalars of a job (device memory on the GPU).
+struct JobState {
+  int64_t step = 0;
+  double time = 0;            ///< t_n [s]
+  ToolPose pose;              ///< tools at t_n
+  int32_t external_tip = 0;   ///< the tip comes from set_tip (haptics), not the script
+  Vec3d external_tip_value{0, 0, 0};  ///< [m]
+  double filtered_force = 0;  ///< [N]
+  int32_t filter_started = 0;
+  double next_sample = 0;     ///< [s]
+  double energy_budget = 0;   ///< [J]
+  int32_t budget_valid = 0;
+  int32_t halted = 0;
+  double stiffness = 0, stiffness_force = 0, stiffness_travel = 0;
+  int32_t stiffness_anchor = 0;
+  int32_t released_contacts = 0;  ///< needle contacts at puncture
+  JobPuncture puncture;
+};
+
+/// Scripted tip at time t [s]: start + speed t d, stopped at max_travel [m].
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_scripted_tip(const JobParams& p, double t) {
+  double travel = p.needle_speed * t;
+  if (p.needle_max_travel > 0 && travel > p.needle_max_travel) travel = p.needle_max_travel;
+  return p.needle_start + travel * p.needle_direction;
+}
+
+/// Fraction of the tip load still applied `elapsed` [s] after puncture.
+ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, double elapsed) {
+  const double ramp = p.drop_time > 0 ? (elapsed < p.drop_time ? elapsed / p.drop_time : 1.0) : 1.0;
+  return 1.0 - p.force_drop * ramp;
+}
+
+/// The tool pose for the step that starts at s.time (tip velocity from the tip at t - dt).
+ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s, Vec3d tip_before) {
+  ToolPose& pose = s.pose;
+  const double ramp = p.suction_ramp_time > 0 ? s.time / p.suction_ramp_time : 1.0;
+  pose.suction_ramp = ramp < 1.0 ? ramp : 1.0;
+  if (s.puncture.punctured) {
+    // The needle is inside: the tip load stays where it was, released over drop_time, and the
+    // shaft drag pulls the rim of the hole along the axis.
+    const double travel = dot(s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time),
+                              p.needle_direction) -
+                          dot(p.needle_start, p.needle_direction);
+    const double inserted = travel > s.puncture.needle_travel ? travel - s.puncture.needle_travel : 0;
+    pose.needle_scale = job_release_factor(p, s.time - s.puncture.time);
+    pose.tip_velocity = Vec3d{0, 0, 0};
+    pose.drag_per_contact = s.released_contacts > 0
+                                ? (p.shaft_friction * inserted / s.released_contacts) *
+                                      p.needle_direction
+                                : Vec3d{0, 0, 0};
+    return;
+  }
+  pose.tip = s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time);
+  pose.tip_velocity = s.step > 0 ? (pose.tip - tip_before) / p.dt : Vec3d{0, 0, 0};
+  pose.needle_scale = 1;
+  pose.drag_per_contact = Vec3d{0, 0, 0};
+}
+
+/// What the integrator and the reductions report for the step, besides JobSums.
+struct JobStepTotals {
+  double elastic_energy = 0;  ///< W(u_n) [J]
+  double kinetic_energy = 0;  ///< [J]
+  uint32_t status = 0;        ///< integrator StepStatusBits
+  int64_t first_bad = -1;     ///< first non-finite vertex / inverted element
+  double deformation = 0;     ///< [m]
+};
+
+/// Stage 6: the record of the step that took s from t_n to t_{n+1}: force filter, blow-up
+/// verdict (a non-finite value, or kinetic + elastic energy above energy_blowup_factor times the
+/// initial energy plus the work of the tools: damping only removes energy), the puncture test on
+/// a healthy state only, the local stiffness, and the pose of the next step. Returns true when a
+/// sample is due (every sample_interval of simulated time).
+ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& s,
+                                                 const JobSums& sums, const JobStepTotals& tot,
+                                                 JobRecord* out) {
+  const uint32_t kNonFinite = 1u, kBlowUp = 2u;  // StepStatusBits (engine/sim/integrator.h)
+  JobRecord& r = *out;
+  r.status = tot.status;
+  r.first_bad = tot.first_bad;
+  const Vec3d tip_before = s.pose.tip;
+  s.step += 1;
+  s.time = static_cast<double>(s.step) * p.dt;
+  r.step = s.step;
+  r.time = s.time;
+  r.force_vector = Vec3d{sums.needle_force[0], sums.needle_force[1], sums.needle_force[2]};
+  r.holding_force = Vec3d{sums.rim_force[0], sums.rim_force[1], sums.rim_force[2]};
+  r.contacts = sums.needle_contacts;
+  r.holding_contacts = sums.rim_contacts;
+  r.raw_force = dot(r.force_vector, p.needle_direction);
+  r.deformation = tot.deformation;
+  r.elastic_energy = tot.elastic_energy;
+  r.kinetic_energy = tot.kinetic_energy;
+  // Health: the state must be finite and its energy explained by the work put in.
+  const double energy = tot.elastic_energy + tot.kinetic_energy;
+  if (!(energy - energy == 0) || !(r.raw_force - r.raw_force == 0) ||
+      !(tot.deformation - tot.deformation == 0))
+    r.status |= kNonFinite;
+  if (!s.budget_valid) {
+    s.energy_budget = energy - energy == 0 ? energy : 0.0;
+    s.budget_valid = 1;
+  }
+  s.energy_budget += sums.tool_work > 0 ? sums.tool_work : 0.0;
+  const double floor = s.energy_budget > p.energy_floor ? s.energy_budget : p.energy_floor;
+  if (energy > p.energy_blowup_factor * floor) r.status |= kBlowUp;
+  r.energy_budget = s.energy_budget;
+  if (r.status & (kNonFinite | kBlowUp)) s.halted = 1;
+  r.halted = s.halted;
+  // Force filter (exact for a constant input over the step).
+  if (p.force_filter > 0 && s.filter_started) {
+    const double a = p.force_filter_weight;
+    s.filtered_force += a * (r.raw_force - s.filtered_force);
+  } else {
+    s.filtered_force = r.raw_force;
+  }
+  s.filter_started = 1;
+  r.force = s.filtered_force;
+  // The next pose (tip at t_{n+1}); the record reports the tip the step ended at.
+  job_set_pose(p, s, tip_before);
+  r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time))
+                               : s.pose.tip;
+  r.travel = dot(r.tip - p.needle_start, p.needle_direction);
+  // Local stiffness for the haptic thread: slope of force over at least stiffness_window.
+  if (!s.stiffness_anchor) {
+    s.stiffness_anchor = 1;
+    s.stiffness_force = r.force;
+    s.stiffness_travel = r.travel;
+  } else {
+    const double dtr = r.travel - s.stiffness_travel;
+    if (dtr >= p.stiffness_window || dtr <= -p.stiffness_window) {
+      s.stiffness = (r.force - s.stiffness_force) / dtr;
+      s.stiffness_force = r.force;
+      s.stiffness_travel = r.travel;
+    }
+  }
+  r.stiffness = s.stiffness;
+  // Puncture: only from a healthy state, once.
+  if (!s.halted && p.has_needle && !s.puncture.punctured) {
+    const bool met = (p.criterion == kJobCriterionForce && r.force >= p.threshold) ||
+                     (p.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.threshold);
+    if (met) {
+      JobPuncture& q = s.puncture;
+      q.punctured = 1;
+      q.step = s.step;
+      q.time = s.time;
+      q.needle_travel = r.travel;
+      q.deformation = r.deformation;
+      q.force = r.force;
+      q.energy = tot.elastic_energy;
+      q.force_vector = r.force_vector;
+      s.released_contacts = sums.needle_contacts;
+      // The tip load stays at the puncture pose.
+      s.pose.tip = tip_before;
+      job_set_pose(p, s, tip_before);
+    }
+  }
+  r.puncture = s.puncture;
+  if (s.time >= s.next_sample - 0.5 * p.dt || s.halted) {
+    s.next_sample += p.sample_interval > 0 ? p.sample_interval : p.dt;
+    if (s.next_sample < s.time) s.next_sample = s.time + p.sample_interval;
+    return true;
+  }
+  return false;
+}
+
+/// Deformation at the entry point: the advance of the material point where the needle axis
+/// entered the rest surface, along the axis [m]. u0..u2: displacements of the entry triangle's
+/// corners [m].
+ZONA_HOST_DEVICE ZONA_INLINE double job_entry_deformation(const JobParams& p, Vec3d u0, Vec3d u1,
+                                                        Vec3d u2) {
+  if (!p.has_entry) return 0;
+  const Vec3d u = p.entry_weight[0] * u0 + p.entry_weight[1] * u1 + p.entry_weight[2] * u2;
+  return dot(u, p.needle_direction);
+}
+
+}  // namespace zona

@@ -1,0 +1,224 @@
+// The CPU runner of the injection step: engine/sim/job.h's stages over the State, in place.
+#include "engine/sim/job_runner.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "engine/fem/fem_element.h"
+#include "engine/sim/integrator.h"
+#include "engine/fem/mass_scaling.h"
+
+namespace zona {
+namespace {
+
+class CpuJobRunner final : public JobRunner {
+ public:
+  CpuJobRunner(Model& model, State& state, const JobSetup& setup)
+      : model_(model), state_(state), setup_(setup) {
+    samples_.reserve(setup.sample_capacity);
+    tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
+    tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
+    face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
+    force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
+    if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
+    job_.pose.tip = setup.params.needle_start;
+    job_set_pose(setup_.params, job_, setup_.params.needle_start);
+    // The state starts without loads: the stages own external_force from here on.
+    std::fill(state_.external_force.begin(), state_.external_force.end(), Vec3d{0, 0, 0});
+  }
+
+  Status advance(int64_t steps) override {
+    for (int64_t i = 0; i < steps && !job_.halted; ++i) step_once();
+    advanced_ += steps;
+    return {};
+  }
+
+  bool latest(JobRecord* out) override {
+    if (!has_latest_) return false;
+    *out = latest_;
+    return true;
+  }
+
+  bool take_samples(std::vector<JobRecord>& out) override {
+    out.insert(out.end(), samples_.begin(), samples_.end());
+    samples_.clear();
+    const bool ok = !lost_;
+    lost_ = false;
+    return ok;
+  }
+
+  Status finish() override { return {}; }
+  Status download(State&) override { return {}; }  // the state is the simulation's own
+
+  void set_tip(Vec3d tip) override {
+    job_.external_tip = 1;
+    job_.external_tip_value = tip;
+    if (!job_.puncture.punctured) job_.pose.tip = tip;
+  }
+
+  int64_t steps_advanced() const override { return advanced_; }
+  uint64_t host_bytes_moved() const override { return 0; }
+  int64_t mass_raises() override { return mass_raises_; }
+
+  std::string description() const override {
+    return "cpu: " + std::to_string(state_.pool->thread_count()) +
+           " thread(s), float64, stages in place";
+  }
+
+ private:
+  // Dynamic mass scaling (JobParams::mass_interval): every element's stiffening at u_n, in
+  // parallel; then, serially, the elements past the gate raise their corners' masses.
+  void raise_masses() {
+    const size_t nt = model_.tet_count();
+    constexpr int64_t kChunk = 2048;
+    const int64_t chunks = static_cast<int64_t>((nt + kChunk - 1) / kChunk);
+    state_.pool->run(
+        chunks,
+        [](void* context, int64_t begin, int64_t end) {
+          auto* self = static_cast<CpuJobRunner*>(context);
+          const Model& m = self->model_;
+          const auto law = static_cast<StiffeningLaw>(self->setup_.params.mass_law);
+          const size_t last = std::min(m.tet_count(), static_cast<size_t>(end * kChunk));
+          for (size_t t = static_cast<size_t>(begin * kChunk); t < last; ++t) {
+            Vec3d u[4];
+            for (int c = 0; c < 4; ++c) u[c] = self->state_.u[static_cast<size_t>(m.tets[t][c])];
+            const Mat3d h = tet_displacement_gradient(m.tet_shape[t], u);
+            const Lame& lame = m.tet_lame(t);
+            self->growth_[t] = tet_stiffening(m.tet_shape[t], h, lame.lambda, lame.mu, law);
+          }
+        },
+        this);
+    for (size_t t = 0; t < nt; ++t) {
+      const double need = job_mass_need(setup_.params, growth_[t], setup_.tet_rest_need[t]);
+      if (!(need > 0)) continue;
+      for (int32_t corner : model_.tets[t]) {
+        const size_t v = static_cast<size_t>(corner);
+        const double mass = need * setup_.vertex_volume[v];
+        if (mass > model_.vertex_mass[v] && !model_.vertex_fixed[v]) {
+          set_vertex_mass(model_, v, mass);
+          ++mass_raises_;
+        }
+      }
+    }
+  }
+
+  void step_once() {
+    const JobParams& p = setup_.params;
+    if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();
+    ++steps_run_;
+    const size_t nv = model_.vertex_count();
+    std::vector<Vec3d>& ext = state_.external_force;
+    // 2. loads: stiffness damping, lagged one step (f(u_{n-1}) - f(u_{n-2})), on every vertex.
+    if (p.stiffness_damping_rate > 0) {
+      const double k = p.stiffness_damping_rate;
+      for (size_t v = 0; v < nv; ++v) {
+        ext[v] = k * (state_.force[v] - force_prev_[v]);
+        force_prev_[v] = state_.force[v];
+      }
+    }
+    // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
+    // surface vertices.
+    JobSums sums;
+    const double inv_dt = 1.0 / p.dt;
+    const bool damping = p.stiffness_damping_rate > 0;
+    if (p.needle_on_faces) {
+      std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
+      for (size_t f = 0; f < setup_.tool_faces.size(); ++f) {
+        ToolFaceInput in;
+        for (int c = 0; c < 3; ++c) {
+          const size_t v = static_cast<size_t>(
+              setup_.tool_vertices[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])]);
+          in.x[c] = model_.rest_positions[v] + state_.u[v];
+          in.velocity[c] = inv_dt * (state_.u[v] - state_.u_prev[v]);
+          in.mass[c] = model_.vertex_mass[v];
+        }
+        in.area = setup_.tool_face_area[f];
+        const ToolFaceForce ff = needle_face_force(p, job_.pose, in);
+        if (ff.contacts == 0) continue;
+        for (int c = 0; c < 3; ++c) {
+          face_force_[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])] += ff.corner[c];
+          for (int k = 0; k < 3; ++k) sums.needle_force[k] += ff.corner[c][k];
+        }
+        sums.needle_contacts += ff.contacts;
+      }
+    }
+    for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
+      const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
+      ToolVertexInput in;
+      const Vec3d du = state_.u[v] - state_.u_prev[v];
+      in.x = model_.rest_positions[v] + state_.u[v];
+      in.velocity = inv_dt * du;
+      in.area = setup_.tool_area[i];
+      in.mass = model_.vertex_mass[v];
+      in.suction = setup_.tool_suction[i];
+      ToolVertexForce f = tool_vertex_force(p, job_.pose, in);
+      f.force += face_force_[i];
+      ext[v] = damping ? ext[v] + f.force : f.force;
+      for (int c = 0; c < 3; ++c) {
+        sums.needle_force[c] += f.needle[c];
+        sums.rim_force[c] += f.rim[c];
+      }
+      sums.needle_contacts += f.needle_contact;
+      sums.rim_contacts += f.rim_contact;
+      tool_force_[i] = f.force;
+      tool_u_before_[i] = state_.u_prev[v];
+    }
+    // 3-4. internal forces and the centred-difference update.
+    StepStatus status = step(model_, state_);
+    // The integrator's own energy test counts the damping loads as work put in; the job's
+    // budget (tools only) replaces it.
+    status &= ~static_cast<StepStatus>(kStepEnergyBlowUp);
+    // The tools' work over the step, centred: f_n . (u_{n+1} - u_{n-1}) / 2.
+    for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
+      const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
+      sums.tool_work += 0.5 * dot(tool_force_[i], state_.u[v] - tool_u_before_[i]);
+    }
+    // 5. measure.
+    JobStepTotals tot;
+    tot.elastic_energy = state_.diag.elastic_energy;
+    tot.kinetic_energy = state_.diag.kinetic_energy;
+    tot.status = status;
+    tot.first_bad = state_.diag.first_nonfinite >= 0 ? state_.diag.first_nonfinite
+                                                     : state_.diag.first_inverted;
+    if (p.has_entry) {
+      const auto& u = state_.u;
+      tot.deformation = job_entry_deformation(p, u[static_cast<size_t>(p.entry_vertex[0])],
+                                              u[static_cast<size_t>(p.entry_vertex[1])],
+                                              u[static_cast<size_t>(p.entry_vertex[2])]);
+    }
+    // 6. record.
+    const bool sample = job_finish_step(p, job_, sums, tot, &latest_);
+    has_latest_ = true;
+    if (sample) {
+      if (samples_.size() < samples_.capacity())
+        samples_.push_back(latest_);
+      else
+        lost_ = true;
+    }
+  }
+
+  Model& model_;
+  State& state_;
+  JobSetup setup_;
+  JobState job_;
+  std::vector<Vec3d> force_prev_;  // f(u_{n-2}) for the damping stage [N], (vertex_count)
+  std::vector<Vec3d> tool_force_;     // this step's tool loads [N], (tool vertex count)
+  std::vector<Vec3d> face_force_;     // the needle's face-quadrature loads [N], (tool vertex count)
+  std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
+  std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
+  int64_t steps_run_ = 0;
+  int64_t mass_raises_ = 0;     // vertex mass raises by the dynamic scaling
+  std::vector<JobRecord> samples_;
+  JobRecord latest_;
+  bool has_latest_ = false, lost_ = false;
+  int64_t advanced_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
+                                               const JobSetup& setup) {
+  return std::make_unique<CpuJobRunner>(model, state, setup);
+}
+
+}  // namespace zona

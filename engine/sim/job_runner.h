@@ -1,0 +1,74 @@
+// Who runs the injection step's stages (engine/sim/job.h): the CPU runner here, on the State's
+// thread pool, or the CUDA runner (kernels/), where the state lives in device memory. Both take
+// the same JobSetup and produce the same JobRecords; the simulation never looks at which.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/core/base.h"
+#include "engine/sim/job.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
+
+namespace zona {
+
+/// What a runner needs besides the model: the parameters and the tool vertices.
+struct JobSetup {
+  JobParams params;
+  /// Vertices the tools can touch (the boundary surface), model indices, ascending.
+  std::vector<int32_t> tool_vertices;
+  std::vector<double> tool_area;    ///< rest tributary area [m^2], (tool vertex count)
+  std::vector<Vec3d> tool_suction;  ///< full suction load [N], (tool vertex count)
+  /// Surface triangles for the needle's face quadrature (JobParams::needle_on_faces): corners as
+  /// indices into tool_vertices, and rest areas [m^2], (triangle count).
+  std::vector<std::array<int32_t, 3>> tool_faces;
+  std::vector<double> tool_face_area;
+  /// Dynamic mass scaling (JobParams::mass_interval > 0): the density [kg/m^3] each element
+  /// needs at rest for the scaling's safety, (S_e (dt / safety)^2 with S_e its stiffness
+  /// measure), (tet_count); and each vertex's lumped volume [m^3], (vertex_count).
+  std::vector<double> tet_rest_need;
+  std::vector<double> vertex_volume;
+  /// Most samples kept before the host takes them (a full buffer is reported, never grown).
+  size_t sample_capacity = 1 << 16;
+};
+
+/// Runs the step's stages where the state lives. Nothing on the step path allocates.
+class JobRunner {
+ public:
+  virtual ~JobRunner() = default;
+  /// Advances `steps` steps: the CPU runs them; the GPU enqueues them and returns while they
+  /// run (it waits only when more than a bounded number of steps are in flight). A halted job
+  /// (a step failed its health check) advances no further.
+  virtual Status advance(int64_t steps) = 0;
+  /// The newest finished step's record; false before the first.
+  virtual bool latest(JobRecord* out) = 0;
+  /// Appends the samples recorded since the last call to `out`; false when samples were lost
+  /// because the buffer filled up between two calls.
+  virtual bool take_samples(std::vector<JobRecord>& out) = 0;
+  /// Waits until every step asked for has finished.
+  virtual Status finish() = 0;
+  /// Copies u, u_prev, force, time and step count into `state` (after finish()).
+  virtual Status download(State& state) = 0;
+  /// Sets the needle tip [m] for the steps advanced from now on (haptics); the script is not
+  /// used any more.
+  virtual void set_tip(Vec3d tip) = 0;
+  /// Steps asked for so far.
+  virtual int64_t steps_advanced() const = 0;
+  /// Bytes that crossed between host and device memory for the steps so far (records,
+  /// samples, poses; 0 where the state lives on the host).
+  virtual uint64_t host_bytes_moved() const = 0;
+  /// One line: where the stages run.
+  virtual std::string description() const = 0;
+  /// Vertex masses the dynamic mass scaling raised so far (call after finish()).
+  virtual int64_t mass_raises() = 0;
+};
+
+/// The CPU runner over the simulation's own model and state (kept by reference).
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
+                                               const JobSetup& setup);
+
+}  // namespace zona

@@ -1,0 +1,125 @@
+// What a run leaves behind: force.csv (the recorded curve), summary.json (model, puncture, peak
+// force, training metrics, numerics), and VTU frames with displacement, Green strain and von
+// Mises stress (seed 002 Fig. 14) in a ParaView .pvd series.
+#pragma once
+
+#include <cstdio>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "engine/core/base.h"
+#include "engine/mesh/mesh_io.h"
+#include "engine/sim/simulation.h"
+
+namespace zona {
+
+/// Training metrics of one insertion (seed 002's measures).
+struct TrainingMetrics {
+  /// Mean needle speed from the start to puncture (or the end of the run) [m/s].
+  double mean_insertion_speed = 0;
+  /// Deformation at puncture over the cell diameter along the needle axis [%]; 0 without puncture.
+  double deformation_percent = 0;
+  /// Seed 002's maximum force amplitude ratio (MFAR) [%]: the largest deviation of the force
+  /// from its moving average over the loading phase (first contact to puncture), over the peak
+  /// force. The window is `fluctuation_window` of the loading phase's duration.
+  double force_fluctuation_percent = 0;
+  double fluctuation_window = 0.05;  ///< [-]
+};
+
+/// Names of the step flags set in `status` ("inverted elements", "clamped elements", ...), for
+/// a run's whole history (describe_step_status describes one step with its counts).
+std::vector<std::string> step_flag_names(StepStatus status);
+
+/// Computes the metrics from a run's samples (cell_diameter [m] along the needle axis).
+TrainingMetrics compute_training_metrics(const RunResult& run, double cell_diameter,
+                                         double fluctuation_window = 0.05);
+
+/// The force.csv header, one name per column (time_s, needle_travel_m, deformation_m, force_N,
+/// force_x_N, force_y_N, force_z_N, holding_force_N, contacts, elastic_energy_J,
+/// kinetic_energy_J, punctured, raw_force_N). force_N is the filtered axial force
+/// (needle.force_filter), raw_force_N the same before the filter.
+const std::vector<std::string>& force_csv_columns();
+
+/// Writes the samples as CSV with force_csv_columns(), full double precision.
+Status write_force_csv(const std::string& path, std::span<const ForceSample> samples);
+
+/// force.csv written as the run goes (RunOptions::on_sample): the header at open, then one row
+/// per append, so that a run stopped half-way (signal, crash, power) leaves its curve up to
+/// there. Rows are formatted into a buffer sized at open and written whole, one write per
+/// flush, so the file never ends in half a row unless the write itself is cut; a flush happens
+/// at the first append and then whenever `flush_interval` of wall time has passed, the buffer
+/// is full, or close() is called.
+class ForceCsvWriter {
+ public:
+  /// Creates (truncates) `path` and writes the header. Errors: cannot open, write failed.
+  static Result<ForceCsvWriter> open(const std::string& path, double flush_interval = 0.5);
+  /// Appends one row (flushing as described above). After a failed write every later call
+  /// returns the same error.
+  Status append(const ForceSample& sample);
+  /// Writes what is buffered to the file.
+  Status flush();
+  /// Flushes and closes; later appends fail.
+  Status close();
+  const std::string& path() const { return path_; }
+
+  ForceCsvWriter(ForceCsvWriter&&) noexcept = default;
+  // No assignment: it would close an open file without flushing its buffered rows.
+  ForceCsvWriter& operator=(ForceCsvWriter&&) = delete;
+  ~ForceCsvWriter();  ///< close(), its error dropped: call close() to see it
+
+ private:
+  ForceCsvWriter() = default;
+  struct FileCloser {
+    void operator()(std::FILE* f) const;
+  };
+  std::unique_ptr<std::FILE, FileCloser> file_;
+  std::string path_;
+  std::vector<char> buffer_;  // formatted rows not yet written, (capacity fixed at open)
+  size_t used_ = 0;
+  double flush_interval_ = 0.5;   // [s] of wall time
+  int64_t last_flush_ns_ = 0;     // steady clock [ns]; 0: never flushed a row
+  std::string error_;             // first write error, empty while fine
+};
+
+/// Writes `text` to `path` atomically: into `path`.tmp, flushed to disk, then renamed over
+/// `path`, so a reader (or a run killed while writing) sees the old file or the new one, never
+/// half of one. The .tmp is removed on failure.
+Status write_file_atomic(const std::string& path, const std::string& text);
+
+/// The summary of a run: scene and model, interrupted (the run was stopped by
+/// RunOptions::stop before its end), puncture {time_s, needle_travel_m, deformation_m,
+/// force_N}, peak_force_N, training metrics, numerics (steps, dt, mass scaling, wall time).
+nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& run,
+                                const TrainingMetrics& metrics);
+
+/// Per-frame fields: point "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
+/// free); cell "green_strain" [-] (6: xx yy zz xy yz xz), "von_mises_stress" [Pa] (1, of the
+/// Cauchy stress of the model's law: F S F^T / J for SVK, the small-strain stress for linear).
+void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
+                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
+                  std::vector<VtkField>* cell_data);
+
+/// frame_fields of a simulation's current state.
+void frame_fields(const Simulation& simulation, std::vector<VtkField>* point_data,
+                  std::vector<VtkField>* cell_data);
+
+/// Writes frames of a simulation into DIR/frames.pvd + DIR/frames_<i>.vtu (deformed positions).
+class FrameRecorder {
+ public:
+  explicit FrameRecorder(const std::string& directory);
+  /// Writes the simulation's current state as the next frame.
+  Status write(const Simulation& simulation);
+  const std::string& pvd_path() const { return writer_.path(); }
+  size_t frame_count() const { return writer_.frame_count(); }
+
+ private:
+  PvdWriter writer_;
+  std::vector<Vec3d> positions_;
+  std::vector<VtkField> point_data_, cell_data_;
+};
+
+}  // namespace zona

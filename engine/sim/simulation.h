@@ -1,0 +1,345 @@
+// The injection experiment: a Scene turned into a running simulation (mesh, model, backend,
+// needle, holding pipette, contact, puncture), stepped by a step function that reads like a
+// table of contents, split in two halves so that the haptic thread (issue 7) can hand in the
+// needle pose between them (as mj_step1 / mj_step2 do in MuJoCo).
+//
+//   step1:  1. tools      needle pose at t_{n+1} from its script
+//           -- set_needle_tip() may replace the pose here --
+//   step2:  2. puncture   criterion on the last measured force / strain / energy
+//           3. contact    needle and rim contacts: release, friction, new contacts, targets
+//           4. loads      suction on the aspirated patch, released tip force, shaft drag
+//           5. integrate  internal forces + centred difference (the backend)
+//           6. measure    contact reactions, needle force, deformation at the tip
+//           7. publish    needle report (force, local stiffness), surface snapshot
+//
+// Nothing on the step path allocates: every buffer is sized at creation.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/sim/backend.h"
+#include "engine/tools/contact.h"
+#include "engine/tools/holding.h"
+#include "engine/sim/integrator.h"
+#include "engine/sim/job_runner.h"
+#include "engine/mesh/mesh.h"
+#include "engine/fem/model.h"
+#include "engine/tools/needle.h"
+#include "engine/particles/particle_model.h"
+#include "engine/tools/puncture.h"
+#include "engine/scene/scene.h"
+#include "engine/fem/state.h"
+#include "engine/core/triple_buffer.h"
+
+namespace zona {
+
+/// How a Simulation is built. Defaults: the CPU reference, inversion-safe SVK.
+struct SimulationOptions {
+  /// Compute backend: empty steps the CPU reference in place (no copies). Otherwise called once
+  /// at creation (e.g. with kernels/backend_factory.h's make_backend; the engine does not
+  /// depend on kernels/): a returned CPU backend is dropped for the in-place path, any other is
+  /// driven through the Backend interface, which today re-uploads the state whenever the
+  /// contact set or the loads change (docs/injection.md lists the calls that would avoid it).
+  /// `notice` receives a one-line note (e.g. the auto fallback to the CPU).
+  std::function<Result<std::unique_ptr<Backend>>(std::string* notice)> backend_factory;
+  /// Compute backend of the particle model (scene model "particles"), called once at creation
+  /// with the built particle model (kernels/particle_backend.h's make_particle_backend): a
+  /// returned "cpu" backend is dropped for the in-place CPU reference, any other is driven
+  /// through the Backend interface. Empty: the CPU reference in place. `backend_factory` is
+  /// not used for the particle model.
+  std::function<Result<std::unique_ptr<Backend>>(const ParticleModel&, std::string* notice)>
+      particle_backend_factory;
+  /// Threads of the CPU reference (0: one per hardware thread). Results do not depend on it.
+  int threads = 0;
+  /// Integrator sub-steps per contact update on the Backend path (>= 1).
+  int backend_substeps = 1;
+  /// SVK inversion remedy (ignored by the linear model, which cannot invert its stiffness).
+  InversionHandling inversion = InversionHandling::kClampStretch;
+  /// Steps between whole-surface contact searches (the local search runs every step).
+  int full_scan_interval = 256;
+  /// Relaxation of the friction slip correction, (0, 1].
+  double slip_relax = 0.5;
+  /// Travel over which the local stiffness estimate is taken [m].
+  double stiffness_window = 20e-9;
+  /// Steps between surface snapshots for a render thread; 0: none.
+  int snapshot_interval = 0;
+  /// Tests: drive a CPU backend from the factory through the Backend interface (uploads,
+  /// targets, downloads) instead of dropping it for the in-place path, so that the path the GPU
+  /// backends take can be checked against the in-place reference on any machine.
+  bool keep_cpu_backend = false;
+};
+
+/// What step2 publishes for the haptic and render threads (and the recorder).
+struct NeedleReport {
+  double time = 0;              ///< simulated time t_{n+1} [s]
+  int64_t step = 0;             ///< steps taken
+  Vec3d tip{0, 0, 0};           ///< needle tip [m]
+  double travel = 0;            ///< tip travel from its start along the axis [m]
+  double deformation = 0;       ///< membrane indentation at the tip along the axis [m]
+  /// Axial reaction on the needle, resistance positive [N]; low-passed by needle.force_filter.
+  double force = 0;
+  double raw_force = 0;         ///< the same before the filter [N]
+  /// Force the needle applies to the cell [N]: the quasi-static contact reaction (minus the
+  /// elastic and applied forces on the contact vertices; engine/tools/contact.h says why).
+  Vec3d force_vector{0, 0, 0};
+  /// The full constraint force on the contact vertices, inertia and damping included [N].
+  Vec3d constraint_force{0, 0, 0};
+  double stiffness = 0;         ///< local d force / d travel [N/m]
+  int32_t contacts = 0;         ///< vertices held by the needle
+  int32_t holding_contacts = 0; ///< vertices held by the holding pipette's rim
+  Vec3d holding_force{0, 0, 0}; ///< force the holding pipette applies to the cell [N]
+  double max_strain = 0;        ///< largest principal Green strain at the tip (strain criterion) [-]
+  double elastic_energy = 0;    ///< [J]
+  double kinetic_energy = 0;    ///< [J]
+  bool punctured = false;
+  StepStatus status = kStepOk;  ///< the integrator's flags of this step
+};
+
+/// Surface positions for a render thread, published every SimulationOptions::snapshot_interval
+/// steps through a TripleBuffer (engine/core/triple_buffer.h).
+struct SurfaceSnapshot {
+  std::vector<Vec3d> positions;  ///< deformed surface vertex positions [m], (surface count)
+  double time = 0;               ///< simulated time [s]
+  int64_t step = 0;              ///< steps taken
+};
+
+struct RunOptions;
+struct RunResult;
+
+/// One injection experiment. Create with Simulation::create; step with step() or step1/step2.
+class Simulation {
+ public:
+  /// Builds mesh, model, backend and tools from a scene. Errors (one line): unsupported model,
+  /// bad materials, holding patch empty, backend unavailable, nothing that ends the run.
+  static Result<std::unique_ptr<Simulation>> create(const Scene& scene,
+                                                    const SimulationOptions& options = {});
+  ~Simulation();
+  Simulation(const Simulation&) = delete;
+  Simulation& operator=(const Simulation&) = delete;
+
+  /// First half: the needle pose at t_{n+1} from its script.
+  void step1();
+  /// Between the halves: replace the needle tip pose for this step [m] (haptic coupling).
+  void set_needle_tip(Vec3d tip);
+  /// Second half: puncture, contact, loads, integrate, measure, publish.
+  StepStatus step2();
+  /// step1 then step2.
+  StepStatus step() {
+    step1();
+    return step2();
+  }
+
+  /// Simulated time at which the scene's experiment ends [s].
+  double end_time() const { return end_time_; }
+  /// True once time has reached end_time (or a step was not advanced).
+  bool finished() const;
+
+  const Scene& scene() const { return scene_; }
+  const Mesh& mesh() const { return mesh_; }
+  const Model& model() const { return model_; }
+  /// The host state (on the Backend path: as of the last download, i.e. the last step).
+  const State& state() const { return state_; }
+  const ContactSurface& surface() const { return surface_; }
+  const NeedleScript& needle_script() const { return script_; }
+  const NeedleReport& report() const { return report_; }
+  const PunctureRecord& puncture() const { return job_ ? job_puncture_ : puncture_->record(); }
+  const std::optional<HoldingSetup>& holding() const { return holding_; }
+  /// Surface snapshots for one reader thread (acquire() / read_slot()); nullptr unless
+  /// SimulationOptions::snapshot_interval > 0.
+  TripleBuffer<SurfaceSnapshot>* surface_snapshots() { return snapshots_.get(); }
+  /// Needle contacts (empty without a needle or after puncture).
+  std::span<const Contact> needle_contacts() const;
+  /// Rim contacts of a suction holding pipette.
+  std::span<const Contact> holding_contacts() const;
+  /// Rest position where the needle axis enters the cell [m].
+  Vec3d entry_point() const { return entry_point_; }
+  /// Cell extent along the needle axis at rest [m] (the diameter for a ball).
+  double cell_diameter() const { return cell_diameter_; }
+  /// Backend description ("cpu reference: 2 thread(s), float64", ...).
+  const std::string& backend_description() const { return backend_description_; }
+  /// The backend driven through the Backend interface (the GPU), or null on the in-place CPU
+  /// path: for kernels reading its device state (kernels/surface_interop.h). Do not step it.
+  const Backend* backend() const { return backend_.get(); }
+  /// Notes from setup (skipped materials, backend fallback), one line each.
+  const std::vector<std::string>& notes() const { return notes_; }
+  /// True when the step runs as the device-resident job (penalty contact, engine/sim/job.h): the
+  /// stages run where the state lives, and state() is brought up to date by sync_state().
+  bool job_mode() const { return job_ != nullptr; }
+  /// The job's runner, or null on the kinematic-contact path.
+  JobRunner* job() { return job_; }
+  /// The job's setup (tool vertices, parameters); empty on the kinematic path.
+  const JobSetup& job_setup() const { return job_setup_; }
+  /// Makes state() current: on the job path waits for the steps in flight and downloads the
+  /// state from where it lives (a frame, a test); otherwise nothing to do. Not on the step path.
+  Status sync_state();
+  /// The particle model (scene model "particles"), else null.
+  const ParticleModel* particle_model() const { return particles_.get(); }
+  /// Particle model: relative change of the enclosed volume at the last step, (V - V0) / V0 [-].
+  double volume_change_rel() const { return volume_change_rel_; }
+  /// Particle model: largest |V - V0| / V0 seen so far [-].
+  double volume_change_max_rel() const { return volume_change_max_rel_; }
+
+ private:
+  Simulation() = default;
+  Status build(const Scene& scene, const SimulationOptions& options);
+
+  // Stages of step2 (one line each there).
+  void test_puncture();
+  void update_contacts();
+  void apply_loads();
+  StepStatus integrate();
+  void measure();
+  void publish();
+  StepStatus mask_budget_flag(StepStatus status) const;
+  // The job path (simulation_job.cpp).
+  Status prepare_job();
+  Status start_job();
+  StepStatus step_job();
+  void report_from_record(const JobRecord& r);
+
+  Scene scene_;
+  SimulationOptions options_;
+  Mesh mesh_;
+  Model model_;
+  State state_;
+  ContactSurface surface_;
+  std::unique_ptr<Backend> backend_;  // null on the in-place CPU path
+  std::unique_ptr<ParticleModel> particles_;  // scene model "particles" (engine/particles/particle_model.h)
+  double volume_change_rel_ = 0, volume_change_max_rel_ = 0;
+  std::string backend_description_;
+  std::vector<std::string> notes_;
+
+  // Tools.
+  bool has_needle_ = false;
+  NeedleScript script_;
+  Vec3d tip_{0, 0, 0};       // pose at t_n
+  Vec3d tip_next_{0, 0, 0};  // pose at t_{n+1}
+  std::unique_ptr<ContactSet> needle_contacts_;
+  std::optional<HoldingSetup> holding_;
+  std::unique_ptr<ContactSet> rim_contacts_;
+  std::unique_ptr<Puncture> puncture_;
+  std::vector<int32_t> indent_vertices_;  // prescribed indentation patches
+  std::vector<Vec3d> indent_direction_;   // per indent vertex [-]
+  std::vector<double> indent_depth_, indent_speed_;  // per indent vertex [m], [m/s]
+  std::vector<uint8_t> tet_in_zona_;      // strain criterion: counted tetrahedra
+
+  // Geometry of the measurement.
+  Vec3d entry_point_{0, 0, 0};
+  Vec3d centre_{0, 0, 0};
+  double cell_diameter_ = 0;
+  int32_t hit_triangle_ = -1, rest_hit_triangle_ = -1;
+  bool hit_valid_ = false;       // the axis hit the deformed surface at the last measure
+  Vec3d hit_point_{0, 0, 0};     // that hit [m]
+  double end_time_ = 0;
+
+  // Scratch, sized at creation.
+  std::vector<uint8_t> taken_;             // per vertex: 1 fixed / indent / other tool's contact
+  std::vector<int32_t> prescribed_;        // (vertex_count capacity)
+  std::vector<Vec3d> targets_;             // (vertex_count capacity)
+  std::vector<int32_t> loaded_;            // vertices with loads this step
+  std::vector<int32_t> uploaded_prescribed_;  // Backend path: the set the backend holds
+  std::vector<int32_t> contact_vertices_;  // strain criterion: needle contact vertices
+  std::vector<Vec3d> zero_u_;              // zero displacements, for rays on the rest surface
+  std::vector<Vec3d> indent_before_;       // indent vertices' u_{n-1} [m]
+  std::vector<Vec3d> force_prev_;          // stiffness damping: f(u_{n-2}) [N]
+  double stiffness_damping_ = 0;           // [s]
+  bool loads_changed_ = true;
+  int32_t seeds_[3] = {-1, -1, -1};
+
+  // Published.
+  NeedleReport report_;
+  std::unique_ptr<TripleBuffer<SurfaceSnapshot>> snapshots_;
+  double stiffness_force_ = 0, stiffness_travel_ = 0;
+  bool stiffness_anchor_set_ = false;
+  bool filter_started_ = false;
+  double filter_time_ = 0;
+  StepStatus last_status_ = kStepOk;
+
+  // Job path.
+  JobSetup job_setup_;
+  std::unique_ptr<JobRunner> cpu_job_;  // the CPU runner (a GPU backend owns its own)
+  JobRunner* job_ = nullptr;
+  PunctureRecord job_puncture_;
+  bool job_halted_ = false;
+  friend RunResult run_job_simulation(Simulation&, const RunOptions&);
+};
+
+/// A row of force.csv.
+struct ForceSample {
+  double time = 0;          ///< [s]
+  double travel = 0;        ///< needle travel [m]
+  double deformation = 0;   ///< membrane indentation at the tip [m]
+  double force = 0;         ///< axial needle force (filtered) [N]
+  double raw_force = 0;     ///< axial needle force before the filter [N]
+  Vec3d force_vector{0, 0, 0};  ///< force the needle applies to the cell [N]
+  double holding_force = 0; ///< holding pipette force along the needle axis [N]
+  int32_t contacts = 0;     ///< needle contact vertices
+  double elastic_energy = 0;  ///< [J]
+  double kinetic_energy = 0;  ///< [J]
+  bool punctured = false;
+};
+
+/// Progress of a run, passed to RunOptions::progress.
+struct RunProgress {
+  double time = 0;        ///< simulated [s]
+  double end_time = 0;    ///< [s]
+  double wall_seconds = 0;
+  const NeedleReport* report = nullptr;
+};
+
+/// Options of run_simulation / run_scene.
+struct RunOptions {
+  SimulationOptions simulation;
+  /// Stop this long (simulated) after puncture; negative: run to the scene's end.
+  double stop_after_puncture = -1;
+  /// Wall-clock seconds between progress calls.
+  double progress_interval = 0.25;
+  /// Called from the simulation thread every progress_interval (may be empty).
+  std::function<void(const RunProgress&)> progress;
+  /// Called at each output frame time with the simulation (VTU writing; may be empty).
+  std::function<void(const Simulation&, int frame)> frame;
+  /// Called from the simulation thread with each sample as it is recorded, in order (streaming
+  /// force.csv; may be empty). Samples dropped by a full buffer are not passed.
+  std::function<void(const ForceSample&)> on_sample;
+  /// Read once per step (may be null): when true, the run ends before the next step and the
+  /// result says interrupted. Set it from a signal handler or another thread.
+  const std::atomic<bool>* stop = nullptr;
+};
+
+/// What a run returns: the recorded curve and the summary numbers.
+struct RunResult {
+  std::vector<ForceSample> samples;  ///< one per output.sample_interval, (sample_count)
+  PunctureRecord puncture;
+  double peak_force = 0;              ///< [N]
+  double peak_deformation = 0;        ///< [m]
+  int64_t steps = 0;
+  double simulated_time = 0;          ///< [s]
+  double wall_seconds = 0;
+  StepStatus status = kStepOk;        ///< OR of every step's flags
+  bool stopped_early = false;         ///< a step was not advanced
+  std::string stop_reason;            ///< describe_step_status of the failing step
+  bool sample_buffer_full = false;    ///< output.sample_interval too small for the buffer
+  /// Vertex masses raised by the dynamic mass scaling (penalty step; 0 elsewhere).
+  int64_t mass_raises = 0;
+  bool interrupted = false;           ///< RunOptions::stop ended the run before its end
+};
+
+/// Runs a built simulation to its end (or stop_after_puncture) and records the curve.
+RunResult run_simulation(Simulation& simulation, const RunOptions& options = {});
+
+/// run_simulation's loop for the job path (engine/sim/simulation_job.cpp): steps are handed to the
+/// runner in batches, samples come back from where the state lives, and the state is brought
+/// to the host only for frames.
+RunResult run_job_simulation(Simulation& simulation, const RunOptions& options);
+
+/// Builds a simulation from `scene` and runs it: the reusable driver behind `zona run` and
+/// calibration.
+Result<RunResult> run_scene(const Scene& scene, const RunOptions& options = {});
+
+}  // namespace zona

@@ -1,0 +1,234 @@
+// Tests for engine/recorder: training metrics with known answers, force.csv, summary.json, the
+// frame fields (Green strain and von Mises stress of a uniform stretch), the .pvd frames.
+#include "engine/sim/recorder.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <numbers>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "engine/mesh/mesh_generate.h"
+
+namespace zona {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A loading ramp of n samples from 0 to 1 uN over 1 s (in contact), with an optional ripple.
+RunResult ramp(int n, double ripple, int period) {
+  RunResult r;
+  for (int i = 0; i < n; ++i) {
+    ForceSample s;
+    s.time = static_cast<double>(i) / (n - 1);
+    s.travel = 1e-4 * s.time;
+    s.deformation = 0.8 * s.travel;
+    s.force = 1e-6 * s.time + ripple * std::sin(2 * std::numbers::pi * i / period);
+    s.contacts = 5;
+    r.samples.push_back(s);
+  }
+  return r;
+}
+
+TEST(Recorder, TrainingMetricsOfKnownCurves) {
+  // A straight ramp has no fluctuation: its moving average is itself.
+  RunResult smooth = ramp(1001, 0.0, 4);
+  TrainingMetrics m = compute_training_metrics(smooth, 56e-6);
+  EXPECT_LT(m.force_fluctuation_percent, 1e-9);
+  EXPECT_NEAR(m.mean_insertion_speed, 1e-4, 1e-12);
+  EXPECT_EQ(m.deformation_percent, 0.0);  // no puncture
+  // A ripple of 0.05 uN (period 4 samples, far shorter than the 5 % window) is 0.05 / 1.05 of
+  // the peak, up to the window's residue of the sine (one sample in 51).
+  RunResult rippled = ramp(1001, 0.05e-6, 4);
+  m = compute_training_metrics(rippled, 56e-6);
+  EXPECT_NEAR(m.force_fluctuation_percent, 100 * 0.05 / 1.05, 0.1);
+  // Puncture: speed and deformation measured up to it; samples after it are not counted.
+  rippled.puncture.punctured = true;
+  rippled.puncture.time = 0.5;
+  rippled.puncture.needle_travel = 50e-6;
+  rippled.puncture.deformation = 42e-6;
+  for (ForceSample& s : rippled.samples) s.punctured = s.time > 0.5;
+  m = compute_training_metrics(rippled, 56e-6);
+  EXPECT_NEAR(m.mean_insertion_speed, 1e-4, 1e-12);
+  EXPECT_NEAR(m.deformation_percent, 75.0, 1e-9);
+  EXPECT_NEAR(m.force_fluctuation_percent, 100 * 0.05 / 0.55, 0.4);
+}
+
+TEST(Recorder, ForceCsvHasTheDocumentedColumns) {
+  const fs::path path = fs::temp_directory_path() / "zona_recorder_force.csv";
+  const RunResult r = ramp(5, 0.0, 4);
+  ASSERT_TRUE(write_force_csv(path.string(), r.samples).ok());
+  std::ifstream in(path);
+  std::string header;
+  std::getline(in, header);
+  EXPECT_EQ(header.rfind("time_s,needle_travel_m,deformation_m,force_N,", 0), 0u) << header;
+  std::stringstream ss(header);
+  std::string column;
+  size_t count = 0;
+  while (std::getline(ss, column, ',')) EXPECT_EQ(column, force_csv_columns()[count++]);
+  EXPECT_EQ(count, force_csv_columns().size());
+  int rows = 0;
+  std::string line;
+  double last_force = 0;
+  while (std::getline(in, line)) {
+    ++rows;
+    std::stringstream row(line);
+    std::string cell;
+    for (int c = 0; c < 4; ++c) std::getline(row, cell, ',');
+    last_force = std::stod(cell);
+  }
+  EXPECT_EQ(rows, 5);
+  EXPECT_DOUBLE_EQ(last_force, r.samples.back().force);  // full precision round trip
+  fs::remove(path);
+  EXPECT_FALSE(write_force_csv("/nonexistent/dir/force.csv", r.samples).ok());
+}
+
+// The lines of a file as it is on disk now (a second reader, as a person tailing the run).
+std::vector<std::string> lines_on_disk(const fs::path& path) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  return lines;
+}
+
+TEST(Recorder, ForceCsvWriterStreamsRowsWhileTheRunGoes) {
+  const fs::path path = fs::temp_directory_path() / "zona_recorder_stream.csv";
+  const RunResult r = ramp(5, 0.0, 4);
+  {
+    // Flush interval 0: every row is on disk when append returns.
+    Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 0.0);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    EXPECT_EQ(lines_on_disk(path).size(), 1u);  // the header, at open
+    for (size_t i = 0; i < 3; ++i) {
+      ASSERT_TRUE(w->append(r.samples[i]).ok());
+      EXPECT_EQ(lines_on_disk(path).size(), 2 + i);
+    }
+    ASSERT_TRUE(w->close().ok());
+    EXPECT_FALSE(w->append(r.samples[3]).ok());  // closed
+  }
+  {
+    // A long interval: the first row goes out at once, later rows at close (or a flush).
+    Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
+    ASSERT_TRUE(w.ok());
+    for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
+    EXPECT_EQ(lines_on_disk(path).size(), 2u);
+    ASSERT_TRUE(w->flush().ok());
+    EXPECT_EQ(lines_on_disk(path).size(), 6u);
+    ASSERT_TRUE(w->close().ok());
+  }
+  // The streamed file is byte for byte the one write_force_csv writes.
+  const std::vector<std::string> streamed = lines_on_disk(path);
+  ASSERT_TRUE(write_force_csv(path.string(), r.samples).ok());
+  EXPECT_EQ(lines_on_disk(path), streamed);
+  fs::remove(path);
+  EXPECT_FALSE(ForceCsvWriter::open("/nonexistent/dir/force.csv").ok());
+}
+
+TEST(Recorder, ForceCsvWriterKeepsRowsWhole) {
+  // More rows than the buffer holds: every line on disk is a whole row of 13 columns.
+  const fs::path path = fs::temp_directory_path() / "zona_recorder_whole.csv";
+  const RunResult r = ramp(2000, 1e-8, 7);
+  Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
+  ASSERT_TRUE(w.ok());
+  for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
+  const std::vector<std::string> before_close = lines_on_disk(path);
+  EXPECT_GT(before_close.size(), 2u);     // buffer-full flushes happened
+  EXPECT_LT(before_close.size(), 2001u);  // and some rows are still buffered
+  for (size_t i = 1; i < before_close.size(); ++i)
+    EXPECT_EQ(std::count(before_close[i].begin(), before_close[i].end(), ','), 12) << i;
+  ASSERT_TRUE(w->close().ok());
+  EXPECT_EQ(lines_on_disk(path).size(), 2001u);
+  fs::remove(path);
+}
+
+TEST(Recorder, WriteFileAtomicReplacesTheWholeFile) {
+  const fs::path dir = fs::temp_directory_path() / "zona_recorder_atomic";
+  fs::create_directories(dir);
+  const fs::path path = dir / "summary.json";
+  ASSERT_TRUE(write_file_atomic(path.string(), "{\"a\": 1}\n").ok());
+  ASSERT_TRUE(write_file_atomic(path.string(), "{\"b\": 2}\n").ok());
+  EXPECT_EQ(lines_on_disk(path), std::vector<std::string>{"{\"b\": 2}"});
+  EXPECT_FALSE(fs::exists(dir / "summary.json.tmp"));
+  // A folder in the way of the rename: an error, the .tmp removed, the folder untouched.
+  fs::create_directories(dir / "taken");
+  EXPECT_FALSE(write_file_atomic((dir / "taken").string(), "x").ok());
+  EXPECT_FALSE(fs::exists(dir / "taken.tmp"));
+  EXPECT_TRUE(fs::is_directory(dir / "taken"));
+  EXPECT_FALSE(write_file_atomic("/nonexistent/dir/summary.json", "x").ok());
+  fs::remove_all(dir);
+}
+
+TEST(Recorder, FrameFieldsOfAUniformStretch) {
+  const Mesh box = generate_box_mesh(Vec3d{0, 0, 0}, Vec3d{1, 1, 1}, 2, 2, 2);
+  ModelDesc desc;
+  desc.material.young = 1e3;
+  desc.material.poisson = 0.25;
+  Result<Model> model = build_model(box, desc);
+  ASSERT_TRUE(model.ok());
+  State state = make_state(*model, 1);
+  const double s = 1.1;  // stretch along x
+  for (size_t v = 0; v < box.vertex_count(); ++v)
+    state.u[v] = Vec3d{(s - 1) * box.rest_positions[v].x, 0, 0};
+  Contact c;
+  c.vertex = 3;
+  const Contact needle[1] = {c};
+  std::vector<VtkField> points, cells;
+  frame_fields(*model, state, needle, {}, &points, &cells);
+  ASSERT_EQ(points.size(), 2u);
+  EXPECT_EQ(points[0].name, "displacement");
+  EXPECT_EQ(points[1].values[3], 1.0);
+  ASSERT_EQ(cells.size(), 2u);
+  EXPECT_EQ(cells[0].name, "green_strain");
+  EXPECT_EQ(cells[1].name, "von_mises_stress");
+  // E_xx = (s^2 - 1) / 2; Cauchy stress of SVK: sigma = F S F^T / J with S = lambda tr E I +
+  // 2 mu E: sigma_xx = s (lambda + 2 mu) E_xx, sigma_yy = sigma_zz = lambda E_xx / s.
+  const Lame l = lame_from_young_poisson(1e3, 0.25);
+  const double exx = 0.5 * (s * s - 1);
+  const double mises = std::fabs(s * (l.lambda + 2 * l.mu) * exx - l.lambda * exx / s);
+  for (size_t t = 0; t < model->tet_count(); ++t) {
+    EXPECT_NEAR(cells[0].values[6 * t], exx, 1e-12);
+    EXPECT_NEAR(cells[0].values[6 * t + 1], 0.0, 1e-12);
+    EXPECT_NEAR(cells[1].values[t], mises, 1e-9 * mises);
+  }
+}
+
+TEST(Recorder, FramesAndSummaryOfAShortRun) {
+  const fs::path dir = fs::temp_directory_path() / "zona_recorder_frames";
+  fs::create_directories(dir);
+  Result<Scene> scene = parse_scene(nlohmann::json::parse(R"({
+    "mesh": {"generate": {"diameter": "20 um", "vertices": 120}},
+    "materials": {"default": {"young": "10 kPa", "poisson": 0.4, "damping": "100 1/s"}},
+    "integrator": {"target_dt": "20 us", "mass_scaling_mode": "selective"},
+    "needle": {"tip_radius": "2 um", "standoff": "0.5 um", "speed": "1 mm/s", "max_travel": "2 um"},
+    "holding_pipette": {"mode": "fixed", "inner_radius": "5 um"},
+    "output": {"frames": 3, "sample_interval": "0.1 ms"}
+  })"), "short.json");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  auto sim = Simulation::create(*scene);
+  ASSERT_TRUE(sim.ok());
+  FrameRecorder frames(dir.string());
+  RunOptions o;
+  o.frame = [&](const Simulation& s, int) { ASSERT_TRUE(frames.write(s).ok()); };
+  const RunResult run = run_simulation(**sim, o);
+  EXPECT_EQ(frames.frame_count(), 3u);
+  EXPECT_TRUE(fs::exists(dir / "frames.pvd"));
+  EXPECT_TRUE(fs::exists(dir / "frames_000002.vtu"));
+  const nlohmann::json j = run_summary_json(**sim, run, compute_training_metrics(run, 20e-6));
+  EXPECT_EQ(j["model"], "svk");
+  EXPECT_EQ(j["interrupted"], false);
+  EXPECT_EQ(j["puncture"]["punctured"], false);
+  EXPECT_GT(j["peak_force_N"].get<double>(), 0.0);
+  EXPECT_EQ(j["numerics"]["steps"].get<int64_t>(), run.steps);
+  EXPECT_EQ(j["numerics"]["mass_scaling_mode"], "selective");
+  EXPECT_NEAR(j["training"]["mean_insertion_speed_m_per_s"].get<double>(), 1e-3, 1e-6);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace zona

@@ -1,0 +1,111 @@
+// Tests for engine/holding: the tube wall's distance, the aspirated patch and its suction force.
+#include "engine/tools/holding.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "engine/tools/contact.h"
+#include "engine/mesh/mesh_generate.h"
+
+namespace zona {
+namespace {
+
+void expect_vec(Vec3d a, Vec3d b, double tol) {
+  EXPECT_NEAR(a.x, b.x, tol);
+  EXPECT_NEAR(a.y, b.y, tol);
+  EXPECT_NEAR(a.z, b.z, tol);
+}
+
+TEST(Holding, TubeWallDistance) {
+  HoldingGeometry h;
+  h.axis = Vec3d{1, 0, 0};
+  h.mouth = Vec3d{10, 0, 0};
+  h.inner_radius = 2;
+  h.outer_radius = 5;
+  // In front of the rim face: distance to the mouth plane, normal back towards the cell.
+  ToolDistance d = holding_distance(h, Vec3d{8, 3, 0});
+  EXPECT_DOUBLE_EQ(d.distance, 2.0);
+  expect_vec(d.normal, Vec3d{-1, 0, 0}, 1e-15);
+  // Over the opening, in front of the mouth: distance to the inner rim edge.
+  d = holding_distance(h, Vec3d{7, 0, -2});
+  EXPECT_NEAR(d.distance, 3.0, 1e-12);
+  // Aspirated into the bore: distance to the bore wall, normal towards the axis.
+  d = holding_distance(h, Vec3d{12, 0, 1.5});
+  EXPECT_NEAR(d.distance, 0.5, 1e-12);
+  expect_vec(d.normal, Vec3d{0, 0, -1}, 1e-15);
+  // Pushed into the rim: leaves through the nearest face (the mouth).
+  d = holding_distance(h, Vec3d{10.3, 0, 3.5});
+  EXPECT_NEAR(d.distance, -0.3, 1e-12);
+  expect_vec(d.normal, Vec3d{-1, 0, 0}, 1e-15);
+  // Inside the wall, nearest the bore.
+  d = holding_distance(h, Vec3d{15, 2.2, 0});
+  EXPECT_NEAR(d.distance, -0.2, 1e-12);
+  expect_vec(d.normal, Vec3d{0, -1, 0}, 1e-15);
+}
+
+struct Ball {
+  Mesh mesh;
+  ContactSurface surface;
+};
+
+Ball make_ball(double diameter, int64_t vertices) {
+  CellMeshSpec spec;
+  spec.diameter = diameter;
+  spec.target_vertices = vertices;
+  Result<Mesh> mesh = generate_cell_mesh(spec);
+  EXPECT_TRUE(mesh.ok());
+  Ball b{std::move(*mesh), {}};
+  Result<ContactSurface> s = build_contact_surface(b.mesh);
+  EXPECT_TRUE(s.ok());
+  b.surface = std::move(*s);
+  return b;
+}
+
+TEST(Holding, SuctionIsPressureTimesAspiratedArea) {
+  const Ball b = make_ball(56e-6, 1500);
+  HoldingPipetteDef def;
+  def.enabled = true;
+  def.mode = HoldingMode::kSuction;
+  def.inner_radius = 12e-6;
+  def.suction = 2.5e3;
+  Result<HoldingSetup> h = make_holding(def, b.surface, b.mesh.rest_positions, Vec3d{0, 0, 0},
+                                        Vec3d{1, 0, 0});
+  ASSERT_TRUE(h.ok()) << h.error().message;
+  // The mouth sits where the circle of the inner radius meets the cell: sqrt(R^2 - a^2).
+  const double r = 28e-6, a = 12e-6;
+  EXPECT_NEAR(h->geometry.mouth.x, std::sqrt(r * r - a * a), 0.05 * r);
+  EXPECT_DOUBLE_EQ(h->geometry.outer_radius, 1.25 * a);  // thin rim default
+  // Total suction force: exactly p times the patch's projected area, along the axis...
+  EXPECT_NEAR(h->suction_total.x, def.suction * h->aspirated_area, 1e-12 * h->suction_total.x);
+  EXPECT_NEAR(h->suction_total.y, 0.0, 0.02 * h->suction_total.x);
+  EXPECT_NEAR(h->suction_total.z, 0.0, 0.02 * h->suction_total.x);
+  // ... and that area is the opening's, pi a^2, up to the patch's faceting.
+  EXPECT_NEAR(h->aspirated_area, std::numbers::pi * a * a, 0.25 * std::numbers::pi * a * a);
+  // Patch vertices: on the pipette side, near the axis.
+  ASSERT_FALSE(h->patch_vertices.empty());
+  for (int32_t v : h->patch_vertices) {
+    const Vec3d x = b.mesh.rest_positions[static_cast<size_t>(v)];
+    EXPECT_GT(x.x, 0.0);
+    EXPECT_LT(std::hypot(x.y, x.z), 2.0 * a);
+  }
+}
+
+TEST(Holding, BadPipettesAreRefused) {
+  const Ball b = make_ball(56e-6, 400);
+  HoldingPipetteDef def;
+  def.enabled = true;
+  def.inner_radius = 40e-6;  // wider than the cell
+  Result<HoldingSetup> h =
+      make_holding(def, b.surface, b.mesh.rest_positions, Vec3d{0, 0, 0}, Vec3d{1, 0, 0});
+  ASSERT_FALSE(h.ok());
+  EXPECT_NE(h.error().message.find("not smaller than the cell radius"), std::string::npos);
+  def.inner_radius = 0.05e-6;  // narrower than any triangle
+  h = make_holding(def, b.surface, b.mesh.rest_positions, Vec3d{0, 0, 0}, Vec3d{1, 0, 0});
+  ASSERT_FALSE(h.ok());
+  EXPECT_NE(h.error().message.find("no surface triangle"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace zona
