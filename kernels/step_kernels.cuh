@@ -14,7 +14,7 @@
 
 #include "engine/sim/integrator.h"
 #include "kernels/device_layout.h"
-#include "kernels/element_eval.h"
+#include "engine/fem/element_eval.h"
 
 namespace zona::cuda {
 

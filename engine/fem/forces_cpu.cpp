@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "engine/core/simd_pack.h"
+#include "engine/fem/element_eval.h"
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -20,54 +21,25 @@
 namespace zona {
 namespace {
 
-// One element evaluation per tensor formulation: forces f[4] [N] written, energy [J] returned,
-// ElementHealth bits in *bits. Each is a thin wrapper over fem_element.h. (The gradient form,
-// the inversion-safe SVK included, runs in the batched passes below.)
-
-// Stable neo-Hookean, gradient form (float64; there is no batched SIMD pass for it).
-struct SnhGradient {
+// One element evaluation per formulation that the batched passes below do not cover (the stable
+// neo-Hookean law and the tensor forms): eval_element (engine/fem/element_eval.h), the function
+// the CUDA kernels call, here in float64: forces f[4] [N] written, energy [J] returned,
+// ElementHealth bits in *bits.
+template <ElementKind K>
+struct ElementOf {
   static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
     const Lame& l = m.tet_lame(t);
-    return tet_snh_forces(m.tet_shape[t], l.lambda, l.mu, u, f, bits);
+    const double* tensors = nullptr;
+    if constexpr (element_kind_stored(K)) tensors = m.tensors.tet(t);
+    return eval_element<K, double>(m.tet_shape[t], l.lambda, l.mu, tensors, 0.0, true, u, f,
+                                   bits);
   }
 };
-
-// Health for the tensor forms: they never form H, so it is formed here for the checks only.
-inline uint32_t tensor_form_health(const Model& m, size_t t, const Vec3d u[4]) {
-  const Mat3d h = tet_displacement_gradient(m.tet_shape[t], u);
-  if (m.constitutive == ConstitutiveModel::kSvk) return tet_health(h);
-  return determinant(Mat3d::identity() + h) > 0 ? 0u : uint32_t{kElementInverted};
-}
-
-struct SvkTensorStored {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    *bits = tensor_form_health(m, t, u);
-    return tet_svk_forces_tensor(m.tensors.tet(t), u, f);
-  }
-};
-
-struct SvkTensorRebuilt {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    *bits = tensor_form_health(m, t, u);
-    const Lame& l = m.tet_lame(t);
-    return tet_svk_forces_rebuilt(m.tet_shape[t], l.lambda, l.mu, u, f);
-  }
-};
-
-struct LinearTensorStored {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    *bits = tensor_form_health(m, t, u);
-    return tet_linear_forces_tensor(m.tensors.tet(t), u, f);
-  }
-};
-
-struct LinearTensorRebuilt {
-  static double eval(const Model& m, size_t t, const Vec3d u[4], Vec3d f[4], uint32_t* bits) {
-    *bits = tensor_form_health(m, t, u);
-    const Lame& l = m.tet_lame(t);
-    return tet_linear_forces_rebuilt(m.tet_shape[t], l.lambda, l.mu, u, f);
-  }
-};
+using SnhGradient = ElementOf<ElementKind::kSnhGradient>;
+using SvkTensorStored = ElementOf<ElementKind::kSvkStored>;
+using SvkTensorRebuilt = ElementOf<ElementKind::kSvkRebuilt>;
+using LinearTensorStored = ElementOf<ElementKind::kLinearStored>;
+using LinearTensorRebuilt = ElementOf<ElementKind::kLinearRebuilt>;
 
 struct PassContext {
   const Model* model;
@@ -80,7 +52,7 @@ struct PassContext {
 // exactly the scalar operations in the scalar order, so the results are bit-identical to the
 // scalar element functions (tests check it); only the instruction count drops.
 
-// Element math of one batch, as the scalar functions compose it (kernels/element_eval.h):
+// Element math of one batch, as eval_element composes it (engine/fem/element_eval.h):
 // corner forces f and energy w [J]. Returns |H|^2 (Frobenius) per lane, the health check's
 // filter (batch_pass), and hands it to `filter` as soon as it is formed: the clamped passes
 // test it there, while few packs are live, rather than beside the forces' 12 packs.
@@ -426,7 +398,7 @@ template <class L>
 // The clamped SVK (InversionHandling::kClampStretch) in a batch whose |H|^2 filter failed: the
 // batch's element math again, as the pass forms it, the clamp, and the scatter. (Formed and
 // scattered here rather than handed over and back: a pass that keeps its forces for such a call
-// keeps them in memory in every batch.) The scalar clamped element (kernels/element_eval.h's
+// keeps them in memory in every batch.) The scalar clamped element (engine/fem/element_eval.h's
 // kSvkGradientClamped; the CPU's per-tetrahedron pass until the batched passes took it over)
 // clamps where the element is inverted or a stretch is below m.clamp_stretch
 // (tet_health_from_strain at that stretch); the same quantities are formed here lane by lane in

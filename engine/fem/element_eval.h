@@ -1,7 +1,10 @@
-// One element evaluation per (constitutive law, formulation), composed from fem_element.h exactly
-// as the CPU element pass composes it (engine/fem/forces_cpu.cpp): forces f[4] written, energy
-// returned, ElementHealth bits in *bits. ZONA_HOST_DEVICE and templated on the scalar, so the
-// CUDA kernels evaluate the same functions in float32 that the CPU evaluates in float64.
+// The element function: one evaluation per (constitutive law, formulation), composed from
+// fem_element.h: forces f[4] written, energy returned, ElementHealth bits in *bits.
+// ZONA_HOST_DEVICE and templated on the scalar: the CUDA kernels call it in float32, the CPU's
+// scalar passes (engine/fem/forces_cpu.cpp, ElementOf) in float64. The CPU's batched SIMD passes
+// of the gradient kinds compose the same fem_element.h functions on packs, bit-identical to
+// this function per lane (tests/engine/fem/forces_simd_test.cpp), and an FMA variant that
+// rearranges the algebra (same file, tested against it).
 #pragma once
 
 #include <cstdint>
