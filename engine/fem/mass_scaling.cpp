@@ -79,18 +79,16 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
   model.omega_max = 0;
   model.dt = dt_safety * dt_crit;
   model.mass_scaling = report.mass_before > 0 ? report.mass_after / report.mass_before : 1.0;
-  for (size_t v = 0; v < nv; ++v) {
-    const double m = model.vertex_mass[v];
-    const double gamma = model.vertex_damping[v];
-    VertexCoefficients& k = model.vertex_coefficients[v];
-    if (m > 0) {
-      const double denom = m + 0.5 * gamma * model.dt;
-      k = {2.0 * m / denom, (m - 0.5 * gamma * model.dt) / denom, model.dt * model.dt / denom};
-    } else {
-      k = {1.0, 0.0, 0.0};
-    }
-  }
+  for (size_t v = 0; v < nv; ++v)
+    model.vertex_coefficients[v] =
+        vertex_coefficients(model.vertex_mass[v], model.vertex_damping[v], model.dt);
   return report;
+}
+
+VertexCoefficients vertex_coefficients(double mass, double gamma, double dt) {
+  if (!(mass > 0)) return {1.0, 0.0, 0.0};
+  const double denom = mass + 0.5 * gamma * dt;
+  return {2.0 * mass / denom, (mass - 0.5 * gamma * dt) / denom, dt * dt / denom};
 }
 
 void set_vertex_mass(Model& model, size_t v, double mass) {
@@ -98,14 +96,7 @@ void set_vertex_mass(Model& model, size_t v, double mass) {
   const double rate = m > 0 ? model.vertex_damping[v] / m : 0.0;
   model.vertex_mass[v] = mass;
   model.vertex_damping[v] = rate * mass;
-  const double gamma = model.vertex_damping[v], dt = model.dt;
-  if (mass > 0) {
-    const double denom = mass + 0.5 * gamma * dt;
-    model.vertex_coefficients[v] = {2.0 * mass / denom, (mass - 0.5 * gamma * dt) / denom,
-                                    dt * dt / denom};
-  } else {
-    model.vertex_coefficients[v] = {1.0, 0.0, 0.0};
-  }
+  model.vertex_coefficients[v] = vertex_coefficients(mass, model.vertex_damping[v], model.dt);
 }
 
 }  // namespace zona

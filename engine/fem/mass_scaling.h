@@ -33,6 +33,11 @@ struct SelectiveScalingReport {
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
                                                             double dt_safety);
 
+/// Centred-difference update coefficients of a vertex of mass M [kg] and damping gamma [kg/s] at
+/// step dt [s]: a = 2M / (M + gamma dt/2), b = (M - gamma dt/2) / (M + gamma dt/2),
+/// c = dt^2 / (M + gamma dt/2); a massless vertex (no tetrahedron uses it) stays where it is.
+VertexCoefficients vertex_coefficients(double mass, double gamma, double dt);
+
 /// Sets vertex v's mass [kg], keeping its damping rate gamma / M, and its update coefficients
 /// at the model's step.
 void set_vertex_mass(Model& model, size_t v, double mass);

@@ -9,6 +9,7 @@
 #include <type_traits>
 
 #include "engine/fem/forces_cpu.h"
+#include "engine/fem/mass_scaling.h"
 
 namespace zona {
 namespace {
@@ -240,18 +241,9 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
         model.dt, model.dt_critical,
         desc.critical_step == CriticalStep::kPowerIteration ? "2/omega_max" : "element bound",
         model.min_altitude, model.max_wave_speed, scaling);
-  for (size_t v = 0; v < nv; ++v) {
-    const double m = model.vertex_mass[v];
-    const double gamma = model.vertex_damping[v];
-    VertexCoefficients& k = model.vertex_coefficients[v];
-    if (m > 0) {
-      const double denom = m + 0.5 * gamma * model.dt;
-      k = {2.0 * m / denom, (m - 0.5 * gamma * model.dt) / denom, model.dt * model.dt / denom};
-    } else {
-      // A vertex no tetrahedron uses has no mass and feels no force: it stays where it is.
-      k = {1.0, 0.0, 0.0};
-    }
-  }
+  for (size_t v = 0; v < nv; ++v)
+    model.vertex_coefficients[v] =
+        vertex_coefficients(model.vertex_mass[v], model.vertex_damping[v], model.dt);
 
   model.energy_floor = min_mu * total_volume * 1e-16;
 
