@@ -612,15 +612,14 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_linear_forces_tensor(const T* k, const Vec3<T
   return w;
 }
 
-/// SVK mass-tensor force f_p = -dW/du_p [N] from stored tensors t[kSvkTensorSize] (seed 000
-/// eqs. 5-6, with the derivative taken of the energy as written, no symmetry assumed); energy
-/// [J] returned.
-template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u[4],
-                                                    Vec3<T> f[4]) {
-  const T* b = t;
-  const T* c = t + kTensorBSize;
-  const T* d = c + kTensorCSize;
+/// The SVK mass-tensor contraction (seed 000 eqs. 3-6, DESIGN.md section 3) with the tensors
+/// given by a source: src.b(j, k, &bu, &btu) gives B_jk u_k and B_jk^T u_j, src.c(j, k, l) the
+/// vector C_jkl, src.d(j, k, l, m) the number D_jklm. Forces f[4] [N] written, energy [J]
+/// returned. The stored tensors (SvkStoredTensors) and the ones rebuilt in registers from the
+/// face vectors (SvkRebuiltTensors) share it: one contraction, two sources.
+template <class T, class Source>
+ZONA_HOST_DEVICE ZONA_INLINE T svk_tensor_contraction(const Source& src, const Vec3<T> u[4],
+                                                     Vec3<T> f[4]) {
   T uu[4][4];  // u_j . u_k
   for (int j = 0; j < 4; ++j)
     for (int k = 0; k < 4; ++k) uu[j][k] = dot(u[j], u[k]);
@@ -629,13 +628,8 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u
   // Quadratic: d/du_p sum u_j^T B_jk u_k = sum_k B_pk u_k + sum_j B_jp^T u_j.
   for (int j = 0; j < 4; ++j)
     for (int k = 0; k < 4; ++k) {
-      const T* bb = b + (4 * j + k) * 9;
-      const Vec3<T> bu{bb[0] * u[k].x + bb[1] * u[k].y + bb[2] * u[k].z,
-                       bb[3] * u[k].x + bb[4] * u[k].y + bb[5] * u[k].z,
-                       bb[6] * u[k].x + bb[7] * u[k].y + bb[8] * u[k].z};
-      const Vec3<T> btu{bb[0] * u[j].x + bb[3] * u[j].y + bb[6] * u[j].z,
-                        bb[1] * u[j].x + bb[4] * u[j].y + bb[7] * u[j].z,
-                        bb[2] * u[j].x + bb[5] * u[j].y + bb[8] * u[j].z};
+      Vec3<T> bu{0, 0, 0}, btu{0, 0, 0};
+      src.b(j, k, &bu, &btu);
       w2 += dot(u[j], bu);
       g[j] += bu;
       g[k] += btu;
@@ -647,9 +641,9 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u
     for (int k = 0; k < 4; ++k) {
       T acc = 0;
       for (int l = 0; l < 4; ++l) {
-        const T* cc = c + ((4 * j + k) * 4 + l) * 3;
-        acc += cc[0] * u[l].x + cc[1] * u[l].y + cc[2] * u[l].z;
-        g[l] += uu[j][k] * Vec3<T>{cc[0], cc[1], cc[2]};
+        const Vec3<T> cv = src.c(j, k, l);
+        acc += dot(cv, u[l]);
+        g[l] += uu[j][k] * cv;
       }
       cjk[j][k] = acc;
       w3 += uu[j][k] * acc;
@@ -663,7 +657,7 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u
     for (int k = 0; k < 4; ++k)
       for (int l = 0; l < 4; ++l)
         for (int m = 0; m < 4; ++m) {
-          const T dv = d[((4 * j + k) * 4 + l) * 4 + m];
+          const T dv = src.d(j, k, l, m);
           w4 += dv * uu[j][k] * uu[l][m];
           gjk[j][k] += dv * uu[l][m];
           gjk[l][m] += dv * uu[j][k];
@@ -673,6 +667,38 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u
       g[p] += (cjk[p][k] + cjk[k][p] + gjk[p][k] + gjk[k][p]) * u[k];
   for (int p = 0; p < 4; ++p) f[p] = -g[p];
   return w2 + w3 + w4;
+}
+
+/// Stored SVK tensors (svk_mass_tensors' layout) as a contraction source.
+template <class T>
+struct SvkStoredTensors {
+  const T* t;           ///< B, then C, then D (kSvkTensorSize numbers)
+  const Vec3<T>* u;     ///< the corner displacements (for B u)
+  ZONA_HOST_DEVICE void b(int j, int k, Vec3<T>* bu, Vec3<T>* btu) const {
+    const T* bb = t + (4 * j + k) * 9;
+    *bu = Vec3<T>{bb[0] * u[k].x + bb[1] * u[k].y + bb[2] * u[k].z,
+                  bb[3] * u[k].x + bb[4] * u[k].y + bb[5] * u[k].z,
+                  bb[6] * u[k].x + bb[7] * u[k].y + bb[8] * u[k].z};
+    *btu = Vec3<T>{bb[0] * u[j].x + bb[3] * u[j].y + bb[6] * u[j].z,
+                   bb[1] * u[j].x + bb[4] * u[j].y + bb[7] * u[j].z,
+                   bb[2] * u[j].x + bb[5] * u[j].y + bb[8] * u[j].z};
+  }
+  ZONA_HOST_DEVICE Vec3<T> c(int j, int k, int l) const {
+    const T* cc = t + kTensorBSize + ((4 * j + k) * 4 + l) * 3;
+    return Vec3<T>{cc[0], cc[1], cc[2]};
+  }
+  ZONA_HOST_DEVICE T d(int j, int k, int l, int m) const {
+    return t[kTensorBSize + kTensorCSize + ((4 * j + k) * 4 + l) * 4 + m];
+  }
+};
+
+/// SVK mass-tensor force f_p = -dW/du_p [N] from stored tensors t[kSvkTensorSize] (seed 000
+/// eqs. 5-6, with the derivative taken of the energy as written, no symmetry assumed); energy
+/// [J] returned.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_tensor(const T* t, const Vec3<T> u[4],
+                                                    Vec3<T> f[4]) {
+  return svk_tensor_contraction(SvkStoredTensors<T>{t, u}, u, f);
 }
 
 /// Linear mass-tensor force with K rebuilt in registers from m_j and V (no stored tensors).
@@ -696,69 +722,45 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_linear_forces_rebuilt(const TetShape<T>& s, T
   return w;
 }
 
+/// SVK tensors rebuilt in registers from the face vectors m_j and the volume V, as a
+/// contraction source (the same numbers svk_mass_tensors stores, formed where they are used).
+template <class T>
+struct SvkRebuiltTensors {
+  Vec3<T> m[4];
+  const Vec3<T>* u;
+  T lambda, mu, s2, s3, s4;
+  T mm[4][4], mu_[4][4];  // m_j.m_k, m_j.u_k
+  ZONA_HOST_DEVICE SvkRebuiltTensors(const TetShape<T>& s, T lambda_, T mu_in, const Vec3<T>* u_)
+      : u(u_), lambda(lambda_), mu(mu_in) {
+    for (int j = 0; j < 4; ++j) m[j] = tet_face_vector(s, j);
+    const T v = s.volume;
+    s2 = T(1) / (T(72) * v);
+    s3 = T(1) / (T(432) * v * v);
+    s4 = T(1) / (T(10368) * v * v * v);
+    for (int j = 0; j < 4; ++j)
+      for (int k = 0; k < 4; ++k) {
+        mm[j][k] = dot(m[j], m[k]);
+        mu_[j][k] = dot(m[j], u[k]);
+      }
+  }
+  ZONA_HOST_DEVICE void b(int j, int k, Vec3<T>* bu, Vec3<T>* btu) const {
+    *bu = s2 * ((lambda * mu_[k][k]) * m[j] + (mu * mu_[j][k]) * m[k] + (mu * mm[j][k]) * u[k]);
+    *btu = s2 * ((lambda * mu_[j][j]) * m[k] + (mu * mu_[k][j]) * m[j] + (mu * mm[j][k]) * u[j]);
+  }
+  ZONA_HOST_DEVICE Vec3<T> c(int j, int k, int l) const {
+    return s3 * ((lambda * mm[j][k]) * m[l] + (mu * mm[k][l]) * m[j] + (mu * mm[j][l]) * m[k]);
+  }
+  ZONA_HOST_DEVICE T d(int j, int k, int l, int q) const {
+    return s4 * (lambda * mm[j][k] * mm[l][q] + T(2) * mu * mm[j][l] * mm[k][q]);
+  }
+};
+
 /// SVK mass-tensor force with B, C, D rebuilt in registers from m_j and V, contracted exactly as
-/// tet_svk_forces_tensor contracts the stored ones; energy [J] returned.
+/// tet_svk_forces_tensor contracts the stored ones (svk_tensor_contraction); energy [J] returned.
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE T tet_svk_forces_rebuilt(const TetShape<T>& s, T lambda, T mu,
                                                      const Vec3<T> u[4], Vec3<T> f[4]) {
-  Vec3<T> m[4];
-  for (int j = 0; j < 4; ++j) m[j] = tet_face_vector(s, j);
-  const T v = s.volume;
-  const T s2 = T(1) / (T(72) * v), s3 = T(1) / (T(432) * v * v),
-          s4 = T(1) / (T(10368) * v * v * v);
-  T mm[4][4], uu[4][4], mu_[4][4];  // m_j.m_k, u_j.u_k, m_j.u_k
-  for (int j = 0; j < 4; ++j)
-    for (int k = 0; k < 4; ++k) {
-      mm[j][k] = dot(m[j], m[k]);
-      uu[j][k] = dot(u[j], u[k]);
-      mu_[j][k] = dot(m[j], u[k]);
-    }
-  Vec3<T> g[4] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
-  T w2 = 0, w3 = 0, w4 = 0;
-  // Quadratic: B_jk u_k and B_jk^T u_j from their definitions.
-  for (int j = 0; j < 4; ++j)
-    for (int k = 0; k < 4; ++k) {
-      const Vec3<T> bu =
-          s2 * ((lambda * mu_[k][k]) * m[j] + (mu * mu_[j][k]) * m[k] + (mu * mm[j][k]) * u[k]);
-      const Vec3<T> btu =
-          s2 * ((lambda * mu_[j][j]) * m[k] + (mu * mu_[k][j]) * m[j] + (mu * mm[j][k]) * u[j]);
-      w2 += dot(u[j], bu);
-      g[j] += bu;
-      g[k] += btu;
-    }
-  // Cubic: C_jkl . u_l and C_jkl as vectors.
-  T cjk[4][4];
-  for (int j = 0; j < 4; ++j)
-    for (int k = 0; k < 4; ++k) {
-      T acc = 0;
-      for (int l = 0; l < 4; ++l) {
-        acc += s3 * (lambda * mm[j][k] * mu_[l][l] + mu * mm[k][l] * mu_[j][l] +
-                     mu * mm[j][l] * mu_[k][l]);
-        const Vec3<T> cv =
-            s3 * ((lambda * mm[j][k]) * m[l] + (mu * mm[k][l]) * m[j] + (mu * mm[j][l]) * m[k]);
-        g[l] += uu[j][k] * cv;
-      }
-      cjk[j][k] = acc;
-      w3 += uu[j][k] * acc;
-    }
-  // Quartic: D_jklm from the face-vector dot products.
-  T gjk[4][4];
-  for (int j = 0; j < 4; ++j)
-    for (int k = 0; k < 4; ++k) gjk[j][k] = 0;
-  for (int j = 0; j < 4; ++j)
-    for (int k = 0; k < 4; ++k)
-      for (int l = 0; l < 4; ++l)
-        for (int q = 0; q < 4; ++q) {
-          const T dv = s4 * (lambda * mm[j][k] * mm[l][q] + T(2) * mu * mm[j][l] * mm[k][q]);
-          w4 += dv * uu[j][k] * uu[l][q];
-          gjk[j][k] += dv * uu[l][q];
-          gjk[l][q] += dv * uu[j][k];
-        }
-  for (int p = 0; p < 4; ++p)
-    for (int k = 0; k < 4; ++k)
-      g[p] += (cjk[p][k] + cjk[k][p] + gjk[p][k] + gjk[k][p]) * u[k];
-  for (int p = 0; p < 4; ++p) f[p] = -g[p];
-  return w2 + w3 + w4;
+  return svk_tensor_contraction(SvkRebuiltTensors<T>(s, lambda, mu, u), u, f);
 }
 
 // ---------------------------------------------------------------------------------------------
