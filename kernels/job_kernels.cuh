@@ -114,21 +114,26 @@ __global__ void __launch_bounds__(kBlock)
     corner[1] = c4.y;
     corner[2] = c4.z;
     const double lu = tl.length_unit, inv_dt = 1.0 / p.dt;
+    // Positions first: most triangles are far from the needle and need nothing else.
     ToolFaceInput in;
     for (int c = 0; c < 3; ++c) {
       const int k = corner[c];
-      const size_t v = static_cast<size_t>(tl.vertex[k]);
-      const double* un = vp.u + 3 * v;
-      const double* up = vp.u_prev + 3 * v;
+      const double* un = vp.u + 3 * static_cast<size_t>(tl.vertex[k]);
       in.x[c] = Vec3d{tl.rest[3 * k] + un[0] * lu, tl.rest[3 * k + 1] + un[1] * lu,
                       tl.rest[3 * k + 2] + un[2] * lu};
-      in.velocity[c] = Vec3d{(un[0] - up[0]) * lu * inv_dt, (un[1] - up[1]) * lu * inv_dt,
-                             (un[2] - up[2]) * lu * inv_dt};
-      in.mass[c] = tl.mass[k];
     }
-    in.area = face_area[f];
     const ToolPose pose = job->pose;
-    if (needle_face_may_touch(p, pose, in))
+    if (needle_face_may_touch(p, pose, in)) {
+      for (int c = 0; c < 3; ++c) {
+        const int k = corner[c];
+        const size_t v = static_cast<size_t>(tl.vertex[k]);
+        const double* un = vp.u + 3 * v;
+        const double* up = vp.u_prev + 3 * v;
+        in.velocity[c] = Vec3d{(un[0] - up[0]) * lu * inv_dt, (un[1] - up[1]) * lu * inv_dt,
+                               (un[2] - up[2]) * lu * inv_dt};
+        in.mass[c] = tl.mass[k];
+      }
+      in.area = face_area[f];
       for (int q = lane; q < kFacePoints; q += kFaceLanes) {
         Vec3d force;
         double b[3];
@@ -137,6 +142,7 @@ __global__ void __launch_bounds__(kBlock)
           for (int j = 0; j < 3; ++j) load[3 * c + j] += b[c] * force[j];
         ++contact;
       }
+    }
   }
   // Sum the triangle's lanes onto its first one.
   for (int offset = kFaceLanes / 2; offset > 0; offset /= 2) {
@@ -360,19 +366,15 @@ __global__ void __launch_bounds__(kBlock)
   const int4 id = tp.vertices[t];
   float lambda, mu;
   const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
-  const int v[4] = {id.x, id.y, id.z, id.w};
-  const double* p0 = u + 3 * static_cast<size_t>(v[0]);
   Vec3f du[3];
-  for (int c = 1; c < 4; ++c) {
-    const double* pc = u + 3 * static_cast<size_t>(v[c]);
-    du[c - 1] = Vec3f{float(pc[0] - p0[0]), float(pc[1] - p0[1]), float(pc[2] - p0[2])};
-  }
+  load_relative_displacements(u, id, du);
   const Mat3f h = tet_displacement_gradient_from_edges(s, du);
   const float growth = tet_stiffening(s, h, lambda, mu, static_cast<StiffeningLaw>(law));
   if (!(growth > gate)) return;
   const float need = growth * tet_need[t];
+  const int corner[4] = {id.x, id.y, id.z, id.w};
   for (int c = 0; c < 4; ++c)
-    atomicMax(reinterpret_cast<int*>(vertex_need + v[c]), __float_as_int(need));
+    atomicMax(reinterpret_cast<int*>(vertex_need + corner[c]), __float_as_int(need));
 }
 
 // Dynamic mass scaling, vertex side: a free vertex whose mass falls short of its elements' need

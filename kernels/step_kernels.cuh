@@ -164,6 +164,20 @@ __device__ __forceinline__ TetShape<float> load_shape(const TetParams& tp, int t
                                c.y);
 }
 
+/// Displacements of corners 1..3 of the tetrahedron with device vertices `id` relative to corner 0
+/// (u_c - u_0), formed in float64 and rounded to float32 [length_unit]: a large rigid
+/// displacement of the cell costs no digits of strain.
+__device__ __forceinline__ void load_relative_displacements(const double* u64, int4 id,
+                                                            Vec3f du[3]) {
+  const int v[4] = {id.x, id.y, id.z, id.w};
+  const double* p0 = u64 + 3 * static_cast<size_t>(v[0]);
+  const double x0 = p0[0], y0 = p0[1], z0 = p0[2];
+  for (int c = 1; c < 4; ++c) {
+    const double* p = u64 + 3 * static_cast<size_t>(v[c]);
+    du[c - 1] = Vec3f{float(p[0] - x0), float(p[1] - y0), float(p[2] - z0)};
+  }
+}
+
 /// Evaluates device tetrahedron t at displacements u (float64): corner forces [force_unit] and
 /// energy [stress_unit length_unit^3]; health bits go to the status (rare path). The element is
 /// translated so that corner 0 sits at zero (energy and forces depend on displacement
@@ -175,15 +189,9 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
                                                  bool record_health) {
   float lambda, mu;
   const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
-  const int v[4] = {id.x, id.y, id.z, id.w};
   Vec3f u[4];
   u[0] = Vec3f{0, 0, 0};
-  const double* p0 = u64 + 3 * static_cast<size_t>(v[0]);
-  const double x0 = p0[0], y0 = p0[1], z0 = p0[2];
-  for (int c = 1; c < 4; ++c) {
-    const double* p = u64 + 3 * static_cast<size_t>(v[c]);
-    u[c] = Vec3f{float(p[0] - x0), float(p[1] - y0), float(p[2] - z0)};
-  }
+  load_relative_displacements(u64, id, &u[1]);
   const float* tensors = nullptr;
   if constexpr (element_kind_stored(K))
     tensors = tp.tensors + static_cast<size_t>(t) * static_cast<size_t>(tp.tensor_stride);

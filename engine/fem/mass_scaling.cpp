@@ -35,12 +35,10 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
   SelectiveScalingReport report;
 
   // Lumped volume per vertex and each element's stiffness measure.
-  std::vector<double> lumped(nv, 0.0), stiffness(nt, 0.0);
-  for (size_t t = 0; t < nt; ++t) {
-    const double quarter = model.tet_shape[t].volume / 4.0;
-    for (int32_t v : model.tets[t]) lumped[static_cast<size_t>(v)] += quarter;
+  const std::vector<double> lumped = vertex_lumped_volumes(model);
+  std::vector<double> stiffness(nt, 0.0);
+  for (size_t t = 0; t < nt; ++t)
     stiffness[t] = element_stiffness_measure(model.tet_shape[t], model.tet_lame(t));
-  }
 
   // Each vertex needs mass per lumped volume of at least (dt_crit_target)^2 S_e for every element
   // around it, so that rho_e = min over corners >= dt_crit_target^2 S_e.
@@ -83,6 +81,15 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
     model.vertex_coefficients[v] =
         vertex_coefficients(model.vertex_mass[v], model.vertex_damping[v], model.dt);
   return report;
+}
+
+std::vector<double> vertex_lumped_volumes(const Model& model) {
+  std::vector<double> lumped(model.vertex_count(), 0.0);
+  for (size_t t = 0; t < model.tet_count(); ++t) {
+    const double quarter = model.tet_shape[t].volume / 4.0;
+    for (int32_t v : model.tets[t]) lumped[static_cast<size_t>(v)] += quarter;
+  }
+  return lumped;
 }
 
 VertexCoefficients vertex_coefficients(double mass, double gamma, double dt) {

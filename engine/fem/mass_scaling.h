@@ -10,6 +10,8 @@
 // low modes, is scaled least, the few small elements most. docs/injection.md has the numbers.
 #pragma once
 
+#include <vector>
+
 #include "engine/core/base.h"
 #include "engine/fem/model.h"
 
@@ -32,6 +34,9 @@ struct SelectiveScalingReport {
 /// as it is. Errors: target_dt <= 0, dt_safety outside (0, 1]. Call right after build_model.
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
                                                             double dt_safety);
+
+/// Each vertex's lumped volume [m^3]: a quarter of every tetrahedron around it, (vertex_count).
+std::vector<double> vertex_lumped_volumes(const Model& model);
 
 /// Centred-difference update coefficients of a vertex of mass M [kg] and damping gamma [kg/s] at
 /// step dt [s]: a = 2M / (M + gamma dt/2), b = (M - gamma dt/2) / (M + gamma dt/2),

@@ -124,13 +124,18 @@ class CpuJobRunner final : public JobRunner {
     if (p.needle_on_faces) {
       std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
       for (size_t f = 0; f < setup_.tool_faces.size(); ++f) {
+        // Positions first: most triangles are far from the needle and need nothing else.
         ToolFaceInput in;
+        size_t v[3];
         for (int c = 0; c < 3; ++c) {
-          const size_t v = static_cast<size_t>(
+          v[c] = static_cast<size_t>(
               setup_.tool_vertices[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])]);
-          in.x[c] = model_.rest_positions[v] + state_.u[v];
-          in.velocity[c] = inv_dt * (state_.u[v] - state_.u_prev[v]);
-          in.mass[c] = model_.vertex_mass[v];
+          in.x[c] = model_.rest_positions[v[c]] + state_.u[v[c]];
+        }
+        if (!needle_face_may_touch(p, job_.pose, in)) continue;
+        for (int c = 0; c < 3; ++c) {
+          in.velocity[c] = inv_dt * (state_.u[v[c]] - state_.u_prev[v[c]]);
+          in.mass[c] = model_.vertex_mass[v[c]];
         }
         in.area = setup_.tool_face_area[f];
         const ToolFaceForce ff = needle_face_force(p, job_.pose, in);

@@ -163,12 +163,9 @@ Status Simulation::prepare_job() {
     p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
                                           ? StiffeningLaw::kStableNeoHookean
                                           : StiffeningLaw::kSvk);
-    const size_t nv = model_.vertex_count(), nt = model_.tet_count();
-    js.vertex_volume.assign(nv, 0.0);
+    const size_t nt = model_.tet_count();
+    js.vertex_volume = vertex_lumped_volumes(model_);
     js.tet_rest_need.assign(nt, 0.0);
-    for (size_t t = 0; t < nt; ++t)
-      for (int32_t v : model_.tets[t])
-        js.vertex_volume[static_cast<size_t>(v)] += 0.25 * model_.tet_shape[t].volume;
     const double scale = (dt / safety) * (dt / safety);
     double gate = std::numeric_limits<double>::infinity();
     for (size_t t = 0; t < nt; ++t) {
