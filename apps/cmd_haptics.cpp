@@ -13,6 +13,7 @@
 #include "apps/commands.h"
 #include "engine/haptics/haptics_loop.h"
 #include "engine/scene/scene.h"
+#include "engine/sim/recorder.h"
 #include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
 
@@ -70,7 +71,7 @@ class SimulationPortAdapter final : public HapticSimulationPort {
       sim_.set_needle_tip(tip_);
     }
     const StepStatus status = sim_.step2();
-    if (status & kStepNotAdvanced) return false;
+    if (status & kStepFailed) return false;  // never sent: the device keeps the last healthy one
     const NeedleReport& r = sim_.report();
     const Vec3d axis = sim_.needle_script().direction;
     sample.sim_time = r.time;
@@ -235,13 +236,16 @@ void run_haptics(const HapticsArgs& a) {
   const NeedleReport& r = (*sim)->report();
   // A simulation that failed its health check (blow-up, non-finite) stopped there: the loop
   // kept rendering its last healthy sample. Say so.
-  const bool sim_failed = (r.status & (kStepEnergyBlowUp | kStepNonFinite)) != 0;
-  if (sim_failed)
+  const bool sim_failed = (r.status & kStepFailed) != 0;
+  if (sim_failed) {
+    std::string why;
+    for (const std::string& name : step_flag_names(r.status & kStepFailed))
+      why += (why.empty() ? "" : ", ") + name;
     std::fprintf(stderr,
                  "zona haptics: the simulation stopped at t %.6g s (step %lld): %s; the device "
                  "was sent its last healthy sample from then on\n",
-                 r.time, static_cast<long long>(port.steps()),
-                 (r.status & kStepNonFinite) ? "non-finite state" : "energy blow-up");
+                 r.time, static_cast<long long>(port.steps()), why.c_str());
+  }
   const double puncture_s =
       port.puncture_wall_ns() < 0
           ? -1.0

@@ -106,6 +106,7 @@ __global__ void __launch_bounds__(kBlock)
   const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
   const int f = t / kFaceLanes, lane = t % kFaceLanes;
   double load[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+  double depth = 0;  // deepest of this thread's points inside the needle
   int contact = 0;
   int corner[3] = {0, 0, 0};
   if (f < face_count) {
@@ -136,11 +137,12 @@ __global__ void __launch_bounds__(kBlock)
       in.area = face_area[f];
       for (int q = lane; q < kFacePoints; q += kFaceLanes) {
         Vec3d force;
-        double b[3];
-        if (!needle_face_point(p, pose, in, q, &force, b)) continue;
+        double b[3], point_depth = 0;
+        if (!needle_face_point(p, pose, in, q, &force, &point_depth, b)) continue;
         for (int c = 0; c < 3; ++c)
           for (int j = 0; j < 3; ++j) load[3 * c + j] += b[c] * force[j];
         ++contact;
+        depth = fmax(depth, point_depth);
       }
     }
   }
@@ -161,6 +163,7 @@ __global__ void __launch_bounds__(kBlock)
   }
   if (__syncthreads_or(contacts > 0)) {
     for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
+    block_max_store(depth, &sums->needle_depth);
     using Reduce = cub::BlockReduce<int, kBlock>;
     __shared__ typename Reduce::TempStorage temp;
     const int nc = Reduce(temp).Sum(contacts);
@@ -217,6 +220,7 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   total.tool_work = vs->tool_work;
   total.needle_contacts = vs->needle_contacts;
   total.rim_contacts = vs->rim_contacts;
+  total.needle_depth = vs->needle_depth;
   tot.kinetic_energy = static_cast<const volatile DeviceStatus*>(st)->kinetic_energy;
   // The job's scalars in registers for the stage (one load and one store of the block, not a
   // chain of dependent global accesses on the step's serial tail).
@@ -268,7 +272,7 @@ __global__ void __launch_bounds__(kBlock)
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
   const int v = blockIdx.x * kBlock + threadIdx.x;
   VertexDiag d;
-  double work = 0, nf[3] = {0, 0, 0}, rf[3] = {0, 0, 0};
+  double work = 0, nf[3] = {0, 0, 0}, rf[3] = {0, 0, 0}, needle_depth = 0;
   int needle_contacts = 0, rim_contacts = 0;
   bool tool_block = false;
   if (v < vp.vertex_count) {
@@ -301,6 +305,7 @@ __global__ void __launch_bounds__(kBlock)
       }
       needle_contacts = t.needle_contact;
       rim_contacts = t.rim_contact;
+      needle_depth = t.needle_depth;
       tool_block = true;
     }
     if (damp) {
@@ -327,6 +332,7 @@ __global__ void __launch_bounds__(kBlock)
     block_sum_add(work, &sums->tool_work);
     for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
     for (int c = 0; c < 3; ++c) block_sum_add(rf[c], &sums->rim_force[c]);
+    if (!p.needle_on_faces) block_max_store(needle_depth, &sums->needle_depth);
     using Reduce = cub::BlockReduce<int, kBlock>;
     __shared__ typename Reduce::TempStorage temp;
     const int nc = Reduce(temp).Sum(needle_contacts);

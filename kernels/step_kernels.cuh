@@ -149,6 +149,22 @@ __device__ __forceinline__ void block_sum_add(double v, double* dst) {
   __syncthreads();  // temp is reused by the next call
 }
 
+/// The larger of two values (the reduction operator of block_max_store).
+struct MaxOf {
+  __device__ __forceinline__ double operator()(double a, double b) const { return a > b ? a : b; }
+};
+
+/// Raises *dst to the block's largest v (v >= 0: a non-negative double orders as its bits).
+__device__ __forceinline__ void block_max_store(double v, double* dst) {
+  using Reduce = cub::BlockReduce<double, kBlock>;
+  __shared__ typename Reduce::TempStorage temp;
+  const double m = Reduce(temp).Reduce(v, MaxOf{});
+  if (threadIdx.x == 0 && m > 0)
+    atomicMax(reinterpret_cast<unsigned long long*>(dst),
+              static_cast<unsigned long long>(__double_as_longlong(m)));
+  __syncthreads();  // temp is reused by the next call
+}
+
 /// Packed shape and material of device tetrahedron t.
 __device__ __forceinline__ TetShape<float> load_shape(const TetParams& tp, int t, float* lambda,
                                                       float* mu) {

@@ -31,6 +31,10 @@ enum StepStatusBits : uint32_t {
   /// Model::dt is above Model::dt_critical. Without the model's unsafe override the step is
   /// refused and the state not advanced; with it the step runs and carries this flag.
   kStepDtAboveCritical = 1u << 5,
+  /// The injection job (engine/sim/job.h) found a surface point deeper inside the needle than
+  /// JobParams::needle_breach_depth before puncture: the surface let the tool through. The
+  /// state was advanced and is finite; the job halts.
+  kStepToolBreach = 1u << 6,
 };
 
 /// OR of StepStatusBits.
@@ -38,6 +42,10 @@ using StepStatus = uint32_t;
 
 /// Flags after which the state was not advanced.
 inline constexpr StepStatus kStepNotAdvanced = kStepNonFinite;
+
+/// Flags of a state that failed its health check: nothing from it is a result (no puncture, no
+/// frame, no haptic sample).
+inline constexpr StepStatus kStepFailed = kStepNonFinite | kStepEnergyBlowUp | kStepToolBreach;
 
 /// One explicit step of length model.dt: internal forces at u_n, the centred-difference update
 /// of free vertices, fixed vertices at zero, prescribed vertices at their targets

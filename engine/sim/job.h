@@ -9,7 +9,7 @@
 //   4. integrate  centred difference with the loads of 1 and 2
 //   5. measure    needle force vector, holding force, contacts, deformation at the entry point,
 //                 energies, the work the tools put in (reductions)
-//   6. record     force filter, health and blow-up verdict, puncture test, the next tool pose,
+//   6. record     force filter, health verdict (blow-up, tool breach), puncture test, the next tool pose,
 //                 the step record (and a sample every output interval)
 //
 // Every per-vertex and per-step function here is ZONA_HOST_DEVICE: the CPU runner
@@ -132,6 +132,13 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double
   return out;
 }
 
+/// A surface point this far inside the needle, in tip radii, means the surface let the tool
+/// through (JobParams::needle_breach_depth). The penalty holds the loaded surface at a few
+/// percent of the radius (docs/injection.md); a point half a radius deep is past any pressure
+/// the contact was made for, and at a full radius the distance field's normal turns and pushes
+/// the surface around the tip instead of ahead of it.
+inline constexpr double kNeedleBreachFraction = 0.5;
+
 /// Puncture criteria the step evaluates (PunctureCriterion's values; strain is the kinematic
 /// contact's only).
 enum JobCriterion : int32_t { kJobCriterionNone = 0, kJobCriterionForce = 1, kJobCriterionEnergy = 3 };
@@ -151,6 +158,9 @@ struct JobParams {
   double needle_radius = 0;        ///< tip and shaft radius [m]
   double needle_pressure_stiffness = 0;  ///< contact pressure per penetration [Pa/m]
   double needle_friction = 0;      ///< Coulomb coefficient [-]
+  /// Before puncture, a contact point deeper than this inside the needle means the surface let
+  /// the tool through (job_finish_step halts: kStepToolBreach) [m]; 0: not checked.
+  double needle_breach_depth = 0;
   // Holding pipette (suction mode): the rim as a contact tool, suction ramped in.
   int32_t has_rim = 0;
   Vec3d rim_mouth{0, 0, 0};        ///< [m]
@@ -218,6 +228,7 @@ struct ToolVertexForce {
   Vec3d needle{0, 0, 0};  ///< the needle's part [N]
   Vec3d rim{0, 0, 0};     ///< the rim's and the suction's part [N]
   int32_t needle_contact = 0, rim_contact = 0;
+  double needle_depth = 0;  ///< how deep the vertex is inside the needle [m] (0 outside)
 };
 
 /// Penalty contact of one vertex against a tool: normal pressure kappa * penetration over the
@@ -246,6 +257,7 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
     const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius,
                                    p.needle_flat != 0, in.x);
     if (sdf.distance < 0) {
+      out.needle_depth = -sdf.distance;
       out.needle = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
                                                              p.needle_friction, in,
                                                              pose.tip_velocity, p.dt) +
@@ -287,6 +299,7 @@ struct ToolFaceInput {
 struct ToolFaceForce {
   Vec3d corner[3] = {};
   int32_t contacts = 0;
+  double depth = 0;  ///< deepest quadrature point inside the needle [m] (0: none inside)
 };
 
 /// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces): the penalty
@@ -328,11 +341,12 @@ ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* 
   *b2 = (j + off) / n;
 }
 
-/// The needle's load [N] at quadrature point q of a triangle (false, and nothing written, where
-/// the point is outside the needle), and the point's barycentric weights b[3].
+/// The needle's load [N] at quadrature point q of a triangle and how deep the point is inside
+/// the needle [m] (false, and nothing written, where the point is outside the needle), and the
+/// point's barycentric weights b[3].
 ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const ToolPose& pose,
                                                     const ToolFaceInput& in, int q, Vec3d* force,
-                                                    double b[3]) {
+                                                    double* depth, double b[3]) {
   face_point_weights(q, &b[1], &b[2]);
   b[0] = 1.0 - b[1] - b[2];
   ToolVertexInput pt;
@@ -340,6 +354,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const To
   const ToolSdf sdf =
       needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, pt.x);
   if (!(sdf.distance < 0)) return false;
+  *depth = -sdf.distance;
   constexpr double w = 1.0 / kFacePoints;
   pt.area = w * in.area;
   pt.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
@@ -359,10 +374,11 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
   if (!needle_face_may_touch(p, pose, in)) return out;
   for (int q = 0; q < kFacePoints; ++q) {
     Vec3d f;
-    double b[3];
-    if (!needle_face_point(p, pose, in, q, &f, b)) continue;
+    double b[3], depth = 0;
+    if (!needle_face_point(p, pose, in, q, &f, &depth, b)) continue;
     for (int c = 0; c < 3; ++c) out.corner[c] += b[c] * f;
     ++out.contacts;
+    out.depth = out.depth > depth ? out.depth : depth;
   }
   return out;
 }
@@ -374,6 +390,7 @@ struct JobSums {
   double tool_work = 0;                ///< work of the tool loads over the last increment [J]
   int32_t needle_contacts = 0;
   int32_t rim_contacts = 0;
+  double needle_depth = 0;  ///< deepest contact point inside the needle [m] (a maximum)
 };
 
 /// Puncture moment, as recorded on the device or the CPU.
@@ -404,6 +421,7 @@ struct JobRecord {
   double kinetic_energy = 0;    ///< [J]
   double energy_budget = 0;     ///< initial energy + work of the tools so far [J]
   int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
+  double needle_depth = 0;      ///< deepest contact point inside the needle [m]
   int32_t holding_contacts = 0; ///< vertices inside the rim
   uint32_t status = 0;          ///< StepStatusBits of the step (kStepNonFinite, kStepEnergyBlowUp...)
   int32_t halted = 0;           ///< the state failed its check: no later step was advanced
@@ -480,13 +498,15 @@ struct JobStepTotals {
 
 /// Stage 6: the record of the step that took s from t_n to t_{n+1}: force filter, blow-up
 /// verdict (a non-finite value, or kinetic + elastic energy above energy_blowup_factor times the
-/// initial energy plus the work of the tools: damping only removes energy), the puncture test on
+/// initial energy plus the work of the tools: damping only removes energy; or, before puncture, a
+/// contact point deeper than needle_breach_depth inside the needle), the puncture test on
 /// a healthy state only, the local stiffness, and the pose of the next step. Returns true when a
 /// sample is due (every sample_interval of simulated time).
 ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& s,
                                                  const JobSums& sums, const JobStepTotals& tot,
                                                  JobRecord* out) {
-  const uint32_t kNonFinite = 1u, kBlowUp = 2u;  // StepStatusBits (engine/sim/integrator.h)
+  // StepStatusBits (engine/sim/integrator.h).
+  const uint32_t kNonFinite = 1u, kBlowUp = 2u, kToolBreach = 1u << 6;
   JobRecord& r = *out;
   r.status = tot.status;
   r.first_bad = tot.first_bad;
@@ -499,6 +519,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   r.holding_force = Vec3d{sums.rim_force[0], sums.rim_force[1], sums.rim_force[2]};
   r.contacts = sums.needle_contacts;
   r.holding_contacts = sums.rim_contacts;
+  r.needle_depth = sums.needle_depth;
   r.raw_force = dot(r.force_vector, p.needle_direction);
   r.deformation = tot.deformation;
   r.elastic_energy = tot.elastic_energy;
@@ -516,7 +537,11 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   const double floor = s.energy_budget > p.energy_floor ? s.energy_budget : p.energy_floor;
   if (energy > p.energy_blowup_factor * floor) r.status |= kBlowUp;
   r.energy_budget = s.energy_budget;
-  if (r.status & (kNonFinite | kBlowUp)) s.halted = 1;
+  // A surface point far inside the needle before puncture: the surface let the tool through
+  // (it stretched too far for its triangles to wrap the tip); what follows is no contact answer.
+  if (p.needle_breach_depth > 0 && !s.puncture.punctured && sums.needle_depth > p.needle_breach_depth)
+    r.status |= kToolBreach;
+  if (r.status & (kNonFinite | kBlowUp | kToolBreach)) s.halted = 1;
   r.halted = s.halted;
   // Force filter (exact for a constant input over the step).
   if (p.force_filter > 0 && s.filter_started) {

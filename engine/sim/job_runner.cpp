@@ -145,6 +145,7 @@ class CpuJobRunner final : public JobRunner {
           for (int k = 0; k < 3; ++k) sums.needle_force[k] += ff.corner[c][k];
         }
         sums.needle_contacts += ff.contacts;
+        sums.needle_depth = std::max(sums.needle_depth, ff.depth);
       }
     }
     for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
@@ -164,6 +165,7 @@ class CpuJobRunner final : public JobRunner {
         sums.rim_force[c] += f.rim[c];
       }
       sums.needle_contacts += f.needle_contact;
+      sums.needle_depth = std::max(sums.needle_depth, f.needle_depth);
       sums.rim_contacts += f.rim_contact;
       tool_force_[i] = f.force;
       tool_u_before_[i] = state_.u_prev[v];
@@ -220,6 +222,41 @@ class CpuJobRunner final : public JobRunner {
 };
 
 }  // namespace
+
+std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model,
+                                       const State& state, Vec3d tip) {
+  const JobParams& p = setup.params;
+  std::vector<uint8_t> marks(model.vertex_count(), 0);
+  auto position = [&](size_t v) { return model.rest_positions[v] + state.u[v]; };
+  auto in_needle = [&](Vec3d x) {
+    return needle_sdf(tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, x).distance < 0;
+  };
+  for (size_t i = 0; i < setup.tool_vertices.size(); ++i) {
+    const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
+    const Vec3d x = position(v);
+    if (p.has_rim &&
+        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, x).distance < 0)
+      marks[v] = 2;
+    if (p.has_needle && !p.needle_on_faces && in_needle(x)) marks[v] = 1;
+  }
+  if (!p.has_needle || !p.needle_on_faces) return marks;
+  for (const std::array<int32_t, 3>& f : setup.tool_faces) {
+    Vec3d x[3];
+    size_t v[3];
+    for (int c = 0; c < 3; ++c) {
+      v[c] = static_cast<size_t>(setup.tool_vertices[static_cast<size_t>(f[static_cast<size_t>(c)])]);
+      x[c] = position(v[c]);
+    }
+    for (int q = 0; q < kFacePoints; ++q) {
+      double b1 = 0, b2 = 0;
+      face_point_weights(q, &b1, &b2);
+      if (!in_needle((1.0 - b1 - b2) * x[0] + b1 * x[1] + b2 * x[2])) continue;
+      for (size_t c : v) marks[c] = 1;
+      break;
+    }
+  }
+  return marks;
+}
 
 std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
                                                const JobSetup& setup) {

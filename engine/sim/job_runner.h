@@ -67,6 +67,13 @@ class JobRunner {
   virtual int64_t mass_raises() = 0;
 };
 
+/// Which surface vertices the tools touch in a state (for written frames, off the step path):
+/// marks[v] is 1 where the needle acts on vertex v (inside the needle, or a corner of a triangle
+/// with a quadrature point inside it), 2 where the holding pipette's rim does, else 0; tip is
+/// the needle's load pose [m]. (vertex_count)
+std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model,
+                                       const State& state, Vec3d tip);
+
 /// The CPU runner over the simulation's own model and state (kept by reference).
 std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
                                                const JobSetup& setup);

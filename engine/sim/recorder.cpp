@@ -67,7 +67,8 @@ std::vector<std::string> step_flag_names(StepStatus status) {
       {kStepInvertedElement, "inverted elements"},
       {kStepCollapsingElement, "collapsing elements"},
       {kStepClampedElement, "clamped elements"},
-      {kStepDtAboveCritical, "dt above critical"}};
+      {kStepDtAboveCritical, "dt above critical"},
+      {kStepToolBreach, "needle through the surface"}};
   std::vector<std::string> names;
   for (const auto& [bit, name] : kNames)
     if (status & bit) names.emplace_back(name);
@@ -277,6 +278,16 @@ void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data) {
   frame_fields(sim.model(), sim.state(), sim.needle_contacts(), sim.holding_contacts(), point_data,
                cell_data);
+  if (!sim.job_mode()) return;
+  // The penalty step keeps no contact sets: mark what the tools touch in this state (the
+  // needle's load stays at its puncture pose after puncture).
+  const JobParams& p = sim.job_setup().params;
+  const PunctureRecord& q = sim.puncture();
+  const Vec3d tip = q.punctured ? p.needle_start + q.needle_travel * p.needle_direction
+                                : sim.report().tip;
+  const std::vector<uint8_t> marks = job_contact_marks(sim.job_setup(), sim.model(), sim.state(), tip);
+  std::vector<double>& contact = (*point_data)[1].values;
+  for (size_t v = 0; v < marks.size(); ++v) contact[v] = marks[v];
 }
 
 void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,

@@ -43,6 +43,7 @@ Status Simulation::prepare_job() {
     p.needle_radius = scene_.needle.tip_radius;
     p.needle_pressure_stiffness = kappa;
     p.needle_friction = scene_.needle.friction;
+    p.needle_breach_depth = kNeedleBreachFraction * p.needle_radius;
     p.force_filter = scene_.needle.force_filter;
     p.force_filter_weight =
         p.force_filter > 0 ? 1.0 - std::exp(-model_.dt / p.force_filter) : 1.0;
@@ -281,12 +282,21 @@ ForceSample sample_of(const JobRecord& r, Vec3d direction) {
 
 // One line naming the step and the first offender of a failed step.
 std::string describe_failure(const JobRecord& r) {
-  char line[320];
+  char line[512];
   if (r.status & kStepNonFinite)
     std::snprintf(line, sizeof line,
                   "step %lld (t %.6g s): a non-finite value (first vertex %lld); nothing after "
                   "it is a result",
                   static_cast<long long>(r.step), r.time, static_cast<long long>(r.first_bad));
+  else if (r.status & kStepToolBreach)
+    std::snprintf(line, sizeof line,
+                  "step %lld (t %.6g s): the needle went through the cell surface without a "
+                  "puncture (a surface point %.3g um inside the tip, at %.3g um of deformation "
+                  "and %.3g uN): the surface under the tip is too coarse for its stretch; refine "
+                  "it at the needle (mesh.generate) or puncture earlier; nothing after it is a "
+                  "result",
+                  static_cast<long long>(r.step), r.time, r.needle_depth * 1e6,
+                  r.deformation * 1e6, r.force * 1e6);
   else {
     char element[64] = "";
     if (r.first_bad >= 0)
@@ -362,6 +372,9 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
       result.stop_reason = s.error().message;
       return false;
     }
+    // The GPU runs ahead of the host: a step that failed after the last record seen is known
+    // only now, and its state is not drawn.
+    if (sim.job_halted_) return false;
     options.frame(sim, k);
     return true;
   };

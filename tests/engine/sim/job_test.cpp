@@ -167,6 +167,33 @@ TEST(JobFinishStep, NonFiniteHalts) {
   EXPECT_TRUE(r.status & 1u);  // kStepNonFinite
 }
 
+TEST(JobFinishStep, NeedleThroughTheSurfaceHaltsBeforePunctureOnly) {
+  JobParams p = needle_params();
+  p.needle_breach_depth = 0.5;
+  p.criterion = kJobCriterionForce;
+  p.threshold = 1e9;  // not met
+  JobState s;
+  JobSums sums;
+  JobStepTotals tot;
+  JobRecord r;
+  // Penetration within the penalty's range: a healthy step.
+  sums.needle_depth = 0.4;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.halted, 0);
+  EXPECT_EQ(r.needle_depth, 0.4);
+  // A surface point past half the radius inside the tip: the surface let the needle through.
+  sums.needle_depth = 0.6;
+  job_finish_step(p, s, sums, tot, &r);
+  EXPECT_EQ(r.halted, 1);
+  EXPECT_TRUE(r.status & kStepToolBreach);
+  EXPECT_EQ(r.puncture.punctured, 0);
+  // After a puncture the needle is meant to be inside: no breach.
+  JobState punctured;
+  punctured.puncture.punctured = 1;
+  job_finish_step(p, punctured, sums, tot, &r);
+  EXPECT_EQ(r.halted, 0);
+}
+
 TEST(JobFinishStep, ForcePunctureFreezesTheTipAndReleasesTheLoad) {
   JobParams p = needle_params();
   p.criterion = kJobCriterionForce;
@@ -281,9 +308,14 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
     EXPECT_EQ(tool_vertex_force(p, pose, corner).needle_contact, 0);
     p.needle_on_faces = 1;
   }
+  // The deepest point is the one under the tip: 0.2 inside (the triangle lies at z = 0, the
+  // apex at z = -0.2), within the quadrature's spacing.
+  EXPECT_GT(f.depth, 0.15);
+  EXPECT_LE(f.depth, 0.2 + 1e-12);
   // Far from the tip: nothing, and no point is evaluated beyond the centroid test.
   pose.tip = Vec3d{0, 0, 20};
   EXPECT_EQ(needle_face_force(p, pose, in).contacts, 0);
+  EXPECT_EQ(needle_face_force(p, pose, in).depth, 0);
 }
 
 Scene small_scene() {
@@ -379,6 +411,33 @@ TEST(JobSimulation, BlowUpStopsTheRunWithoutAPuncture) {
     EXPECT_LT(run.puncture.time, run.simulated_time);
   }
   EXPECT_LE(run.samples.back().time, run.simulated_time + 1e-12);
+}
+
+TEST(JobSimulation, NeedleThroughTheSurfaceStopsTheRunWithoutAPuncture) {
+  // A contact far too soft for the load (1 % of the default): the tip sinks into the surface
+  // instead of pushing it, and passes a surface point half its radius deep. That state is no
+  // contact answer: the run stops there, says why, and records no puncture from it.
+  Scene scene = small_scene();
+  scene.contact.stiffness = 1;
+  scene.puncture.criterion = PunctureCriterion::kForce;
+  scene.puncture.threshold = 1.0;  // never met
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  ASSERT_TRUE((*sim)->job_mode());
+  const RunResult run = run_simulation(**sim);
+  ASSERT_TRUE(run.stopped_early);
+  EXPECT_NE(run.stop_reason.find("went through the cell surface"), std::string::npos)
+      << run.stop_reason;
+  EXPECT_TRUE(run.status & kStepToolBreach);
+  EXPECT_FALSE(run.puncture.punctured);
+  // The default stiffness holds the same cell: its run goes through without the stop.
+  Scene stiff = small_scene();
+  stiff.puncture.criterion = PunctureCriterion::kForce;
+  stiff.puncture.threshold = 1.0;
+  Result<std::unique_ptr<Simulation>> held = Simulation::create(stiff);
+  ASSERT_TRUE(held.ok()) << held.error().message;
+  const RunResult ok = run_simulation(**held);
+  EXPECT_FALSE(ok.stopped_early) << ok.stop_reason;
 }
 
 TEST(JobSimulation, TheStepPathDoesNotAllocate) {
