@@ -302,11 +302,12 @@ struct ToolFaceForce {
   double depth = 0;  ///< deepest quadrature point inside the needle [m] (0: none inside)
 };
 
-/// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces): the penalty
-/// pressure and friction of penalty_contact_force at each quadrature point, over the point's
-/// share of the rest area, with the point's share of the corner masses (a sixth of the three
-/// corners' masses per triangle: a surface vertex has about six triangles), spread to the corners
-/// by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
+/// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces; corners counter-
+/// clockwise seen from outside the cell): the penalty pressure of each quadrature point's depth
+/// inside the needle, along the triangle's inward normal, and friction (penalty_contact_force),
+/// over the point's share of the rest area, with the point's share of the corner masses (a sixth
+/// of the three corners' masses per triangle: a surface vertex has about six triangles), spread
+/// to the corners by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
 /// triangle on a few threads with needle_face_point). A triangle whose centroid lies farther from
 /// the needle than from its farthest corner cannot touch it (the distance field is 1-Lipschitz):
 /// needle_face_may_touch is false and it is skipped.
@@ -351,10 +352,16 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const To
   b[0] = 1.0 - b[1] - b[2];
   ToolVertexInput pt;
   pt.x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
-  const ToolSdf sdf =
+  ToolSdf sdf =
       needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, pt.x);
   if (!(sdf.distance < 0)) return false;
   *depth = -sdf.distance;
+  // The pressure acts along the triangle's inward normal (the tool's normal where the triangle
+  // faces away from it): a flat triangle across the curved tip gets no in-plane load, which
+  // along the tool's normals would pull its corners apart and let the tip through.
+  const Vec3d n = cross(in.x[1] - in.x[0], in.x[2] - in.x[0]);  // outward (counter-clockwise)
+  const double n_len = norm(n);
+  if (n_len > 0 && dot(n, sdf.normal) < 0) sdf.normal = (-1.0 / n_len) * n;
   constexpr double w = 1.0 / kFacePoints;
   pt.area = w * in.area;
   pt.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
