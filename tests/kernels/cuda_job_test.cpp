@@ -122,6 +122,30 @@ TEST(CudaJob, BlowUpStopsWithoutAPuncture) {
   EXPECT_FALSE(run.puncture.punctured);
 }
 
+TEST(CudaJob, NeedleThroughTheSurfaceStopsLikeTheCpu) {
+  // The contact far too soft for the load (job_test.cpp's CPU case): the device's depth
+  // reduction halts the job, with no puncture, at about the CPU's step.
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  Result<Scene> scene = parse_scene(test::small_cell_scene(), "small_cell");
+  ASSERT_TRUE(scene.ok());
+  scene->contact.stiffness = 1;
+  scene->puncture.criterion = PunctureCriterion::kForce;
+  scene->puncture.threshold = 1.0;  // never met
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(*scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  const RunResult rc = run_simulation(**cpu);
+  const RunResult rg = run_simulation(**gpu);
+  ASSERT_TRUE(rc.stopped_early);
+  ASSERT_TRUE(rg.stopped_early);
+  EXPECT_NE(rg.stop_reason.find("went through the cell surface"), std::string::npos)
+      << rg.stop_reason;
+  EXPECT_FALSE(rg.puncture.punctured);
+  EXPECT_NEAR(static_cast<double>(rg.steps), static_cast<double>(rc.steps),
+              0.05 * static_cast<double>(rc.steps));
+}
+
 TEST(CudaJob, TheStepPathDoesNotAllocate) {
   std::string why;
   if (!have_device(&why)) GTEST_SKIP() << why;
