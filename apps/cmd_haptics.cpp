@@ -234,8 +234,8 @@ void run_haptics(const HapticsArgs& a) {
       return fail(st.error().message);
   }
   const NeedleReport& r = (*sim)->report();
-  // A simulation that failed its health check (blow-up, non-finite) stopped there: the loop
-  // kept rendering its last healthy sample. Say so.
+  // A simulation that failed its health check (blow-up, non-finite, the needle through the
+  // surface) stopped there: the loop kept rendering its last healthy sample. Say so.
   const bool sim_failed = (r.status & kStepFailed) != 0;
   if (sim_failed) {
     std::string why;

@@ -9,8 +9,9 @@
 //   4. integrate  centred difference with the loads of 1 and 2
 //   5. measure    needle force vector, holding force, contacts, deformation at the entry point,
 //                 energies, the work the tools put in (reductions)
-//   6. record     force filter, health verdict (blow-up, tool breach), puncture test, the next tool pose,
-//                 the step record (and a sample every output interval)
+//   6. record     force filter, health verdict (blow-up, the needle through the surface),
+//                 puncture test, the next tool pose, the step record (and a sample every
+//                 output interval)
 //
 // Every per-vertex and per-step function here is ZONA_HOST_DEVICE: the CPU runner
 // (engine/job.cpp) loops over them on its threads, the CUDA runner (kernels/job_kernels.cuh)
@@ -307,10 +308,10 @@ struct ToolFaceForce {
 /// inside the needle, along the triangle's inward normal, and friction (penalty_contact_force),
 /// over the point's share of the rest area, with the point's share of the corner masses (a sixth
 /// of the three corners' masses per triangle: a surface vertex has about six triangles), spread
-/// to the corners by the point's barycentric weights (needle_face_force; the GPU evaluates the points of a
-/// triangle on a few threads with needle_face_point). A triangle whose centroid lies farther from
-/// the needle than from its farthest corner cannot touch it (the distance field is 1-Lipschitz):
-/// needle_face_may_touch is false and it is skipped.
+/// to the corners by the point's barycentric weights (needle_face_force; the GPU evaluates the
+/// points of a triangle on a few threads with needle_face_point). A triangle whose centroid lies
+/// farther from the needle than from its farthest corner cannot touch it (the distance field is
+/// 1-Lipschitz): needle_face_may_touch is false and it is skipped.
 ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, const ToolPose& pose,
                                                         const ToolFaceInput& in) {
   const Vec3d centroid = (1.0 / 3.0) * (in.x[0] + in.x[1] + in.x[2]);
@@ -546,7 +547,8 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   r.energy_budget = s.energy_budget;
   // A surface point far inside the needle before puncture: the surface let the tool through
   // (it stretched too far for its triangles to wrap the tip); what follows is no contact answer.
-  if (p.needle_breach_depth > 0 && !s.puncture.punctured && sums.needle_depth > p.needle_breach_depth)
+  if (p.needle_breach_depth > 0 && !s.puncture.punctured &&
+      sums.needle_depth > p.needle_breach_depth)
     r.status |= kToolBreach;
   if (r.status & (kNonFinite | kBlowUp | kToolBreach)) s.halted = 1;
   r.halted = s.halted;

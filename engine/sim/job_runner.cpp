@@ -234,8 +234,8 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
   for (size_t i = 0; i < setup.tool_vertices.size(); ++i) {
     const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
     const Vec3d x = position(v);
-    if (p.has_rim &&
-        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, x).distance < 0)
+    if (p.has_rim && holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius,
+                                 p.rim_outer_radius, x).distance < 0)
       marks[v] = 2;
     if (p.has_needle && !p.needle_on_faces && in_needle(x)) marks[v] = 1;
   }
@@ -244,7 +244,8 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
     Vec3d x[3];
     size_t v[3];
     for (int c = 0; c < 3; ++c) {
-      v[c] = static_cast<size_t>(setup.tool_vertices[static_cast<size_t>(f[static_cast<size_t>(c)])]);
+      const size_t k = static_cast<size_t>(f[static_cast<size_t>(c)]);
+      v[c] = static_cast<size_t>(setup.tool_vertices[k]);
       x[c] = position(v[c]);
     }
     for (int q = 0; q < kFacePoints; ++q) {

@@ -285,7 +285,8 @@ void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
   const PunctureRecord& q = sim.puncture();
   const Vec3d tip = q.punctured ? p.needle_start + q.needle_travel * p.needle_direction
                                 : sim.report().tip;
-  const std::vector<uint8_t> marks = job_contact_marks(sim.job_setup(), sim.model(), sim.state(), tip);
+  const std::vector<uint8_t> marks =
+      job_contact_marks(sim.job_setup(), sim.model(), sim.state(), tip);
   std::vector<double>& contact = (*point_data)[1].values;
   for (size_t v = 0; v < marks.size(); ++v) contact[v] = marks[v];
 }

@@ -292,9 +292,9 @@ std::string describe_failure(const JobRecord& r) {
     std::snprintf(line, sizeof line,
                   "step %lld (t %.6g s): the needle went through the cell surface without a "
                   "puncture (a surface point %.3g um inside the tip, at %.3g um of deformation "
-                  "and %.3g uN): the surface under the tip is too coarse for its stretch; refine "
-                  "it at the needle (mesh.generate) or puncture earlier; nothing after it is a "
-                  "result",
+                  "and %.3g uN): the triangles around the tip stretched until it passed between "
+                  "them; a smaller integrator.target_dt, a finer mesh at the needle or an earlier "
+                  "puncture may move it; nothing after it is a result",
                   static_cast<long long>(r.step), r.time, r.needle_depth * 1e6,
                   r.deformation * 1e6, r.force * 1e6);
   else {
