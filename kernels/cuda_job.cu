@@ -72,7 +72,8 @@ class CudaJob final : public JobRunner {
   ToolParams tl_;
   float damping_rate_ = 0;
   DeviceBuffer<int32_t> d_tool_vertex_;
-  DeviceBuffer<double> d_tool_rest_, d_tool_area_, d_tool_mass_, d_tool_suction_;
+  DeviceBuffer<double> d_tool_rest_, d_tool_area_, d_tool_suction_;
+  DeviceBuffer<StickAnchor> d_tool_anchor_;  // per tool vertex: needle, then rim
   DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
   DeviceBuffer<float4> d_damp_, d_force_prev_;
   DeviceBuffer<JobStepCounters> d_step_counters_;
@@ -87,6 +88,7 @@ class CudaJob final : public JobRunner {
   // corner loads of the step [N] (3 per tool vertex).
   DeviceBuffer<int4> d_faces_;
   DeviceBuffer<double> d_face_area_, d_face_force_;
+  DeviceBuffer<StickAnchor> d_face_anchor_;  // kFacePoints per triangle
   PinnedBuffer<JobRecord> h_samples_;
   PinnedBuffer<unsigned long long> h_sample_count_;
   PinnedBuffer<LatestRecord> h_latest_;
@@ -134,7 +136,7 @@ Status CudaJob::start(const JobSetup& setup) {
 
   // Tool vertices in device order.
   std::vector<int32_t> vertex(n);
-  std::vector<double> rest(3 * n), area(n), mass(n), suction(3 * n);
+  std::vector<double> rest(3 * n), area(n), suction(3 * n);
   for (size_t i = 0; i < n; ++i) {
     const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
     vertex[i] = b_.old_to_new_[v];
@@ -143,12 +145,13 @@ Status CudaJob::start(const JobSetup& setup) {
       suction[3 * i + c] = setup.tool_suction[i][c];
     }
     area[i] = setup.tool_area[i];
-    mass[i] = m.vertex_mass[v];
   }
   if (Status s = d_tool_vertex_.upload(vertex, "tool vertices"); !s) return s;
   if (Status s = d_tool_rest_.upload(rest, "tool rest positions"); !s) return s;
   if (Status s = d_tool_area_.upload(area, "tool areas"); !s) return s;
-  if (Status s = d_tool_mass_.upload(mass, "tool masses"); !s) return s;
+  // Stick anchors of the friction (zero bytes: void), on the needle and on the rim.
+  if (Status s = d_tool_anchor_.allocate(2 * n, "stick anchors"); !s) return s;
+  if (Status s = d_tool_anchor_.fill_bytes(0); !s) return s;
   if (Status s = d_tool_suction_.upload(suction, "suction loads"); !s) return s;
   std::vector<int32_t> tool_index(b_.nv_, -1);
   for (size_t i = 0; i < n; ++i) tool_index[static_cast<size_t>(vertex[i])] = static_cast<int32_t>(i);
@@ -166,7 +169,8 @@ Status CudaJob::start(const JobSetup& setup) {
   tl_.vertex = d_tool_vertex_.data();
   tl_.rest = d_tool_rest_.data();
   tl_.area = d_tool_area_.data();
-  tl_.mass = d_tool_mass_.data();
+  tl_.needle_anchor = d_tool_anchor_.data();
+  tl_.rim_anchor = d_tool_anchor_.data() + n;
   tl_.suction = d_tool_suction_.data();
   tl_.count = static_cast<int>(n);
   tl_.length_unit = b_.length_unit_;
@@ -175,7 +179,7 @@ Status CudaJob::start(const JobSetup& setup) {
   // The job's scalars: the first pose, as the CPU runner starts.
   JobState js;
   js.pose.tip = params_.needle_start;
-  job_set_pose(params_, js, params_.needle_start);
+  job_set_pose(params_, js);
   if (Status s = d_job_.allocate(1, "job state"); !s) return s;
   ZONA_CUDA_TRY(cudaMemcpy(d_job_.data(), &js, sizeof js, cudaMemcpyHostToDevice));
   if (Status s = d_sums_.allocate(1, "job sums"); !s) return s;
@@ -210,6 +214,8 @@ Status CudaJob::start(const JobSetup& setup) {
     if (Status s = d_face_area_.upload(setup.tool_face_area, "needle face areas"); !s) return s;
     if (Status s = d_face_force_.allocate(3 * n, "needle face loads"); !s) return s;
     if (Status s = d_face_force_.fill_bytes(0); !s) return s;
+    if (Status s = d_face_anchor_.allocate(nf * kFacePoints, "face stick anchors"); !s) return s;
+    if (Status s = d_face_anchor_.fill_bytes(0); !s) return s;
   }
   if (Status s = d_mass_raises_.fill_bytes(0); !s) return s;
   const DeviceStatus fresh{};
@@ -270,8 +276,8 @@ Status CudaJob::enqueue_step(int64_t g) {
                 params_, tl_,
                 static_cast<const int4*>(d_faces_.data()),
                 static_cast<const double*>(d_face_area_.data()), vp,
-                static_cast<const JobState*>(d_job_.data()), d_face_force_.data(), d_sums_.data(),
-                nf, st, kSubstep));
+                static_cast<const JobState*>(d_job_.data()), d_face_force_.data(),
+                d_face_anchor_.data(), d_sums_.data(), nf, st, kSubstep));
   }
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;

@@ -17,8 +17,9 @@ struct ToolParams {
   const int32_t* vertex = nullptr;   ///< device vertex index, (count)
   const double* rest = nullptr;      ///< rest position [m], (3 count)
   const double* area = nullptr;      ///< rest tributary area [m^2], (count)
-  const double* mass = nullptr;      ///< lumped mass [kg], (count)
   const double* suction = nullptr;   ///< full suction load [N], (3 count)
+  StickAnchor* needle_anchor = nullptr;  ///< friction anchors on the needle, (count)
+  StickAnchor* rim_anchor = nullptr;     ///< friction anchors on the rim, (count)
   int count = 0;
   double length_unit = 1;  ///< [m]
   double force_unit = 1;   ///< [N]
@@ -66,21 +67,18 @@ struct JobStepCounters {
   unsigned int blocks_done = 0;  ///< blocks of this step's kernel that finished (ticket)
 };
 
-/// Stage 1 for one tool vertex (tool index i, device vertex v): its load [N] and the parts the
-/// step sums. u, u_prev in device length units.
+/// Stage 1 for one tool vertex (tool index i): its load [N] and the parts the step sums, with
+/// its stick anchors. un: its u_n in device length units.
 __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const ToolParams& tl,
                                                      const ToolPose& pose, int i,
-                                                     const double* un, const double* up) {
+                                                     const double* un) {
   const double lu = tl.length_unit;
-  const Vec3d du{(un[0] - up[0]) * lu, (un[1] - up[1]) * lu, (un[2] - up[2]) * lu};
   ToolVertexInput in;
   in.x = Vec3d{tl.rest[3 * i] + un[0] * lu, tl.rest[3 * i + 1] + un[1] * lu,
                tl.rest[3 * i + 2] + un[2] * lu};
-  in.velocity = (1.0 / p.dt) * du;
   in.area = tl.area[i];
-  in.mass = tl.mass[i];
   in.suction = Vec3d{tl.suction[3 * i], tl.suction[3 * i + 1], tl.suction[3 * i + 2]};
-  return tool_vertex_force(p, pose, in);
+  return tool_vertex_force(p, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
 }
 
 /// Threads per triangle in needle_face_kernel, each taking every kFaceLanes-th point.
@@ -98,7 +96,8 @@ __global__ void __launch_bounds__(kBlock)
     needle_face_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
                        const double* __restrict__ face_area, VertexParams vp,
                        const JobState* __restrict__ job, double* __restrict__ face_force,
-                       JobSums* sums, int face_count, DeviceStatus* st, int substep) {
+                       StickAnchor* __restrict__ face_anchor, JobSums* sums, int face_count,
+                       DeviceStatus* st, int substep) {
   static_assert(kFacePoints % kFaceLanes == 0 && kBlock % kFaceLanes == 0, "lanes per triangle");
   wait_for_previous_kernel();
   allow_next_kernel();
@@ -114,7 +113,7 @@ __global__ void __launch_bounds__(kBlock)
     corner[0] = c4.x;
     corner[1] = c4.y;
     corner[2] = c4.z;
-    const double lu = tl.length_unit, inv_dt = 1.0 / p.dt;
+    const double lu = tl.length_unit;
     // Positions first: most triangles are far from the needle and need nothing else.
     ToolFaceInput in;
     for (int c = 0; c < 3; ++c) {
@@ -125,20 +124,12 @@ __global__ void __launch_bounds__(kBlock)
     }
     const ToolPose pose = job->pose;
     if (needle_face_may_touch(p, pose, in)) {
-      for (int c = 0; c < 3; ++c) {
-        const int k = corner[c];
-        const size_t v = static_cast<size_t>(tl.vertex[k]);
-        const double* un = vp.u + 3 * v;
-        const double* up = vp.u_prev + 3 * v;
-        in.velocity[c] = Vec3d{(un[0] - up[0]) * lu * inv_dt, (un[1] - up[1]) * lu * inv_dt,
-                               (un[2] - up[2]) * lu * inv_dt};
-        in.mass[c] = tl.mass[k];
-      }
       in.area = face_area[f];
+      StickAnchor* anchors = face_anchor + static_cast<size_t>(f) * kFacePoints;
       for (int q = lane; q < kFacePoints; q += kFaceLanes) {
         Vec3d force;
         double b[3], point_depth = 0;
-        if (!needle_face_point(p, pose, in, q, &force, &point_depth, b)) continue;
+        if (!needle_face_point(p, pose, in, q, &force, &point_depth, b, anchors + q)) continue;
         for (int c = 0; c < 3; ++c)
           for (int j = 0; j < 3; ++j) load[3 * c + j] += b[c] * force[j];
         ++contact;
@@ -290,7 +281,7 @@ __global__ void __launch_bounds__(kBlock)
     const double* un = vp.u + 3 * static_cast<size_t>(v);
     const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
     if (i >= 0) {
-      const ToolVertexForce t = tool_stage(p, tl, job->pose, i, un, up);
+      const ToolVertexForce t = tool_stage(p, tl, job->pose, i, un);
       tool = t.force;
       if (face_force) {
         double* ff = face_force + 3 * static_cast<size_t>(i);

@@ -205,19 +205,28 @@ ZONA_HOST_DEVICE inline double job_mass_need(const JobParams& p, double growth, 
   return growth > p.mass_gate ? growth * rest_need : 0.0;
 }
 
-/// Where a tool vertex is and how it moves, and what it may carry.
+/// Where a tool vertex is and what it may carry.
 struct ToolVertexInput {
-  Vec3d x{0, 0, 0};         ///< position rest + u_n [m]
-  Vec3d velocity{0, 0, 0};  ///< (u_n - u_{n-1}) / dt [m/s]
-  double area = 0;          ///< rest tributary surface area [m^2]
-  double mass = 0;          ///< lumped (scaled) mass [kg]
-  Vec3d suction{0, 0, 0};   ///< full-strength suction load [N] (zero off the aspirated patch)
+  Vec3d x{0, 0, 0};        ///< position rest + u_n [m]
+  double area = 0;         ///< rest tributary surface area [m^2]
+  Vec3d suction{0, 0, 0};  ///< full-strength suction load [N] (zero off the aspirated patch)
+};
+
+/// Where a contact point stuck to its tool, for the friction's stick spring: its position
+/// relative to the tool's reference point (the needle's tip, the rim's mouth) that the spring
+/// pulls it back to [m], and the step of its last contact + 2 (`mark`). An anchor is live only
+/// if the point touched the tool in the previous step (mark == step + 1); a point that left the
+/// tool starts afresh where it touches again. Zero bytes are a void anchor (device memory is
+/// cleared, not constructed).
+struct StickAnchor {
+  Vec3d at{0, 0, 0};
+  int64_t mark = 0;
 };
 
 /// The tool pose and scalars of one step (JobState's, read by every tool vertex).
 struct ToolPose {
+  int64_t step = 0;             ///< n, the step that starts at t_n (the anchors' clock)
   Vec3d tip{0, 0, 0};           ///< needle tip at t_n (frozen at puncture) [m]
-  Vec3d tip_velocity{0, 0, 0};  ///< [m/s] (zero after puncture)
   double suction_ramp = 0;      ///< [-]
   double needle_scale = 1;      ///< release factor after puncture [-]
   Vec3d drag_per_contact{0, 0, 0};  ///< shaft drag load on each released contact [N]
@@ -232,27 +241,39 @@ struct ToolVertexForce {
   double needle_depth = 0;  ///< how deep the vertex is inside the needle [m] (0 outside)
 };
 
-/// Penalty contact of one vertex against a tool: normal pressure kappa * penetration over the
-/// vertex's area, and Coulomb friction that removes the tangential slip velocity relative to the
-/// tool in one step (m v_t / dt) up to mu times the normal force: it sticks while it can and
-/// slides at the Coulomb limit, and it can never reverse the slip (stable at any step).
+/// Penalty contact of one point against a tool: normal pressure kappa * penetration over the
+/// point's area, along sdf.normal, and Coulomb friction as a stick spring: the point's
+/// tangential offset from its anchor times the same stiffness (kappa * area), capped at mu times
+/// the normal force; at the cap the anchor follows the point (it slides). `rel` is the point's
+/// position relative to the tool's reference point [m]; the anchor is read and updated. A
+/// sticking point carries its tangential load at rest, whatever the step, the speed or the
+/// (scaled) mass: a viscous stick force (stop the slip velocity in one step, m v_t / dt) let
+/// it creep at a rate set by the mass scaling (docs/injection.md).
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, double kappa,
-                                                       double mu, const ToolVertexInput& in,
-                                                       Vec3d tool_velocity, double dt) {
-  const double fn = kappa * (-sdf.distance) * in.area;  // > 0 inside
-  const Vec3d rel = in.velocity - tool_velocity;
-  const Vec3d vt = rel - dot(rel, sdf.normal) * sdf.normal;
-  Vec3d ft = (-in.mass / dt) * vt;
+                                                       double mu, double area, Vec3d rel,
+                                                       int64_t step, StickAnchor* anchor) {
+  const double k = kappa * area;
+  const double fn = k * (-sdf.distance);  // > 0 inside
+  if (anchor->mark != step + 1) anchor->at = rel;  // a fresh contact sticks where it touched
+  anchor->mark = step + 2;
+  const Vec3d d = rel - anchor->at;
+  Vec3d ft = -k * (d - dot(d, sdf.normal) * sdf.normal);
   const double ft_len = norm(ft);
   const double cap = mu * fn;
-  if (ft_len > cap) ft = (ft_len > 0 ? cap / ft_len : 0.0) * ft;
+  if (ft_len > cap) {
+    ft = (ft_len > 0 ? cap / ft_len : 0.0) * ft;
+    anchor->at = rel + (1.0 / k) * ft;  // slid: the spring stays at the Coulomb limit
+  }
   return fn * sdf.normal + ft;
 }
 
-/// Stage 1 for one surface vertex: needle, rim and suction.
+/// Stage 1 for one surface vertex: needle, rim and suction, with the vertex's stick anchors
+/// on the needle (used with JobParams::needle_on_faces off) and on the rim.
 ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& p,
                                                               const ToolPose& pose,
-                                                              const ToolVertexInput& in) {
+                                                              const ToolVertexInput& in,
+                                                              StickAnchor* needle_anchor,
+                                                              StickAnchor* rim_anchor) {
   ToolVertexForce out;
   if (p.has_needle && !p.needle_on_faces) {
     const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius,
@@ -260,8 +281,9 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
     if (sdf.distance < 0) {
       out.needle_depth = -sdf.distance;
       out.needle = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
-                                                             p.needle_friction, in,
-                                                             pose.tip_velocity, p.dt) +
+                                                             p.needle_friction, in.area,
+                                                             in.x - pose.tip, pose.step,
+                                                             needle_anchor) +
                    pose.drag_per_contact;
       out.needle_contact = 1;
     }
@@ -270,8 +292,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
     const ToolSdf sdf =
         holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x);
     if (sdf.distance < 0) {
-      out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in,
-                                      Vec3d{0, 0, 0}, p.dt);
+      out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in.area,
+                                      in.x - p.rim_mouth, pose.step, rim_anchor);
       out.rim_contact = 1;
     }
     out.rim += pose.suction_ramp * in.suction;
@@ -286,12 +308,10 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
 /// points half a radius apart.
 inline constexpr int kFaceSubdivisions = 4;
 
-/// One surface triangle of the needle stage: its corners' positions rest + u_n [m], velocities
-/// [m/s], lumped masses [kg], and its rest area [m^2].
+/// One surface triangle of the needle stage: its corners' positions rest + u_n [m] and its rest
+/// area [m^2].
 struct ToolFaceInput {
   Vec3d x[3] = {};
-  Vec3d velocity[3] = {};
-  double mass[3] = {0, 0, 0};
   double area = 0;
 };
 
@@ -305,10 +325,9 @@ struct ToolFaceForce {
 
 /// Stage 1, needle part, for one surface triangle (JobParams::needle_on_faces; corners counter-
 /// clockwise seen from outside the cell): the penalty pressure of each quadrature point's depth
-/// inside the needle, along the triangle's inward normal, and friction (penalty_contact_force),
-/// over the point's share of the rest area, with the point's share of the corner masses (a sixth
-/// of the three corners' masses per triangle: a surface vertex has about six triangles), spread
-/// to the corners by the point's barycentric weights (needle_face_force; the GPU evaluates the
+/// inside the needle, along the triangle's inward normal, and friction with a stick anchor per
+/// point (penalty_contact_force), over the point's share of the rest area, spread to the
+/// corners by the point's barycentric weights (needle_face_force; the GPU evaluates the
 /// points of a triangle on a few threads with needle_face_point). A triangle whose centroid lies
 /// farther from the needle than from its farthest corner cannot touch it (the distance field is
 /// 1-Lipschitz): needle_face_may_touch is false and it is skipped.
@@ -344,17 +363,16 @@ ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* 
 }
 
 /// The needle's load [N] at quadrature point q of a triangle and how deep the point is inside
-/// the needle [m] (false, and nothing written, where the point is outside the needle), and the
-/// point's barycentric weights b[3].
+/// the needle [m] (false, and nothing written but a void anchor, where the point is outside the
+/// needle), and the point's barycentric weights b[3]; `anchor` is the point's stick anchor.
 ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const ToolPose& pose,
                                                     const ToolFaceInput& in, int q, Vec3d* force,
-                                                    double* depth, double b[3]) {
+                                                    double* depth, double b[3],
+                                                    StickAnchor* anchor) {
   face_point_weights(q, &b[1], &b[2]);
   b[0] = 1.0 - b[1] - b[2];
-  ToolVertexInput pt;
-  pt.x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
-  ToolSdf sdf =
-      needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, pt.x);
+  const Vec3d x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
+  ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, x);
   if (!(sdf.distance < 0)) return false;
   *depth = -sdf.distance;
   // The pressure acts along the triangle's inward normal (the tool's normal where the triangle
@@ -364,26 +382,25 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const To
   const double n_len = norm(n);
   if (n_len > 0 && dot(n, sdf.normal) < 0) sdf.normal = (-1.0 / n_len) * n;
   constexpr double w = 1.0 / kFacePoints;
-  pt.area = w * in.area;
-  pt.mass = w * (in.mass[0] + in.mass[1] + in.mass[2]) / 6.0;
-  pt.velocity = b[0] * in.velocity[0] + b[1] * in.velocity[1] + b[2] * in.velocity[2];
   *force = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
-                                                     p.needle_friction, pt, pose.tip_velocity,
-                                                     p.dt) +
+                                                     p.needle_friction, w * in.area, x - pose.tip,
+                                                     pose.step, anchor) +
            pose.drag_per_contact;
   return true;
 }
 
+/// needle_face_point over every point of a triangle; anchors: its kFacePoints stick anchors.
 ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
                                                             const ToolPose& pose,
-                                                            const ToolFaceInput& in) {
+                                                            const ToolFaceInput& in,
+                                                            StickAnchor* anchors) {
   ToolFaceForce out;
   for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
   if (!needle_face_may_touch(p, pose, in)) return out;
   for (int q = 0; q < kFacePoints; ++q) {
     Vec3d f;
     double b[3], depth = 0;
-    if (!needle_face_point(p, pose, in, q, &f, &depth, b)) continue;
+    if (!needle_face_point(p, pose, in, q, &f, &depth, b, anchors + q)) continue;
     for (int c = 0; c < 3; ++c) out.corner[c] += b[c] * f;
     ++out.contacts;
     out.depth = out.depth > depth ? out.depth : depth;
@@ -469,9 +486,10 @@ ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, doubl
   return 1.0 - p.force_drop * ramp;
 }
 
-/// The tool pose for the step that starts at s.time (tip velocity from the tip at t - dt).
-ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s, Vec3d tip_before) {
+/// The tool pose for the step s.step, which starts at s.time.
+ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s) {
   ToolPose& pose = s.pose;
+  pose.step = s.step;
   const double ramp = p.suction_ramp_time > 0 ? s.time / p.suction_ramp_time : 1.0;
   pose.suction_ramp = ramp < 1.0 ? ramp : 1.0;
   if (s.puncture.punctured) {
@@ -482,7 +500,6 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s, 
                           dot(p.needle_start, p.needle_direction);
     const double inserted = travel > s.puncture.needle_travel ? travel - s.puncture.needle_travel : 0;
     pose.needle_scale = job_release_factor(p, s.time - s.puncture.time);
-    pose.tip_velocity = Vec3d{0, 0, 0};
     pose.drag_per_contact = s.released_contacts > 0
                                 ? (p.shaft_friction * inserted / s.released_contacts) *
                                       p.needle_direction
@@ -490,7 +507,6 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s, 
     return;
   }
   pose.tip = s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time);
-  pose.tip_velocity = s.step > 0 ? (pose.tip - tip_before) / p.dt : Vec3d{0, 0, 0};
   pose.needle_scale = 1;
   pose.drag_per_contact = Vec3d{0, 0, 0};
 }
@@ -562,7 +578,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   s.filter_started = 1;
   r.force = s.filtered_force;
   // The next pose (tip at t_{n+1}); the record reports the tip the step ended at.
-  job_set_pose(p, s, tip_before);
+  job_set_pose(p, s);
   r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time))
                                : s.pose.tip;
   r.travel = dot(r.tip - p.needle_start, p.needle_direction);
@@ -597,7 +613,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
       s.released_contacts = sums.needle_contacts;
       // The tip load stays at the puncture pose.
       s.pose.tip = tip_before;
-      job_set_pose(p, s, tip_before);
+      job_set_pose(p, s);
     }
   }
   r.puncture = s.puncture;

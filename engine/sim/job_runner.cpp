@@ -19,10 +19,14 @@ class CpuJobRunner final : public JobRunner {
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
+    needle_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
+    rim_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
+    if (setup.params.needle_on_faces)
+      face_anchor_.assign(setup.tool_faces.size() * kFacePoints, StickAnchor{});
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
     if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
-    job_set_pose(setup_.params, job_, setup_.params.needle_start);
+    job_set_pose(setup_.params, job_);
     // The state starts without loads: the stages own external_force from here on.
     std::fill(state_.external_force.begin(), state_.external_force.end(), Vec3d{0, 0, 0});
   }
@@ -119,7 +123,6 @@ class CpuJobRunner final : public JobRunner {
     // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
     // surface vertices.
     JobSums sums;
-    const double inv_dt = 1.0 / p.dt;
     const bool damping = p.stiffness_damping_rate > 0;
     if (p.needle_on_faces) {
       std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
@@ -133,12 +136,8 @@ class CpuJobRunner final : public JobRunner {
           in.x[c] = model_.rest_positions[v[c]] + state_.u[v[c]];
         }
         if (!needle_face_may_touch(p, job_.pose, in)) continue;
-        for (int c = 0; c < 3; ++c) {
-          in.velocity[c] = inv_dt * (state_.u[v[c]] - state_.u_prev[v[c]]);
-          in.mass[c] = model_.vertex_mass[v[c]];
-        }
         in.area = setup_.tool_face_area[f];
-        const ToolFaceForce ff = needle_face_force(p, job_.pose, in);
+        const ToolFaceForce ff = needle_face_force(p, job_.pose, in, &face_anchor_[f * kFacePoints]);
         if (ff.contacts == 0) continue;
         for (int c = 0; c < 3; ++c) {
           face_force_[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])] += ff.corner[c];
@@ -151,13 +150,10 @@ class CpuJobRunner final : public JobRunner {
     for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
       const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
       ToolVertexInput in;
-      const Vec3d du = state_.u[v] - state_.u_prev[v];
       in.x = model_.rest_positions[v] + state_.u[v];
-      in.velocity = inv_dt * du;
       in.area = setup_.tool_area[i];
-      in.mass = model_.vertex_mass[v];
       in.suction = setup_.tool_suction[i];
-      ToolVertexForce f = tool_vertex_force(p, job_.pose, in);
+      ToolVertexForce f = tool_vertex_force(p, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
       f.force += face_force_[i];
       ext[v] = damping ? ext[v] + f.force : f.force;
       for (int c = 0; c < 3; ++c) {
@@ -211,6 +207,9 @@ class CpuJobRunner final : public JobRunner {
   std::vector<Vec3d> force_prev_;  // f(u_{n-2}) for the damping stage [N], (vertex_count)
   std::vector<Vec3d> tool_force_;     // this step's tool loads [N], (tool vertex count)
   std::vector<Vec3d> face_force_;     // the needle's face-quadrature loads [N], (tool vertex count)
+  // Stick anchors of the friction: per tool vertex on the needle and on the rim, and per face
+  // quadrature point (kFacePoints per triangle).
+  std::vector<StickAnchor> needle_anchor_, rim_anchor_, face_anchor_;
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;

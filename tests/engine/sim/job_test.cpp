@@ -62,12 +62,10 @@ TEST(HoldingSdf, WallFacesAndOutside) {
   EXPECT_NEAR(s.distance, 1.0, 1e-12);
 }
 
-ToolVertexInput vertex_at(Vec3d x, Vec3d velocity, double area = 1.0, double mass = 1.0) {
+ToolVertexInput vertex_at(Vec3d x, double area = 1.0) {
   ToolVertexInput in;
   in.x = x;
-  in.velocity = velocity;
   in.area = area;
-  in.mass = mass;
   return in;
 }
 
@@ -75,29 +73,49 @@ TEST(PenaltyContact, PressureTimesAreaAlongTheNormal) {
   ToolSdf sdf;
   sdf.distance = -0.2;
   sdf.normal = kX;
-  const Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 0, 0}, 0.5),
-                                        Vec3d{0, 0, 0}, 1.0);
+  StickAnchor anchor;
+  const Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 0.5, Vec3d{0, 0, 0}, 0, &anchor);
   EXPECT_NEAR(f.x, 10.0 * 0.2 * 0.5, 1e-12);
   EXPECT_EQ(f.y, 0.0);
   EXPECT_EQ(f.z, 0.0);
 }
 
 TEST(PenaltyContact, FrictionSticksBelowTheConeAndSlidesOnIt) {
+  // Normal force 10 x 1 x 1 = 10, Coulomb limit 3; the tangential spring is kappa area = 10.
   ToolSdf sdf;
   sdf.distance = -1.0;
-  sdf.normal = kX;  // normal force 10 x 1 x 1 = 10
-  // Slow slip: stopped in one step (m v / dt = 1 < mu fn = 3).
-  Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 1.0, 0}),
-                                  Vec3d{0, 0, 0}, 1.0);
-  EXPECT_NEAR(f.y, -1.0, 1e-12);
-  // Fast slip: the Coulomb limit, against the slip.
-  f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 0, -50.0}), Vec3d{0, 0, 0},
-                            1.0);
-  EXPECT_NEAR(f.z, 3.0, 1e-12);
+  sdf.normal = kX;
+  StickAnchor anchor;
+  // First contact: it sticks where it touched, no tangential load.
+  Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0}, 0, &anchor);
+  EXPECT_NEAR(f.y, 0.0, 1e-12);
+  // Displaced 0.2 along y relative to the tool: the spring pulls it back with 2 < 3, and keeps
+  // doing so at rest (a step later, same place): a stuck point carries its load statically.
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0.2, 0}, 1, &anchor);
+  EXPECT_NEAR(f.y, -2.0, 1e-12);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0.2, 0}, 2, &anchor);
+  EXPECT_NEAR(f.y, -2.0, 1e-12);
+  // The normal part of the offset is not friction.
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0.1, 0.2, 0}, 3, &anchor);
+  EXPECT_NEAR(f.y, -2.0, 1e-12);
   EXPECT_NEAR(f.x, 10.0, 1e-12);
-  // Moving with the tool: no slip, no friction.
-  f = penalty_contact_force(sdf, 10.0, 0.3, vertex_at({0, 0, 0}, {0, 2.0, 0}), Vec3d{0, 2.0, 0},
-                            1.0);
+  // Pulled past the cone (0.5 along z): the Coulomb limit against the slip, and the anchor
+  // slides so that it stays at the limit; moving back by 0.3 then unloads it to zero.
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.5}, 4, &anchor);
+  EXPECT_NEAR(f.z, -3.0, 1e-12);
+  EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 3.0, 1e-12);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.5}, 5, &anchor);
+  EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 3.0, 1e-12);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.2}, 6, &anchor);
+  EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 0.0, 1e-12);
+  // A point that left the tool (no contact at step 7) starts afresh where it touches again.
+  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 5.0, 0}, 8, &anchor);
+  EXPECT_NEAR(f.y, 0.0, 1e-12);
+  EXPECT_NEAR(f.z, 0.0, 1e-12);
+  // Without friction there is no tangential load at all.
+  StickAnchor other;
+  penalty_contact_force(sdf, 10.0, 0.0, 1.0, Vec3d{0, 0, 0}, 0, &other);
+  f = penalty_contact_force(sdf, 10.0, 0.0, 1.0, Vec3d{0, 1.0, 0}, 1, &other);
   EXPECT_NEAR(f.y, 0.0, 1e-12);
 }
 
@@ -125,9 +143,10 @@ TEST(ToolVertexForce, NeedleLoadAndSuctionRamp) {
   ToolPose pose;
   pose.tip = Vec3d{0.5, 0, 0};  // the vertex at the origin is 0.5 inside the hemisphere
   pose.suction_ramp = 0.25;
-  ToolVertexInput in = vertex_at({0, 0, 0}, {0, 0, 0}, 2.0);
+  ToolVertexInput in = vertex_at({0, 0, 0}, 2.0);
   in.suction = Vec3d{0, 0, 4.0};
-  const ToolVertexForce f = tool_vertex_force(p, pose, in);
+  StickAnchor anchors[2];
+  const ToolVertexForce f = tool_vertex_force(p, pose, in, &anchors[0], &anchors[1]);
   EXPECT_EQ(f.needle_contact, 1);
   EXPECT_EQ(f.rim_contact, 0);
   EXPECT_NEAR(f.needle.x, 100.0 * 0.5 * 2.0, 1e-9);
@@ -202,7 +221,7 @@ TEST(JobFinishStep, ForcePunctureFreezesTheTipAndReleasesTheLoad) {
   p.force_drop = 0.9;
   p.drop_time = 0.1;
   JobState s;
-  job_set_pose(p, s, p.needle_start);
+  job_set_pose(p, s);
   JobSums sums;
   JobStepTotals tot;
   JobRecord r;
@@ -245,9 +264,9 @@ double plate_load(int n, double depth, bool faces) {
           in.x[0] = at(i, j);
           in.x[1] = t ? at(i + 1, j + 1) : at(i + 1, j);
           in.x[2] = t ? at(i, j + 1) : at(i + 1, j + 1);
-          for (int c = 0; c < 3; ++c) in.mass[c] = 1.0;
           in.area = 0.5 * h * h;
-          const ToolFaceForce f = needle_face_force(p, pose, in);
+          StickAnchor anchors[kFacePoints];
+          const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
           for (int c = 0; c < 3; ++c) total += f.corner[c].z;
         }
   } else {
@@ -255,11 +274,11 @@ double plate_load(int n, double depth, bool faces) {
       for (int j = 0; j <= n; ++j) {
         ToolVertexInput in;
         in.x = at(i, j);
-        in.mass = 1.0;
         // Interior vertices carry h^2, edges and corners less (six triangles of h^2 / 2, a third each).
         const int edges = (i == 0 || i == n) + (j == 0 || j == n);
         in.area = h * h * (edges == 0 ? 1.0 : (edges == 1 ? 0.5 : 0.25));
-        total += tool_vertex_force(p, pose, in).force.z;
+        StickAnchor anchors[2];
+        total += tool_vertex_force(p, pose, in, &anchors[0], &anchors[1]).force.z;
       }
   }
   return -total;  // the tip pushes the plate down (-z): report the magnitude
@@ -296,11 +315,11 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
   in.x[0] = Vec3d{-3, -2, 0};
   in.x[1] = Vec3d{3, -2, 0};
   in.x[2] = Vec3d{0, 4, 0};
-  for (int c = 0; c < 3; ++c) in.mass[c] = 1.0;
   in.area = 18;
   ToolPose pose;
   pose.tip = Vec3d{0, 0, -0.2};
-  const ToolFaceForce f = needle_face_force(p, pose, in);
+  StickAnchor anchors[kFacePoints];
+  const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
   EXPECT_GT(f.contacts, 0);
   for (int c = 0; c < 3; ++c) {
     EXPECT_LT(f.corner[c].z, 0);
@@ -309,7 +328,10 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
     corner.x = in.x[c];
     corner.area = 6;
     p.needle_on_faces = 0;
-    EXPECT_EQ(tool_vertex_force(p, pose, corner).needle_contact, 0);
+    StickAnchor corner_anchors[2];
+    EXPECT_EQ(tool_vertex_force(p, pose, corner, &corner_anchors[0], &corner_anchors[1])
+                  .needle_contact,
+              0);
     p.needle_on_faces = 1;
   }
   // The deepest point is the one under the tip: 0.2 inside (the triangle lies at z = 0, the
@@ -318,8 +340,8 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
   EXPECT_LE(f.depth, 0.2 + 1e-12);
   // Far from the tip: nothing, and no point is evaluated beyond the centroid test.
   pose.tip = Vec3d{0, 0, 20};
-  EXPECT_EQ(needle_face_force(p, pose, in).contacts, 0);
-  EXPECT_EQ(needle_face_force(p, pose, in).depth, 0);
+  EXPECT_EQ(needle_face_force(p, pose, in, anchors).contacts, 0);
+  EXPECT_EQ(needle_face_force(p, pose, in, anchors).depth, 0);
 }
 
 TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
@@ -338,7 +360,8 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   in.area = 0.72;
   ToolPose pose;
   pose.tip = Vec3d{0, 0, -0.3};
-  const ToolFaceForce f = needle_face_force(p, pose, in);
+  StickAnchor anchors[kFacePoints];
+  const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
   ASSERT_GT(f.contacts, 4);
   double fz = 0;
   for (int c = 0; c < 3; ++c) {
@@ -348,7 +371,8 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   }
   EXPECT_LT(fz, 0);
   std::swap(in.x[1], in.x[2]);  // now facing -z, towards the cell's inside
-  const ToolFaceForce g = needle_face_force(p, pose, in);
+  StickAnchor fresh[kFacePoints];
+  const ToolFaceForce g = needle_face_force(p, pose, in, fresh);
   double gx = 0;
   for (int c = 0; c < 3; ++c) gx += g.corner[c].x;
   EXPECT_GT(gx, 0);  // the tool's normals lean towards +x over this triangle
