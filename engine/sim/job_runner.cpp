@@ -21,8 +21,11 @@ class CpuJobRunner final : public JobRunner {
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     needle_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
     rim_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
-    if (setup.params.needle_on_faces)
+    if (setup.params.needle_on_faces) {
       face_anchor_.assign(setup.tool_faces.size() * kFacePoints, StickAnchor{});
+      face_out_.assign(setup.tool_faces.size(), ToolFaceForce{});
+      face_hit_.assign(setup.tool_faces.size(), 0);
+    }
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
     if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
@@ -106,6 +109,25 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
+  // The needle's load on tool faces [begin, end) into face_out_ / face_hit_.
+  void needle_faces(size_t begin, size_t end) {
+    const JobParams& p = setup_.params;
+    for (size_t f = begin; f < end; ++f) {
+      face_hit_[f] = 0;
+      // Positions first: most triangles are far from the needle and need nothing else.
+      ToolFaceInput in;
+      for (int c = 0; c < 3; ++c) {
+        const size_t k = static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)]);
+        const size_t v = static_cast<size_t>(setup_.tool_vertices[k]);
+        in.x[c] = model_.rest_positions[v] + state_.u[v];
+      }
+      if (!needle_face_may_touch(p, job_.pose, in)) continue;
+      in.area = setup_.tool_face_area[f];
+      face_out_[f] = needle_face_force(p, job_.pose, in, &face_anchor_[f * kFacePoints]);
+      face_hit_[f] = face_out_[f].contacts > 0 ? 1 : 0;
+    }
+  }
+
   void step_once() {
     const JobParams& p = setup_.params;
     if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();
@@ -125,20 +147,22 @@ class CpuJobRunner final : public JobRunner {
     JobSums sums;
     const bool damping = p.stiffness_damping_rate > 0;
     if (p.needle_on_faces) {
+      // Every triangle on the pool (each owns its anchors and its output slot), then the few
+      // that touch the needle are gathered in order (the same sums on any thread count).
+      const size_t nf = setup_.tool_faces.size();
+      constexpr int64_t kChunk = 1024;
+      state_.pool->run(
+          static_cast<int64_t>((nf + kChunk - 1) / kChunk),
+          [](void* context, int64_t begin, int64_t end) {
+            auto* self = static_cast<CpuJobRunner*>(context);
+            self->needle_faces(static_cast<size_t>(begin * kChunk),
+                               std::min(self->face_out_.size(), static_cast<size_t>(end * kChunk)));
+          },
+          this);
       std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
-      for (size_t f = 0; f < setup_.tool_faces.size(); ++f) {
-        // Positions first: most triangles are far from the needle and need nothing else.
-        ToolFaceInput in;
-        size_t v[3];
-        for (int c = 0; c < 3; ++c) {
-          v[c] = static_cast<size_t>(
-              setup_.tool_vertices[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])]);
-          in.x[c] = model_.rest_positions[v[c]] + state_.u[v[c]];
-        }
-        if (!needle_face_may_touch(p, job_.pose, in)) continue;
-        in.area = setup_.tool_face_area[f];
-        const ToolFaceForce ff = needle_face_force(p, job_.pose, in, &face_anchor_[f * kFacePoints]);
-        if (ff.contacts == 0) continue;
+      for (size_t f = 0; f < nf; ++f) {
+        if (!face_hit_[f]) continue;
+        const ToolFaceForce& ff = face_out_[f];
         for (int c = 0; c < 3; ++c) {
           face_force_[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])] += ff.corner[c];
           for (int k = 0; k < 3; ++k) sums.needle_force[k] += ff.corner[c][k];
@@ -210,6 +234,8 @@ class CpuJobRunner final : public JobRunner {
   // Stick anchors of the friction: per tool vertex on the needle and on the rim, and per face
   // quadrature point (kFacePoints per triangle).
   std::vector<StickAnchor> needle_anchor_, rim_anchor_, face_anchor_;
+  std::vector<ToolFaceForce> face_out_;  // the step's load per face (valid where face_hit_)
+  std::vector<uint8_t> face_hit_;        // the face had points inside the needle this step
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;

@@ -160,7 +160,7 @@ Status Simulation::prepare_job() {
   const double safety = scene_.integrator.dynamic_mass_safety;
   const ConstitutiveModel law = model_.constitutive;
   if (safety > 0 && law != ConstitutiveModel::kLinear) {
-    p.mass_interval = 8;
+    p.mass_interval = 24;
     p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
                                           ? StiffeningLaw::kStableNeoHookean
                                           : StiffeningLaw::kSvk);
