@@ -20,6 +20,7 @@ class CpuJobRunner final : public JobRunner {
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     needle_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
+    tool_chunk_sums_.assign((setup.tool_vertices.size() + kToolChunk - 1) / kToolChunk, JobSums{});
     rim_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
     if (setup.params.needle_on_faces) {
       face_anchor_.assign(setup.tool_faces.size() * kFacePoints, StickAnchor{});
@@ -128,6 +129,36 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
+  // Stage 1 on the tool vertices of chunk `chunk` (kToolChunk of them): the vertex tools plus the
+  // faces' loads gathered before, into external_force, and the chunk's sums.
+  void tool_vertices(size_t chunk) {
+    const JobParams& p = setup_.params;
+    const bool damping = p.stiffness_damping_rate > 0;
+    JobSums& sums = tool_chunk_sums_[chunk];
+    sums = JobSums{};
+    const size_t end = std::min(setup_.tool_vertices.size(), (chunk + 1) * kToolChunk);
+    for (size_t i = chunk * kToolChunk; i < end; ++i) {
+      const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
+      ToolVertexInput in;
+      in.x = model_.rest_positions[v] + state_.u[v];
+      in.area = setup_.tool_area[i];
+      in.suction = setup_.tool_suction[i];
+      ToolVertexForce f = tool_vertex_force(p, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
+      f.force += face_force_[i];
+      Vec3d& ext = state_.external_force[v];
+      ext = damping ? ext + f.force : f.force;
+      for (int c = 0; c < 3; ++c) {
+        sums.needle_force[c] += f.needle[c];
+        sums.rim_force[c] += f.rim[c];
+      }
+      sums.needle_contacts += f.needle_contact;
+      sums.needle_depth = std::max(sums.needle_depth, f.needle_depth);
+      sums.rim_contacts += f.rim_contact;
+      tool_force_[i] = f.force;
+      tool_u_before_[i] = state_.u_prev[v];
+    }
+  }
+
   void step_once() {
     const JobParams& p = setup_.params;
     if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();
@@ -145,7 +176,6 @@ class CpuJobRunner final : public JobRunner {
     // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
     // surface vertices.
     JobSums sums;
-    const bool damping = p.stiffness_damping_rate > 0;
     if (p.needle_on_faces) {
       // Every triangle on the pool (each owns its anchors and its output slot), then the few
       // that touch the needle are gathered in order (the same sums on any thread count).
@@ -171,24 +201,23 @@ class CpuJobRunner final : public JobRunner {
         sums.needle_depth = std::max(sums.needle_depth, ff.depth);
       }
     }
-    for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
-      const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
-      ToolVertexInput in;
-      in.x = model_.rest_positions[v] + state_.u[v];
-      in.area = setup_.tool_area[i];
-      in.suction = setup_.tool_suction[i];
-      ToolVertexForce f = tool_vertex_force(p, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
-      f.force += face_force_[i];
-      ext[v] = damping ? ext[v] + f.force : f.force;
-      for (int c = 0; c < 3; ++c) {
-        sums.needle_force[c] += f.needle[c];
-        sums.rim_force[c] += f.rim[c];
+    // Every tool vertex on the pool, summed per fixed chunk, the chunks then in order (the same
+    // sums on any thread count).
+    state_.pool->run(
+        static_cast<int64_t>(tool_chunk_sums_.size()),
+        [](void* context, int64_t begin, int64_t end) {
+          auto* self = static_cast<CpuJobRunner*>(context);
+          for (int64_t c = begin; c < end; ++c) self->tool_vertices(static_cast<size_t>(c));
+        },
+        this);
+    for (const JobSums& c : tool_chunk_sums_) {
+      for (int k = 0; k < 3; ++k) {
+        sums.needle_force[k] += c.needle_force[k];
+        sums.rim_force[k] += c.rim_force[k];
       }
-      sums.needle_contacts += f.needle_contact;
-      sums.needle_depth = std::max(sums.needle_depth, f.needle_depth);
-      sums.rim_contacts += f.rim_contact;
-      tool_force_[i] = f.force;
-      tool_u_before_[i] = state_.u_prev[v];
+      sums.needle_contacts += c.needle_contacts;
+      sums.rim_contacts += c.rim_contacts;
+      sums.needle_depth = std::max(sums.needle_depth, c.needle_depth);
     }
     // 3-4. internal forces and the centred-difference update.
     StepStatus status = step(model_, state_);
@@ -234,6 +263,8 @@ class CpuJobRunner final : public JobRunner {
   // Stick anchors of the friction: per tool vertex on the needle and on the rim, and per face
   // quadrature point (kFacePoints per triangle).
   std::vector<StickAnchor> needle_anchor_, rim_anchor_, face_anchor_;
+  static constexpr size_t kToolChunk = 1024;  // tool vertices per chunk of stage 1
+  std::vector<JobSums> tool_chunk_sums_;      // stage 1's sums per chunk
   std::vector<ToolFaceForce> face_out_;  // the step's load per face (valid where face_hit_)
   std::vector<uint8_t> face_hit_;        // the face had points inside the needle this step
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
