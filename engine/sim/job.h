@@ -362,6 +362,13 @@ ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* 
   *b2 = (j + off) / n;
 }
 
+/// Quadrature point q of a triangle with corners x[3] [m], and its barycentric weights b[3].
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d face_point(const Vec3d x[3], int q, double b[3]) {
+  face_point_weights(q, &b[1], &b[2]);
+  b[0] = 1.0 - b[1] - b[2];
+  return b[0] * x[0] + b[1] * x[1] + b[2] * x[2];
+}
+
 /// The needle's load [N] at quadrature point q of a triangle and how deep the point is inside
 /// the needle [m] (false, and nothing written but a void anchor, where the point is outside the
 /// needle), and the point's barycentric weights b[3]; `anchor` is the point's stick anchor.
@@ -369,9 +376,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const To
                                                     const ToolFaceInput& in, int q, Vec3d* force,
                                                     double* depth, double b[3],
                                                     StickAnchor* anchor) {
-  face_point_weights(q, &b[1], &b[2]);
-  b[0] = 1.0 - b[1] - b[2];
-  const Vec3d x = b[0] * in.x[0] + b[1] * in.x[1] + b[2] * in.x[2];
+  const Vec3d x = face_point(in.x, q, b);
   ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, x);
   if (!(sdf.distance < 0)) return false;
   *depth = -sdf.distance;

@@ -305,9 +305,8 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
       x[c] = position(v[c]);
     }
     for (int q = 0; q < kFacePoints; ++q) {
-      double b1 = 0, b2 = 0;
-      face_point_weights(q, &b1, &b2);
-      if (!in_needle((1.0 - b1 - b2) * x[0] + b1 * x[1] + b2 * x[2])) continue;
+      double b[3];
+      if (!in_needle(face_point(x, q, b))) continue;
       for (size_t c : v) marks[c] = 1;
       break;
     }

@@ -721,6 +721,18 @@ std::span<const Contact> Simulation::holding_contacts() const {
 // ---------------------------------------------------------------------------------------------
 // The run driver.
 
+FrameSchedule frame_schedule(const Scene& scene, double end) {
+  FrameSchedule f;
+  f.count = scene.output.frames;
+  if (scene.output.frame_interval) {
+    f.interval = *scene.output.frame_interval;
+    f.count = static_cast<int>(std::floor(end / f.interval + 1e-9)) + 1;
+  } else if (f.count > 1) {
+    f.interval = end / (f.count - 1);
+  }
+  return f;
+}
+
 RunResult run_simulation(Simulation& sim, const RunOptions& options) {
   if (sim.job_mode()) return run_job_simulation(sim, options);
   RunResult result;
@@ -737,14 +749,9 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
   result.samples.reserve(static_cast<size_t>(std::ceil(end / row_dt * (1 + 1e-9))) + 4);
 
   // Frame times: evenly spaced over the run, t = 0 and the end included.
-  int frame_count = scene.output.frames;
-  double frame_dt = 0;
-  if (scene.output.frame_interval) {
-    frame_dt = *scene.output.frame_interval;
-    frame_count = static_cast<int>(std::floor(end / frame_dt + 1e-9)) + 1;
-  } else if (frame_count > 1) {
-    frame_dt = end / (frame_count - 1);
-  }
+  const FrameSchedule schedule = frame_schedule(scene, end);
+  const int frame_count = schedule.count;
+  const double frame_dt = schedule.interval;
   int next_frame = 0;
   auto maybe_frame = [&](bool force_last) {
     if (!options.frame || frame_count <= 0) return;

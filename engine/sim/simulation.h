@@ -333,6 +333,15 @@ struct RunResult {
 /// Runs a built simulation to its end (or stop_after_puncture) and records the curve.
 RunResult run_simulation(Simulation& simulation, const RunOptions& options = {});
 
+/// When a run of length `end` [s] writes its frames: `count` frames `interval` [s] apart, the
+/// first at t = 0 (output.frame_interval, or output.frames spread over the run with the end
+/// included). Both run drivers use it.
+struct FrameSchedule {
+  int count = 0;
+  double interval = 0;
+};
+FrameSchedule frame_schedule(const Scene& scene, double end);
+
 /// run_simulation's loop for the job path (engine/sim/simulation_job.cpp): steps are handed to the
 /// runner in batches, samples come back from where the state lives, and the state is brought
 /// to the host only for frames.

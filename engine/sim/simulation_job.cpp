@@ -329,14 +329,9 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
   result.samples.reserve(sim.job_setup().sample_capacity + 2);
 
   // Frames at evenly spaced steps (t = 0 and the end included).
-  int frame_count = scene.output.frames;
-  double frame_dt = 0;
-  if (scene.output.frame_interval) {
-    frame_dt = *scene.output.frame_interval;
-    frame_count = static_cast<int>(std::floor(end / frame_dt + 1e-9)) + 1;
-  } else if (frame_count > 1) {
-    frame_dt = end / (frame_count - 1);
-  }
+  const FrameSchedule schedule = frame_schedule(scene, end);
+  const int frame_count = schedule.count;
+  const double frame_dt = schedule.interval;
   const bool frames = options.frame && frame_count > 0;
   int next_frame = 0;
   auto frame_step = [&](int k) {
