@@ -256,7 +256,10 @@ Status CudaJob::enqueue_step(int64_t g) {
                 static_cast<float>(params_.mass_gate), params_.mass_law));
     keep(launch(pdl, mass_raise_kernel, vb, s, static_cast<const float*>(d_vertex_need_.data()),
                 static_cast<const float*>(d_vertex_volume_.data()), b_.d_mass_.data(),
-                b_.d_update_.data(), d_mass_raises_.data(), static_cast<int>(b_.nv_)));
+                b_.d_update_.data(), vp.u,
+                // The step's u_{n-1} buffer (the vertex view only reads it).
+                const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
+                static_cast<int>(b_.nv_)));
   }
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;

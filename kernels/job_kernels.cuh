@@ -376,10 +376,11 @@ __global__ void __launch_bounds__(kBlock)
 
 // Dynamic mass scaling, vertex side: a free vertex whose mass falls short of its elements' need
 // takes it (set_vertex_mass: the damping rate gamma / M is kept, so b stays and c scales with
-// 1 / M).
+// 1 / M), keeping its momentum (job_raised_prev, as the CPU job).
 __global__ void __launch_bounds__(kBlock)
     mass_raise_kernel(const float* __restrict__ vertex_need, const float* __restrict__ volume,
                       double* __restrict__ mass, float2* __restrict__ update,
+                      const double* __restrict__ u, double* __restrict__ u_prev,
                       unsigned long long* __restrict__ raises, int vertex_count) {
   wait_for_previous_kernel();
   allow_next_kernel();
@@ -394,6 +395,10 @@ __global__ void __launch_bounds__(kBlock)
   k.y = static_cast<float>(k.y * (m / m_new));
   update[v] = k;
   mass[v] = m_new;
+  for (int c = 0; c < 3; ++c) {
+    const size_t i = 3 * static_cast<size_t>(v) + static_cast<size_t>(c);
+    u_prev[i] = job_raised_prev(u[i], u_prev[i], m, m_new);
+  }
   atomicAdd(raises, 1ull);
 }
 

@@ -205,6 +205,16 @@ ZONA_HOST_DEVICE inline double job_mass_need(const JobParams& p, double growth, 
   return growth > p.mass_gate ? growth * rest_need : 0.0;
 }
 
+/// u_{n-1} of a vertex whose mass rises from m_old to m_new at u_n: the momentum is kept, so
+/// the velocity (u_n - u_{n-1}) / dt scales by m_old / m_new and the kinetic energy falls by the
+/// same factor. (Keeping the velocity instead would add (m_new / m_old - 1) of the vertex's
+/// kinetic energy from nothing: under a fast tip, where the raises happen, that energy threw the
+/// surface through the needle or tripped the blow-up check.)
+ZONA_HOST_DEVICE inline double job_raised_prev(double u, double u_prev, double m_old,
+                                               double m_new) {
+  return u - (m_old / m_new) * (u - u_prev);
+}
+
 /// Where a tool vertex is and what it may carry.
 struct ToolVertexInput {
   Vec3d x{0, 0, 0};        ///< position rest + u_n [m]

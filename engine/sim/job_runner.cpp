@@ -102,7 +102,10 @@ class CpuJobRunner final : public JobRunner {
       for (int32_t corner : model_.tets[t]) {
         const size_t v = static_cast<size_t>(corner);
         const double mass = need * setup_.vertex_volume[v];
-        if (mass > model_.vertex_mass[v] && !model_.vertex_fixed[v]) {
+        const double before = model_.vertex_mass[v];
+        if (mass > before && !model_.vertex_fixed[v]) {
+          Vec3d& prev = state_.u_prev[v];
+          for (int k = 0; k < 3; ++k) prev[k] = job_raised_prev(state_.u[v][k], prev[k], before, mass);
           set_vertex_mass(model_, v, mass);
           ++mass_raises_;
         }

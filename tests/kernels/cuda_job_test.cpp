@@ -146,6 +146,26 @@ TEST(CudaJob, NeedleThroughTheSurfaceStopsLikeTheCpu) {
               0.05 * static_cast<double>(rc.steps));
 }
 
+TEST(CudaJob, FastNeedleRaisesMassesWithoutAddingEnergy) {
+  // job_test.cpp's fast needle on the 10k fine cell: the device's mass raise keeps the momentum
+  // as the CPU's does, so the run goes its 3 ms without a blow-up, like the CPU's.
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                 {"mesh.generate.vertices=10000", "needle.speed=10mm/s", "integrator.duration=3ms",
+                  "output.frames=0"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(*scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  const RunResult rc = run_simulation(**cpu), rg = run_simulation(**gpu);
+  ASSERT_FALSE(rc.stopped_early) << rc.stop_reason;
+  EXPECT_FALSE(rg.stopped_early) << rg.stop_reason;
+  EXPECT_GT(rg.mass_raises, 0);
+  EXPECT_NEAR(rg.peak_force, rc.peak_force, 0.1 * rc.peak_force);
+}
+
 TEST(CudaJob, TheStepPathDoesNotAllocate) {
   std::string why;
   if (!have_device(&why)) GTEST_SKIP() << why;
