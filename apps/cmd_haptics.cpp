@@ -225,8 +225,11 @@ void run_haptics(const HapticsArgs& a) {
   lo.try_realtime = !a.no_realtime;
   lo.keep_log = !a.log.empty();
   HapticLoop loop(**device, renderer, channel, lo);
-  // The tip may follow the hand at up to 20x the scene's insertion speed in simulated time.
-  SimulationPortAdapter port(**sim, 20 * std::max(script.speed, 1e-6), a.lateral_force);
+  // The tip follows the hand at up to haptics.max_tip_speed in simulated time (auto: 20x the
+  // scene's insertion speed).
+  const double max_tip_speed =
+      h.max_tip_speed ? *h.max_tip_speed : 20 * std::max(script.speed, 1e-6);
+  SimulationPortAdapter port(**sim, max_tip_speed, a.lateral_force);
   const HapticLoopStats s = run_haptic_session(port, loop, channel);
 
   if (!a.log.empty()) {

@@ -457,7 +457,7 @@ void read_holding_pipette(Reader& root, Scene& scene) {
 void read_haptics(Reader& root, Scene& scene) {
   Reader r = root.object("haptics", {"device", "rate", "workspace_scale", "force_scale",
                                      "max_force", "max_stiffness", "interpolation", "stall_timeout",
-                                     "coupling_stiffness", "coupling_damping", "replay_file",
+                                     "max_tip_speed", "coupling_stiffness", "coupling_damping", "replay_file",
                                      "network_host", "network_port"});
   if (!r.present()) return;
   HapticsDef& h = scene.haptics;
@@ -477,6 +477,7 @@ void read_haptics(Reader& root, Scene& scene) {
             Choice<HapticInterpolation>{"stiffness", HapticInterpolation::kStiffness}},
            &h.interpolation);
   r.quantity("stall_timeout", dim::kTime, &h.stall_timeout, Range::positive());
+  r.auto_or_quantity("max_tip_speed", dim::kSpeed, &h.max_tip_speed, Range::positive());
   r.auto_or_quantity("coupling_stiffness", dim::kStiffness, &h.coupling_stiffness,
                      Range::positive());
   r.auto_or_quantity("coupling_damping", dim::kDamping, &h.coupling_damping,

@@ -280,6 +280,10 @@ struct HapticsDef {
   double max_stiffness = 400.0;      ///< device stiffness limit [N/m]
   HapticInterpolation interpolation = HapticInterpolation::kStiffness;
   double stall_timeout = 0.05;       ///< fade the force out after this long without a sample [s]
+  /// Fastest the simulated tip follows the hand, in simulated time [m/s]; nullopt: 20x the
+  /// needle's insertion speed. A simulation slower than real time always lags the hand, so its
+  /// tip runs at this speed: it must be one at which the scene's step is quasi-static.
+  std::optional<double> max_tip_speed;
   std::optional<double> coupling_stiffness;  ///< virtual coupling [N/m]; nullopt: auto (Llewellyn)
   std::optional<double> coupling_damping;    ///< virtual coupling [N*s/m]; nullopt: auto
   std::string replay_file;           ///< recorded session for kReplay (path resolved)

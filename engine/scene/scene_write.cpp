@@ -224,6 +224,8 @@ json scene_to_json(const Scene& scene) {
   haptics["stall_timeout"] = quantity_json(hp.stall_timeout, kTime);
   haptics["coupling_stiffness"] =
       hp.coupling_stiffness ? quantity_json(*hp.coupling_stiffness, kStiffness) : json("auto");
+  haptics["max_tip_speed"] =
+      hp.max_tip_speed ? quantity_json(*hp.max_tip_speed, kSpeed) : json("auto");
   haptics["coupling_damping"] =
       hp.coupling_damping ? quantity_json(*hp.coupling_damping, kDamping) : json("auto");
   if (!hp.replay_file.empty()) haptics["replay_file"] = hp.replay_file;

@@ -105,6 +105,26 @@ TEST(CmdHaptics, JsonKeysAndLogColumns) {
   for (size_t i = 1; i < rows.size(); ++i) ASSERT_GT(rows[i][0], rows[i - 1][0]);
 }
 
+TEST(CmdHaptics, TipFollowsTheHandAtMostAtTheSceneSpeedLimit) {
+  // haptics.max_tip_speed a fifth of the hand's speed mapped to the cell (0.1 mm/s): the tip lags
+  // the hand and moves at the limit in simulated time, never faster.
+  TempDir dir;
+  std::string text = kScene;
+  const std::string key = R"("max_force": "3.3 N")";
+  text.replace(text.find(key), key.size(), key + R"(, "max_tip_speed": "0.02 mm/s")");
+  const fs::path scene = write_scene(dir, text.c_str());
+  const CliRun r = run_zona(
+      "haptics " + scene.string() + " --device scripted --duration 0.3 --no-realtime --json",
+      dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  const double sim_time = j["sim_time_s"].get<double>();
+  const double travel = j["needle_travel_m"].get<double>();
+  ASSERT_GT(sim_time, 1e-3);
+  EXPECT_LE(travel, 0.02e-3 * sim_time + 1e-9);
+  EXPECT_GE(travel, 0.5 * 0.02e-3 * sim_time);
+}
+
 TEST(CmdHaptics, ReplaysRecordedSession) {
   TempDir dir;
   const fs::path scene = write_scene(dir);

@@ -542,6 +542,12 @@ TEST(Scene, OverridesApplyBeforeValidation) {
   expect_vec(down.mesh.generate.refine_at, {0.0, 0.0, 28e-6}, 1e-18);
   EXPECT_EQ(load_ok(mouse, {"haptics.interpolation=first_order_hold"}).haptics.interpolation,
             HapticInterpolation::kFirstOrderHold);
+  // The haptic tip's speed limit: auto (20x the insertion speed, cmd_haptics) or a speed.
+  EXPECT_FALSE(load_ok(mouse, {}).haptics.max_tip_speed.has_value());
+  const Scene fine = load_ok(kScenes + "mouse_oocyte_fine.json", {});
+  ASSERT_TRUE(fine.haptics.max_tip_speed.has_value());
+  expect_rel(*fine.haptics.max_tip_speed, fine.needle.speed);
+  expect_rel(*load_ok(mouse, {"haptics.max_tip_speed=2 mm/s"}).haptics.max_tip_speed, 2e-3);
   // Array elements by index; several overrides in order.
   const Scene bench = load_ok(kScenes + "bench_ball.json",
                               {"boundary.1.depth=3 um", "boundary.1.depth=4 um", "output.frames=5"});
@@ -556,6 +562,8 @@ TEST(Scene, OverridesAreValidatedLikeTheFile) {
   expect_error(j, "materials.default.poisson", "[0, 0.5)", {"materials.default.poisson=0.5"});
   expect_error(j, "integrator.duration", "missing unit", {"integrator.duration=0.1"});
   expect_error(j, "model", "not one of", {"model=fem"});
+  expect_error(j, "haptics.max_tip_speed", "must be > 0", {"haptics.max_tip_speed=0 m/s"});
+  expect_error(j, "haptics.max_tip_speed", "missing unit", {"haptics.max_tip_speed=0.001"});
   // A material for a new region still needs its required keys.
   j["mesh"]["generate"]["zona_thickness"] = "5 um";
   expect_error(j, "materials.zona.poisson", "required key missing", {"materials.zona.young=20kPa"});
