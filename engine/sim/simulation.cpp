@@ -393,7 +393,10 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   // Stiffness damping rewrites every load each step (Backend::set_external_forces on the
   // Backend path; with several sub-steps per call its term is held over the call).
   stiffness_damping_ = scene.integrator.stiffness_damping;
-  if (stiffness_damping_ > 0) force_prev_.assign(nv, Vec3d{0, 0, 0});
+  if (stiffness_damping_ > 0) {
+    force_prev_.assign(nv, Vec3d{0, 0, 0});
+    damping_load_.assign(nv, Vec3d{0, 0, 0});
+  }
 
   tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   report_.tip = tip_;
@@ -422,6 +425,13 @@ StepStatus Simulation::step2() {
   update_contacts();                     // 3. contact sets and prescribed targets
   apply_loads();                         // 4. suction, released tip force, shaft drag
   const StepStatus status = integrate(); // 5. internal forces + integrate (backend)
+  if (status & kStepFailed) {
+    // A failed health check (non-finite, energy blow-up): the run stops here, and nothing of
+    // this state is measured or published (no puncture, frame or haptic sample from it).
+    report_.status = status;
+    last_status_ = status;
+    return status;
+  }
   measure();                             // 6. reactions, needle force, deformation
   report_.status = status;
   last_status_ = status;
@@ -516,10 +526,15 @@ void Simulation::apply_loads() {
     // the element-scale ringing that contact events excite, which mass-proportional damping
     // cannot reach without dragging the slow, quasi-static motion too.
     const double k = stiffness_damping_ / model_.dt;
+    double before = 0;
     for (size_t v = 0; v < state_.force.size(); ++v) {
-      state_.external_force[v] = k * (state_.force[v] - force_prev_[v]);
+      const Vec3d load = k * (state_.force[v] - force_prev_[v]);
+      state_.external_force[v] = load;
+      damping_load_[v] = load;
       force_prev_[v] = state_.force[v];
+      before += dot(load, state_.u[v] + state_.u_prev[v]);
     }
+    damping_before_ = before;
     loaded_.clear();
     loads_changed_ = true;
   } else {
@@ -579,12 +594,28 @@ StepStatus Simulation::integrate() {
   return mask_budget_flag(r.status);
 }
 
-StepStatus Simulation::mask_budget_flag(StepStatus status) const {
-  // The energy test compares against the work put in by loads and prescribed vertices. With
-  // stiffness damping among the loads that account is not the energy balance any more (and it
-  // can turn negative), so its verdict is dropped; non-finite values are still caught.
-  if ((status & kStepEnergyBlowUp) && (stiffness_damping_ > 0 || !(state_.diag.energy_budget > 0)))
+StepStatus Simulation::mask_budget_flag(StepStatus status) {
+  // The energy test compares against the work put in by loads and prescribed vertices. The
+  // stiffness damping's loads are among them, and their work is no energy put in (lagged by a
+  // step it can be either sign): it is taken out of the budget here and the verdict taken again
+  // on the tools' work alone, as the job's record stage does. Over a step or a window of
+  // sub-steps with the loads held, the centred work telescopes to
+  // 1/2 load . ((u + u_prev)_after - (u + u_prev)_before).
+  if (stiffness_damping_ > 0 && !particles_ && !(status & kStepNonFinite)) {
+    double after = 0;
+    for (size_t v = 0; v < damping_load_.size(); ++v)
+      after += dot(damping_load_[v], state_.u[v] + state_.u_prev[v]);
+    damping_work_ += 0.5 * (after - damping_before_);
+    const StepDiagnostics& d = state_.diag;
+    const double energy = d.kinetic_energy + d.elastic_energy;
+    const double budget = d.energy_budget - damping_work_;
     status &= ~kStepEnergyBlowUp;
+    if (energy > model_.energy_blowup_factor * std::max(budget, model_.energy_floor))
+      status |= kStepEnergyBlowUp;
+    return status;
+  }
+  // Without a budget (nothing has put work in yet) the verdict is not taken.
+  if ((status & kStepEnergyBlowUp) && !(state_.diag.energy_budget > 0)) status &= ~kStepEnergyBlowUp;
   return status;
 }
 
@@ -705,7 +736,7 @@ bool Simulation::finished() const {
   if (job_)
     return job_halted_ ||
            static_cast<double>(job_->steps_advanced()) * model_.dt >= end_time_ - 0.5 * model_.dt;
-  if (last_status_ & kStepNotAdvanced) return true;
+  if (last_status_ & kStepFailed) return true;
   if ((last_status_ & kStepDtAboveCritical) && !model_.unsafe_allow_dt_above_critical) return true;
   return state_.time >= end_time_ - 0.5 * model_.dt;
 }
@@ -799,7 +830,7 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
     const NeedleReport& r = sim.report();
     if (r.force > result.peak_force) result.peak_force = r.force;
     if (r.deformation > result.peak_deformation) result.peak_deformation = r.deformation;
-    if (status & kStepNotAdvanced || ((status & kStepDtAboveCritical) &&
+    if (status & kStepFailed || ((status & kStepDtAboveCritical) &&
                                       !sim.model().unsafe_allow_dt_above_critical)) {
       result.stopped_early = true;
       result.stop_reason = describe_step_status(status, sim.model(), sim.state());

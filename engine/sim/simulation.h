@@ -196,7 +196,7 @@ class Simulation {
   StepStatus integrate();
   void measure();
   void publish();
-  StepStatus mask_budget_flag(StepStatus status) const;
+  StepStatus mask_budget_flag(StepStatus status);
   // The job path (simulation_job.cpp).
   Status prepare_job();
   Status start_job();
@@ -248,7 +248,10 @@ class Simulation {
   std::vector<Vec3d> zero_u_;              // zero displacements, for rays on the rest surface
   std::vector<Vec3d> indent_before_;       // indent vertices' u_{n-1} [m]
   std::vector<Vec3d> force_prev_;          // stiffness damping: f(u_{n-2}) [N]
+  std::vector<Vec3d> damping_load_;        // stiffness damping: this step's loads [N]
   double stiffness_damping_ = 0;           // [s]
+  double damping_work_ = 0;                // the damping loads' work so far [J]
+  double damping_before_ = 0;              // sum of load . (u + u_prev) before the step [J]
   bool loads_changed_ = true;
   int32_t seeds_[3] = {-1, -1, -1};
 

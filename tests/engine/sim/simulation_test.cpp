@@ -251,6 +251,29 @@ TEST(Simulation, NeoHookeanSmallCellRunsThroughWithoutBlowUp) {
   RecordProperty("svk_vs_neohookean_force", text);
 }
 
+TEST(Simulation, KinematicContactBlowUpStopsWithStiffnessDampingOn) {
+  // The kinematic contact path with an unstable stiffness damping (40 steps, as
+  // JobSimulation.BlowUpStopsTheRunWithoutAPuncture): the damping loads' own work is kept out of
+  // the energy budget (only the tools' work counts), so the energy test stops the run at the
+  // blow-up, before anything turns non-finite, and no puncture is recorded from it.
+  json j = small_cell_scene();
+  j["integrator"]["stiffness_damping"] = "400 us";
+  j["puncture"] = {{"criterion", "energy"}, {"threshold", "1 J"}};  // never met
+  Result<RunResult> r = run_scene(parse(j));
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_TRUE(r->stopped_early);
+  EXPECT_TRUE(r->status & kStepEnergyBlowUp) << r->stop_reason;
+  EXPECT_FALSE(r->status & kStepNonFinite) << r->stop_reason;
+  EXPECT_NE(r->stop_reason.find("energy blow-up"), std::string::npos) << r->stop_reason;
+  EXPECT_FALSE(r->puncture.punctured);
+  // The stable damping of the calibrated configuration (100 us, 10 steps) runs through.
+  json ok = small_cell_scene();
+  ok["integrator"]["stiffness_damping"] = "100 us";
+  Result<RunResult> fine = run_scene(parse(ok));
+  ASSERT_TRUE(fine.ok()) << fine.error().message;
+  EXPECT_FALSE(fine->stopped_early) << fine->stop_reason;
+}
+
 TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
   json j = small_cell_scene();
   j["puncture"] = {{"criterion", "force"}, {"threshold", "0.2 uN"}, {"force_drop", 0.8},
