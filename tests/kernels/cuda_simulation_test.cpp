@@ -56,5 +56,33 @@ TEST(CudaSimulation, InjectionWithStiffnessDampingMatchesCpu) {
   EXPECT_NEAR(rg.peak_deformation, rc.peak_deformation, 1e-3 * rc.peak_deformation);
 }
 
+TEST(CudaSimulation, KinematicContactBlowUpStopsLikeTheCpu) {
+  // simulation_test.cpp's unstable stiffness damping on the kinematic-contact host loop, through
+  // the CUDA backend: the energy test (its budget without the damping loads' work) stops the run
+  // at the blow-up, before anything is non-finite, with no puncture.
+  {
+    Result<std::unique_ptr<Backend>> probe = make_cuda_backend(BackendOptions{});
+    if (!probe) GTEST_SKIP() << probe.error().message;
+  }
+  nlohmann::json j = test::small_cell_scene();
+  j["contact"] = {{"model", "kinematic"}};
+  j["integrator"]["stiffness_damping"] = "400 us";
+  j["puncture"] = {{"criterion", "energy"}, {"threshold", "1 J"}};
+  Result<Scene> scene = parse_scene(j, "cuda_blowup.json");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  SimulationOptions options;
+  options.backend_factory = [](std::string* notice) {
+    return make_backend(BackendKind::kCuda, BackendOptions{}, notice);
+  };
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, options);
+  ASSERT_TRUE(gpu.ok()) << gpu.error().message;
+  ASSERT_FALSE((*gpu)->job_mode());
+  const RunResult r = run_simulation(**gpu);
+  EXPECT_TRUE(r.stopped_early);
+  EXPECT_TRUE(r.status & kStepEnergyBlowUp) << r.stop_reason;
+  EXPECT_FALSE(r.status & kStepNonFinite) << r.stop_reason;
+  EXPECT_FALSE(r.puncture.punctured);
+}
+
 }  // namespace
 }  // namespace zona
