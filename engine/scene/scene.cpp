@@ -457,8 +457,8 @@ void read_holding_pipette(Reader& root, Scene& scene) {
 void read_haptics(Reader& root, Scene& scene) {
   Reader r = root.object("haptics", {"device", "rate", "workspace_scale", "force_scale",
                                      "max_force", "max_stiffness", "interpolation", "stall_timeout",
-                                     "max_tip_speed", "coupling_stiffness", "coupling_damping", "replay_file",
-                                     "network_host", "network_port"});
+                                     "max_tip_speed", "coupling_stiffness", "coupling_damping",
+                                     "replay_file", "network_host", "network_port"});
   if (!r.present()) return;
   HapticsDef& h = scene.haptics;
   r.choice("device", {Choice<HapticDeviceKind>{"none", HapticDeviceKind::kNone},

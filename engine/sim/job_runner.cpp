@@ -105,7 +105,8 @@ class CpuJobRunner final : public JobRunner {
         const double before = model_.vertex_mass[v];
         if (mass > before && !model_.vertex_fixed[v]) {
           Vec3d& prev = state_.u_prev[v];
-          for (int k = 0; k < 3; ++k) prev[k] = job_raised_prev(state_.u[v][k], prev[k], before, mass);
+          for (int k = 0; k < 3; ++k)
+            prev[k] = job_raised_prev(state_.u[v][k], prev[k], before, mass);
           set_vertex_mass(model_, v, mass);
           ++mass_raises_;
         }

@@ -571,8 +571,8 @@ StepStatus Simulation::integrate() {
     // In place: the set changes without allocating (capacity reserved by make_state).
     if (Status s = set_prescribed_vertices(model_, state_, prescribed_); !s) return kStepNonFinite;
     std::copy(targets.begin(), targets.end(), state_.prescribed_displacement.begin());
-    if (particles_) return mask_budget_flag(particle_step(*particles_, model_, state_, nullptr));
-    return mask_budget_flag(zona::step(model_, state_));
+    if (particles_) return energy_verdict(particle_step(*particles_, model_, state_, nullptr));
+    return energy_verdict(zona::step(model_, state_));
   }
   // Backend: a new prescribed set needs a fresh upload (the interface has no call for it);
   // new loads go through set_external_forces, or an upload where the backend lacks it.
@@ -591,10 +591,10 @@ StepStatus Simulation::integrate() {
   if (Status s = backend_->set_prescribed_targets(targets); !s) return kStepNonFinite;
   const StepReport r = backend_->step(options_.backend_substeps);
   if (Status s = backend_->download(state_); !s) return r.status | kStepNonFinite;
-  return mask_budget_flag(r.status);
+  return energy_verdict(r.status);
 }
 
-StepStatus Simulation::mask_budget_flag(StepStatus status) {
+StepStatus Simulation::energy_verdict(StepStatus status) {
   // The energy test compares against the work put in by loads and prescribed vertices. The
   // stiffness damping's loads are among them, and their work is no energy put in (lagged by a
   // step it can be either sign): it is taken out of the budget here and the verdict taken again
@@ -615,7 +615,8 @@ StepStatus Simulation::mask_budget_flag(StepStatus status) {
     return status;
   }
   // Without a budget (nothing has put work in yet) the verdict is not taken.
-  if ((status & kStepEnergyBlowUp) && !(state_.diag.energy_budget > 0)) status &= ~kStepEnergyBlowUp;
+  if ((status & kStepEnergyBlowUp) && !(state_.diag.energy_budget > 0))
+    status &= ~kStepEnergyBlowUp;
   return status;
 }
 

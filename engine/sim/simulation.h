@@ -196,7 +196,9 @@ class Simulation {
   StepStatus integrate();
   void measure();
   void publish();
-  StepStatus mask_budget_flag(StepStatus status);
+  // The host paths' blow-up verdict against the tools' work (the stiffness damping's load work
+  // taken out of the integrator's budget).
+  StepStatus energy_verdict(StepStatus status);
   // The job path (simulation_job.cpp).
   Status prepare_job();
   Status start_job();
