@@ -21,8 +21,8 @@
 namespace zona {
 namespace {
 
-// One element evaluation per formulation that the batched passes below do not cover (the stable
-// neo-Hookean law and the tensor forms): eval_element (engine/fem/element_eval.h), the function
+// One element evaluation per formulation that the batched passes below do not cover (the tensor
+// forms): eval_element (engine/fem/element_eval.h), the function
 // the CUDA kernels call, here in float64: forces f[4] [N] written, energy [J] returned,
 // ElementHealth bits in *bits.
 template <ElementKind K>
@@ -35,7 +35,6 @@ struct ElementOf {
                                    bits);
   }
 };
-using SnhGradient = ElementOf<ElementKind::kSnhGradient>;
 using SvkTensorStored = ElementOf<ElementKind::kSvkStored>;
 using SvkTensorRebuilt = ElementOf<ElementKind::kSvkRebuilt>;
 using LinearTensorStored = ElementOf<ElementKind::kLinearStored>;
@@ -714,6 +713,71 @@ template <bool kSvk, class L, bool kFma = false,
   }
 }
 
+// The stable neo-Hookean element pass, batches of L::kLanes tetrahedra: tet_snh_forces lane by
+// lane (H, cof, J - 1 and P of fem_element.h on packs, no FMA), so bit-identical to the scalar
+// element (tests check it), with batch_pass's layouts, scatter and energy order. The law's one
+// health flag is informational: J <= 0 (or NaN) is counted as inverted and the law stays
+// defined there (fem_element.h); the lanes are looked at one by one only where some fails.
+template <class L>
+[[gnu::always_inline]] inline void batch_pass_snh(void* context, int64_t chunk_begin,
+                                                  int64_t chunk_end) {
+  using P = typename L::Pack;
+  constexpr int kLanes = L::kLanes;
+  const Model& m = *static_cast<PassContext*>(context)->model;
+  State& s = *static_cast<PassContext*>(context)->state;
+  const int64_t nt = static_cast<int64_t>(m.tet_count());
+  const double* ug = &s.u.data()->x;
+  double* blocks = s.assembly.blocks.data();
+  const int32_t* codes = s.assembly.corner_code.data();
+  const typename L::Row* rows = L::rows(m);
+  const int32_t* offsets = m.cpu_tet_corner_offsets.data();
+  for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
+    TetChunkResult r;
+    double energy = 0;
+    const int64_t begin = chunk * kTetChunk;
+    const int64_t end = std::min(nt, begin + kTetChunk);
+    const size_t first_batch = static_cast<size_t>(begin) / 8;
+    const typename L::Row* b8 = rows + first_batch * L::kRowStride;
+    const int32_t* o8 = offsets + first_batch * kCpuTetOffsetStride;
+    const int32_t* c8 = codes + first_batch * kCpuTetOffsetStride;
+    for (int64_t t8 = begin; t8 < end; t8 += 8, b8 += L::kRowStride, o8 += kCpuTetOffsetStride,
+                 c8 += kCpuTetOffsetStride)
+      for (int half = 0; half < 8; half += kLanes) {
+        const int64_t t0 = t8 + half;
+        if (t0 >= end) break;
+        const int lanes = static_cast<int>(std::min<int64_t>(kLanes, end - t0));
+        TetShape<P> shape;
+        P lambda, mu;
+        Vec3<P> du[3];
+        L::load(b8 + half, ug, o8 + half, shape, lambda, mu, du);
+        Mat3<P> p;
+        P jm1;
+        const P psi =
+            snh_first_piola(tet_displacement_gradient_from_edges(shape, du), lambda, mu, &p, &jm1);
+        Vec3<P> f[4];
+        tet_forces_from_stress(shape, p, f);
+        store_batch<L>(f, blocks, c8 + half, lanes);
+        const P w = shape.volume * psi;
+        for (int l = 0; l < lanes; ++l) energy += static_cast<double>(w.v[l]);
+        // J > 0 in every lane is -(J - 1) < 1 (a NaN fails it, as tet_snh_forces counts it).
+        if (!L::below(P(0.0) - jm1, 1.0)) [[unlikely]] {
+          for (int l = 0; l < lanes; ++l)
+            if (!(jm1.v[l] > -1.0)) {
+              r.health |= kElementInverted;
+              if (r.inverted_count++ == 0) r.first_inverted = t0 + l;
+            }
+        }
+      }
+    r.elastic_energy = energy;
+    s.tet_chunks[static_cast<size_t>(chunk)] = r;
+  }
+}
+
+ZONA_SIMD_CLONES void tet_pass_chunks_snh_f64(void* context, int64_t chunk_begin,
+                                              int64_t chunk_end) {
+  batch_pass_snh<Lanes4d>(context, chunk_begin, chunk_end);
+}
+
 // The batches of the clamped passes that may hold a clamped lane, one function per pass, built
 // for its instruction set and called, not inlined, and handed no packs: with the ~1000
 // instructions of batch_clamp inlined, every batch of the clamped pass was 27 % slower than in
@@ -865,6 +929,12 @@ tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end
       context, chunk_begin, chunk_end);
 }
 
+// The stable neo-Hookean pass with eight lanes (no FMA: the same bits as the four-lane one).
+__attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
+tet_pass_chunks_snh_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  batch_pass_snh<Lanes8d>(context, chunk_begin, chunk_end);
+}
+
 // Four float64 lanes with AVX2 and FMA: the same fused operations in the same order as the
 // AVX-512 FMA pass, so the same bits. Chosen at run time (cpu_element_fma()); CPUs without FMA
 // run tet_pass_chunks_f64 (bit-identical to fem_element.h).
@@ -953,8 +1023,13 @@ ThreadPool::ChunkFn select_f64_pass() {
 }
 
 ThreadPool::ChunkFn select_tet_pass(const Model& m) {
-  // Stable neo-Hookean: gradient form only (build_model), float64, the scalar loop.
-  if (m.constitutive == ConstitutiveModel::kStableNeoHookean) return &tet_pass_chunks<SnhGradient>;
+  // Stable neo-Hookean: gradient form only (build_model), float64, the batched pass.
+  if (m.constitutive == ConstitutiveModel::kStableNeoHookean) {
+#ifdef ZONA_HAVE_AVX512_PASS
+    if (cpu_simd_bits() >= 512) return &tet_pass_chunks_snh_avx512;
+#endif
+    return &tet_pass_chunks_snh_f64;
+  }
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
     case Formulation::kGradient:

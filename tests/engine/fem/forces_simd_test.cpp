@@ -1,5 +1,6 @@
 // The CPU element pass's packed kernels against the scalar element functions: float64 (four
-// tetrahedra per AVX2 pack, eight per AVX-512 pack) bit for bit without FMA and within 1e-13 of
+// tetrahedra per AVX2 pack, eight per AVX-512 pack; SVK, linear and stable neo-Hookean) bit for
+// bit without FMA and within 1e-13 of
 // the element's largest corner force with it (the AVX2 and AVX-512 FMA passes bit for bit
 // against each other), float32 (eight per pack, ElementPrecision::kFloat32) bit for bit against
 // fem_element.h at T = float and within a stated tolerance of float64, health bits through the
@@ -80,7 +81,11 @@ double scalar_element(const Model& m, size_t t, const std::vector<Vec3d>& u, Vec
   const Mat3<T> h = tet_displacement_gradient_from_edges(s, du);
   Mat3<T> p;
   T psi;
-  if (m.constitutive == ConstitutiveModel::kSvk) {
+  if (m.constitutive == ConstitutiveModel::kStableNeoHookean) {
+    T jm1;
+    psi = snh_first_piola(h, lambda, mu, &p, &jm1);
+    *bits = jm1 > T(-1) ? 0u : uint32_t{kElementInverted};
+  } else if (m.constitutive == ConstitutiveModel::kSvk) {
     const Mat3<T> strain = green_strain(h);
     *bits = tet_health_from_strain(h, strain);
     const Mat3<T> stress = isotropic_stress(strain, lambda, mu, &psi);
@@ -145,6 +150,44 @@ TEST(SimdElementPass, Float64CornerForcesEqualTheScalarFunctionsBitForBit) {
   }
   set_cpu_simd_bits(512);
   set_cpu_element_fma(true);
+}
+
+// The stable neo-Hookean pass (no FMA in any build): bit for bit at both pack widths, and its
+// inverted count and first offender through the lane masks, against the scalar element.
+TEST(SimdElementPass, StableNeoHookeanCornerForcesAndHealthEqualTheScalarElement) {
+  for (int bits : {512, 256}) {
+    set_cpu_simd_bits(bits);
+    SCOPED_TRACE(::testing::Message() << "simd bits " << cpu_simd_bits());
+    expect_pass_equals_scalar<double>(ConstitutiveModel::kStableNeoHookean,
+                                      ElementPrecision::kFloat64);
+    // Inverted elements around one vertex pushed through its neighbours (the law stays finite).
+    const Mesh mesh = test_box();
+    std::vector<Vec3d> u(mesh.vertex_count(), Vec3d{0, 0, 0});
+    const size_t inner = 1 + 4 * (1 + 4 * 1);  // vertex (1, 1, 1)
+    u[inner] = Vec3d{0.45 * kL, 0.5 * kL, 0.48 * kL};
+    const Model m = build(mesh, ConstitutiveModel::kStableNeoHookean, ElementPrecision::kFloat64);
+    State s = loaded_state(m, u, 2);
+    compute_tet_forces(m, s);
+    StepDiagnostics d;
+    reduce_tet_chunks(s, d);
+    int64_t inverted = 0, first_inverted = -1;
+    for (size_t t = 0; t < m.tet_count(); ++t) {
+      Vec3d f[4];
+      uint32_t health = 0;
+      scalar_element<double>(m, t, u, f, &health);
+      if ((health & kElementInverted) && inverted++ == 0) first_inverted = static_cast<int64_t>(t);
+      for (int c = 0; c < 4; ++c) {
+        const Vec3d pass = corner_force(s, t, c);
+        EXPECT_EQ(std::memcmp(&pass, &f[c], sizeof(Vec3d)), 0) << "tet " << t << " corner " << c;
+        EXPECT_TRUE(std::isfinite(pass.x) && std::isfinite(pass.y) && std::isfinite(pass.z));
+      }
+    }
+    ASSERT_GT(inverted, 0);
+    EXPECT_EQ(d.inverted_count, inverted);
+    EXPECT_EQ(d.first_inverted, first_inverted);
+    EXPECT_EQ(d.element_health, uint32_t{kElementInverted});
+  }
+  set_cpu_simd_bits(512);
 }
 
 // The fused (FMA) float64 passes, where the CPU has FMA: within 1e-13 of the scalar functions.
