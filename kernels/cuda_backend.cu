@@ -42,6 +42,11 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     return make_error(
         "cuda backend: the neohookean model has no mass-tensor form: use the "
         "gradient formulation");
+  if (model.nodal_pressure && options_.assembly != Assembly::kScatterAtomic &&
+      options_.assembly != Assembly::kScatterFixed)
+    return make_error(
+        "cuda backend: nodal pressure (\"volumetric\": \"nodal\") needs a scatter assembly "
+        "(atomic or fixed)");
   kind_ = choose_kind(model, form);
 
   Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder});
@@ -107,6 +112,25 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     build_tensors_kernel<<<blocks_for(nt_), kBlock, 0, stream_.get()>>>(
         tp_, kind_ == ElementKind::kSvkStored, d_tensors_.data(), stride);
     ZONA_CUDA_TRY_LAUNCH();
+  }
+
+  // Nodal pressure: per device vertex (lambda_v, 1 / V_v) in device units, and the sums of the
+  // step's first pass, zero between steps.
+  d_vertex_q_ = DeviceBuffer<float>{};
+  d_vertex_nodal_ = DeviceBuffer<float2>{};
+  if (model.nodal_pressure) {
+    const double volume_unit = L.length_unit * L.length_unit * L.length_unit;
+    std::vector<float2> nodal(nv_);
+    for (size_t i = 0; i < nv_; ++i) {
+      const size_t v = static_cast<size_t>(new_to_old_[i]);
+      nodal[i] = make_float2(static_cast<float>(model.vertex_lambda[v] / L.stress_unit),
+                             static_cast<float>(model.vertex_inverse_volume[v] * volume_unit));
+    }
+    if (Status s = d_vertex_nodal_.upload(nodal, "nodal pressure coefficients"); !s) return s;
+    if (Status s = d_vertex_q_.allocate(nv_, "nodal volume changes"); !s) return s;
+    if (Status s = d_vertex_q_.fill_bytes(0); !s) return s;
+    tp_.vertex_q = d_vertex_q_.data();
+    tp_.vertex_nodal = d_vertex_nodal_.data();
   }
 
   // Vertices: update coefficients, masses, gather lists, numbering.
@@ -264,6 +288,7 @@ VertexParams CudaBackend::vertex_params(int64_t g) {
   vp.gather_offsets = d_gather_offsets_.data();
   vp.gather_entries = d_gather_entries_.data();
   vp.vertex_new_to_old = d_vertex_new_to_old_.data();
+  vp.nodal_clear = tp_.vertex_q;
   vp.vertex_count = static_cast<int>(nv_);
   vp.length_unit = length_unit_;
   vp.force_unit = force_unit_;
@@ -291,6 +316,7 @@ Status CudaBackend::enqueue_substep(int64_t g, int substep, bool diag, DeviceSta
     with_bool(diag, [&](auto dc) {
       constexpr ElementKind K = decltype(kc)::value;
       constexpr bool D = decltype(dc)::value;
+      if (tp_.vertex_q) keep(launch(pdl, volume_change_kernel, tb, s, tp_, vp.u, substep, st));
       if (a != Assembly::kGatherRecompute)
         with_scatter(scatter_of(a, options_.warp_aggregate), [&](auto mc) {
           constexpr Scatter M = decltype(mc)::value;
@@ -545,6 +571,12 @@ Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f)
   DeviceStatus* st = d_scratch_status_.data();
   const unsigned tb = blocks_for(nt_), vb = blocks_for(nv_);
   cudaError_t err = cudaSuccess;
+  // Nodal pressure: the first pass's sums from zero, and zero again afterwards (the stepping
+  // state's invariant between steps).
+  if (tp_.vertex_q) {
+    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
+    err = launch(false, volume_change_kernel, tb, s, tp_, vp.u, 0, st);
+  }
   with_kind(kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;
     if (a != Assembly::kGatherRecompute)
@@ -562,6 +594,7 @@ Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f)
   });
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (forces)", __FILE__, __LINE__);
   ZONA_CUDA_TRY_LAUNCH();
+  if (tp_.vertex_q) ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
   std::vector<float4> out(nv_);
   ZONA_CUDA_TRY(cudaMemcpyAsync(out.data(), d_scratch_force_.data(), d_scratch_force_.bytes(),
                                 cudaMemcpyDeviceToHost, s));

@@ -171,6 +171,8 @@ class CudaBackend final : public Backend {
   DeviceBuffer<float4> d_shape_a_, d_shape_b_;
   DeviceBuffer<float2> d_shape_c_;
   DeviceBuffer<float> d_tensors_;
+  DeviceBuffer<float> d_vertex_q_;        ///< nodal pressure: TetParams::vertex_q
+  DeviceBuffer<float2> d_vertex_nodal_;   ///< nodal pressure: TetParams::vertex_nodal
   DeviceBuffer<int32_t> d_tet_new_to_old_, d_vertex_new_to_old_;
   DeviceBuffer<double> d_u_[3];
   DeviceBuffer<float4> d_force_[2], d_tet_force_, d_external_;

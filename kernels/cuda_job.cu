@@ -261,6 +261,8 @@ Status CudaJob::enqueue_step(int64_t g) {
                 const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
                 static_cast<int>(b_.nv_)));
   }
+  if (b_.tp_.vertex_q)
+    keep(launch(pdl, volume_change_kernel, tb, s, b_.tp_, vp.u, kSubstep, st));
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;
     with_bool(energy, [&](auto dc) {

@@ -275,6 +275,7 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       vp.force_clear[v] = make_float4(0, 0, 0, 0);
     }
+    if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
     float4 fe = make_float4(0, 0, 0, 0);
     const int i = tool_index[v];
     Vec3d tool{0, 0, 0};

@@ -54,6 +54,12 @@ struct TetParams {
   float mu[kMaxDeviceMaterials] = {};      ///< [stress_unit]
   float clamp_stretch = 0;
   bool clamp_at_collapse = true;
+  /// Nodal pressure (Model::nodal_pressure; stable neo-Hookean only), else null: per device
+  /// vertex the sum of V_e / 4 (J_e - 1) over its elements [length_unit^3], filled by
+  /// volume_change_kernel and zeroed by the step's vertex kernel after the element pass, and
+  /// (lambda_v [stress_unit], 1 / V_v [1/length_unit^3]).
+  float* vertex_q = nullptr;
+  const float2* vertex_nodal = nullptr;
   double energy_unit = 1;  ///< J per device energy unit (stress_unit * length_unit^3)
 };
 
@@ -73,6 +79,7 @@ struct VertexParams {
   const int* gather_offsets = nullptr;
   const int* gather_entries = nullptr;
   const int32_t* vertex_new_to_old = nullptr;
+  float* nodal_clear = nullptr;  ///< TetParams::vertex_q, zeroed by the update (nodal pressure)
   int vertex_count = 0;
   double length_unit = 1;  ///< [m]
   double force_unit = 1;   ///< [N]
@@ -194,6 +201,55 @@ __device__ __forceinline__ void load_relative_displacements(const double* u64, i
   }
 }
 
+/// The stable neo-Hookean element with nodal pressure (snh_first_piola_nodal, the CPU's
+/// batch_pass_snh<L, true>): the corner means of lambda_v (Jbar_v - 1) and of
+/// lambda_v / 2 (Jbar_v - 1)^2 from TetParams::vertex_q and vertex_nodal. Energy
+/// [stress_unit length_unit^3] returned; kElementInverted where J <= 0.
+__device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetShape<float>& s,
+                                                float mu, int4 id, const Vec3f u[4], Vec3f f[4],
+                                                uint32_t* bits) {
+  const int v[4] = {id.x, id.y, id.z, id.w};
+  float pressure = 0, density = 0;
+  for (int c = 0; c < 4; ++c) {
+    const float2 n = tp.vertex_nodal[v[c]];
+    const float jm1 = tp.vertex_q[v[c]] * n.y;
+    pressure += n.x * jm1;
+    density += 0.5f * n.x * jm1 * jm1;
+  }
+  Mat3f p;
+  float jm1;
+  const float psi =
+      snh_first_piola_nodal(tet_displacement_gradient(s, u), mu, 0.25f * pressure, &p, &jm1);
+  *bits = jm1 > -1.0f ? 0u : uint32_t{kElementInverted};
+  tet_forces_from_stress(s, p, f);
+  return s.volume * (psi + 0.25f * density);
+}
+
+/// Nodal pressure, the step's first pass (TetParams::vertex_q set): V_e / 4 (J_e - 1)
+/// [length_unit^3] of every tetrahedron added to its corners' sums, which the previous step's
+/// vertex kernel zeroed (float atomics: the sums' order, and so their last bits, vary).
+/// Internal linkage: this header is compiled into two translation units.
+static __global__ void __launch_bounds__(kBlock)
+    volume_change_kernel(TetParams tp, const double* __restrict__ u64, int substep,
+                         DeviceStatus* st) {
+  wait_for_previous_kernel();
+  allow_next_kernel();
+  if (halted(st, substep)) return;
+  const int t = blockIdx.x * kBlock + threadIdx.x;
+  if (t >= tp.tet_count) return;
+  const int4 id = tp.vertices[t];
+  float lambda, mu;
+  const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
+  Vec3f du[3];
+  load_relative_displacements(u64, id, du);
+  const float q =
+      0.25f * s.volume * snh_volume_change(tet_displacement_gradient_from_edges(s, du));
+  atomicAdd(tp.vertex_q + id.x, q);
+  atomicAdd(tp.vertex_q + id.y, q);
+  atomicAdd(tp.vertex_q + id.z, q);
+  atomicAdd(tp.vertex_q + id.w, q);
+}
+
 /// Evaluates device tetrahedron t at displacements u (float64): corner forces [force_unit] and
 /// energy [stress_unit length_unit^3]; health bits go to the status (rare path). The element is
 /// translated so that corner 0 sits at zero (energy and forces depend on displacement
@@ -212,8 +268,17 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
   if constexpr (element_kind_stored(K))
     tensors = tp.tensors + static_cast<size_t>(t) * static_cast<size_t>(tp.tensor_stride);
   uint32_t bits = 0;
-  const float energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
-                                              tp.clamp_at_collapse, u, f, &bits);
+  float energy;
+  if constexpr (K == ElementKind::kSnhGradient) {
+    if (tp.vertex_q)
+      energy = eval_nodal_tet(tp, s, mu, id, u, f, &bits);
+    else
+      energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
+                                      tp.clamp_at_collapse, u, f, &bits);
+  } else {
+    energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
+                                    tp.clamp_at_collapse, u, f, &bits);
+  }
   if (record_health) {
     // Rare per element, common per step near the tip (clamped, collapsing elements under a
     // needle): one set of atomics per warp, not per element, so that thousands of flagged
@@ -509,6 +574,7 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       vp.force_clear[v] = make_float4(0, 0, 0, 0);
     }
+    if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
     update_vertex(vp, v, f, substep, st, &d);
   }
   reduce_vertex_diag<DIAG>(vp, d, st);

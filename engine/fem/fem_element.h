@@ -421,6 +421,35 @@ ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu,
   return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lam * jm1 * jm1;
 }
 
+/// SNH with its volumetric term taken at the vertices (nodal pressure; ModelDesc::
+/// nodal_pressure): the element keeps Psi_e = mu/2 (I_C - 3) - mu (J - 1) + mu/2 (J - 1)^2
+/// (the law with lambda_s = mu, which linearises to mu eps:eps: positive semi-definite at rest,
+/// so no element mode relies on the nodal term for stability), and the rest of the volumetric
+/// energy, lambda/2 (Jbar - 1)^2 per unit volume with Jbar averaged at each vertex, enters
+/// through `pressure`, the mean over the element's corners of lambda_v (Jbar_v - 1) [Pa]:
+/// P = mu (F - cof F) + (mu (J - 1) + pressure) cof F, written to *p. The element part of the
+/// energy density [J/m^3] is returned, J - 1 to *j_minus_one. At a uniform J (Jbar = J) this is
+/// snh_first_piola exactly (lambda_s = lambda + mu).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_nodal(const Mat3<T>& h, T mu, T pressure,
+                                                     Mat3<T>* p, T* j_minus_one) {
+  const Mat3<T> ch = cofactor(h);
+  const T tr = trace(h);
+  T hh = 0;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) hh += h.m[r][c] * h.m[r][c];
+  const T i2 = principal_minor_sum(h);
+  const T det_h = determinant(h);
+  const T jm1 = tr + i2 + det_h;
+  const T k = mu * jm1 + pressure;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      p->m[r][c] = mu * (h.m[r][c] + h.m[c][r] - ch.m[r][c]) + k * (ch.m[r][c] - h.m[c][r]);
+  for (int r = 0; r < 3; ++r) p->m[r][r] += k * (T(1) + tr) - mu * tr;
+  *j_minus_one = jm1;
+  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * mu * jm1 * jm1;
+}
+
 /// SNH stress differential dP = (d^2 Psi / dF^2) : dF [Pa] at displacement gradient H, for a
 /// change dF of the deformation gradient [-]:
 ///   dP = mu_s (dF - dcof) + lambda_s ((cof F : dF) cof F + (J - 1) dcof),  dcof = d cof(F)[dF].

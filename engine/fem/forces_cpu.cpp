@@ -713,12 +713,31 @@ template <bool kSvk, class L, bool kFma = false,
   }
 }
 
+// The corner means of State::vertex_pressure's pressure and energy density for each lane of a
+// batch (corner offsets o: 3 v, lane l of corner c at o[8 c + l]).
+template <class L>
+[[gnu::always_inline]] inline void nodal_means(const double* pe, const int32_t* o,
+                                               typename L::Pack* pressure,
+                                               typename L::Pack* density) {
+  for (int l = 0; l < L::kLanes; ++l) {
+    const double* a = pe + o[l];
+    const double* b = pe + o[8 + l];
+    const double* c = pe + o[16 + l];
+    const double* d = pe + o[24 + l];
+    pressure->v[l] = 0.25 * ((a[0] + b[0]) + (c[0] + d[0]));
+    density->v[l] = 0.25 * ((a[1] + b[1]) + (c[1] + d[1]));
+  }
+}
+
 // The stable neo-Hookean element pass, batches of L::kLanes tetrahedra: tet_snh_forces lane by
 // lane (H, cof, J - 1 and P of fem_element.h on packs, no FMA), so bit-identical to the scalar
 // element (tests check it), with batch_pass's layouts, scatter and energy order. The law's one
 // health flag is informational: J <= 0 (or NaN) is counted as inverted and the law stays
 // defined there (fem_element.h); the lanes are looked at one by one only where some fails.
-template <class L>
+// kNodal (Model::nodal_pressure): the element part of snh_first_piola_nodal with each lane's
+// corner mean of State::vertex_pressure, and that mean's energy density, which sums to the
+// nodal term's energy (sum_e V_e mean_e = sum_v V_v e_v).
+template <class L, bool kNodal>
 [[gnu::always_inline]] inline void batch_pass_snh(void* context, int64_t chunk_begin,
                                                   int64_t chunk_end) {
   using P = typename L::Pack;
@@ -752,12 +771,19 @@ template <class L>
         L::load(b8 + half, ug, o8 + half, shape, lambda, mu, du);
         Mat3<P> p;
         P jm1;
-        const P psi =
-            snh_first_piola(tet_displacement_gradient_from_edges(shape, du), lambda, mu, &p, &jm1);
+        P w;
+        const Mat3<P> h = tet_displacement_gradient_from_edges(shape, du);
+        if constexpr (kNodal) {
+          P pressure, density;
+          nodal_means<L>(s.vertex_pressure.data(), o8 + half, &pressure, &density);
+          const P psi = snh_first_piola_nodal(h, mu, pressure, &p, &jm1);
+          w = shape.volume * (psi + density);
+        } else {
+          w = shape.volume * snh_first_piola(h, lambda, mu, &p, &jm1);
+        }
         Vec3<P> f[4];
         tet_forces_from_stress(shape, p, f);
         store_batch<L>(f, blocks, c8 + half, lanes);
-        const P w = shape.volume * psi;
         for (int l = 0; l < lanes; ++l) energy += static_cast<double>(w.v[l]);
         // J > 0 in every lane is -(J - 1) < 1 (a NaN fails it, as tet_snh_forces counts it).
         if (!L::below(P(0.0) - jm1, 1.0)) [[unlikely]] {
@@ -773,9 +799,65 @@ template <class L>
   }
 }
 
+template <bool kNodal>
 ZONA_SIMD_CLONES void tet_pass_chunks_snh_f64(void* context, int64_t chunk_begin,
                                               int64_t chunk_end) {
-  batch_pass_snh<Lanes4d>(context, chunk_begin, chunk_end);
+  batch_pass_snh<Lanes4d, kNodal>(context, chunk_begin, chunk_end);
+}
+
+// Nodal pressure, stage 1 over tetrahedron chunks: V_e / 4 (J_e - 1) into
+// State::tet_volume_change (each element its own slot: no conflicts, any thread count).
+template <class L>
+[[gnu::always_inline]] inline void batch_volume_change(void* context, int64_t chunk_begin,
+                                                       int64_t chunk_end) {
+  using P = typename L::Pack;
+  constexpr int kLanes = L::kLanes;
+  const Model& m = *static_cast<PassContext*>(context)->model;
+  State& s = *static_cast<PassContext*>(context)->state;
+  const int64_t nt = static_cast<int64_t>(m.tet_count());
+  const double* ug = &s.u.data()->x;
+  double* out = s.tet_volume_change.data();
+  const int64_t begin = chunk_begin * kTetChunk;
+  const int64_t end = std::min(nt, chunk_end * kTetChunk);
+  for (int64_t t0 = begin; t0 < end; t0 += kLanes) {
+    const size_t batch = static_cast<size_t>(t0) / 8, half = static_cast<size_t>(t0) % 8;
+    TetShape<P> shape;
+    P lambda, mu;
+    Vec3<P> du[3];
+    L::load(L::rows(m) + batch * L::kRowStride + half, ug,
+            m.cpu_tet_corner_offsets.data() + batch * kCpuTetOffsetStride + half, shape, lambda,
+            mu, du);
+    const P q = (shape.volume * P(0.25)) *
+                snh_volume_change(tet_displacement_gradient_from_edges(shape, du));
+    const int lanes = static_cast<int>(std::min<int64_t>(kLanes, end - t0));
+    for (int l = 0; l < lanes; ++l) out[t0 + l] = static_cast<double>(q.v[l]);
+  }
+}
+
+ZONA_SIMD_CLONES void volume_change_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  batch_volume_change<Lanes4d>(context, chunk_begin, chunk_end);
+}
+
+// Nodal pressure, stage 2 over vertex chunks: Jbar_v - 1 = (sum over the vertex's elements of
+// V_e / 4 (J_e - 1)) / V_v in adjacency order (ascending elements: the same sum for every
+// thread count), then lambda_v (Jbar_v - 1) and lambda_v / 2 (Jbar_v - 1)^2.
+void nodal_pressure_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
+  const Model& m = *static_cast<PassContext*>(context)->model;
+  State& s = *static_cast<PassContext*>(context)->state;
+  const int64_t nv = static_cast<int64_t>(m.vertex_count());
+  const int64_t end = std::min(nv, chunk_end * kVertexChunk);
+  const double* q = s.tet_volume_change.data();
+  const int32_t* offsets = m.adjacency.offsets.data();
+  const int32_t* tets = m.adjacency.tets.data();
+  for (int64_t v = chunk_begin * kVertexChunk; v < end; ++v) {
+    double sum = 0;
+    for (int32_t k = offsets[v]; k < offsets[v + 1]; ++k) sum += q[tets[k]];
+    const double jm1 = sum * m.vertex_inverse_volume[static_cast<size_t>(v)];
+    const double lambda = m.vertex_lambda[static_cast<size_t>(v)];
+    double* out = s.vertex_pressure.data() + 3 * v;
+    out[0] = lambda * jm1;
+    out[1] = 0.5 * lambda * jm1 * jm1;
+  }
 }
 
 // The batches of the clamped passes that may hold a clamped lane, one function per pass, built
@@ -932,7 +1014,7 @@ tet_pass_chunks_f64_avx512(void* context, int64_t chunk_begin, int64_t chunk_end
 // The stable neo-Hookean pass with eight lanes (no FMA: the same bits as the four-lane one).
 __attribute__((target("avx512f"), optimize("fp-contract=off"), flatten)) void
 tet_pass_chunks_snh_avx512(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  batch_pass_snh<Lanes8d>(context, chunk_begin, chunk_end);
+  batch_pass_snh<Lanes8d, false>(context, chunk_begin, chunk_end);
 }
 
 // Four float64 lanes with AVX2 and FMA: the same fused operations in the same order as the
@@ -1024,11 +1106,13 @@ ThreadPool::ChunkFn select_f64_pass() {
 
 ThreadPool::ChunkFn select_tet_pass(const Model& m) {
   // Stable neo-Hookean: gradient form only (build_model), float64, the batched pass.
+  // Nodal pressure: four lanes (the corner means are gathered lane by lane).
   if (m.constitutive == ConstitutiveModel::kStableNeoHookean) {
+    if (m.nodal_pressure) return &tet_pass_chunks_snh_f64<true>;
 #ifdef ZONA_HAVE_AVX512_PASS
     if (cpu_simd_bits() >= 512) return &tet_pass_chunks_snh_avx512;
 #endif
-    return &tet_pass_chunks_snh_f64;
+    return &tet_pass_chunks_snh_f64<false>;
   }
   const bool svk = m.constitutive == ConstitutiveModel::kSvk;
   switch (m.formulation) {
@@ -1160,6 +1244,13 @@ void set_cpu_simd_registers(int registers) {
 }
 
 void compute_tet_forces(const Model& model, State& state) {
+  if (model.nodal_pressure) {
+    PassContext context{&model, &state};
+    state.pool->run(static_cast<int64_t>(state.tet_chunks.size()), &volume_change_chunks,
+                    &context);
+    state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &nodal_pressure_chunks,
+                    &context);
+  }
   if (state.assembly.dirty) reset_assembly_blocks(state);
   SegmentContext context{{&model, &state}, select_tet_pass(model)};
   state.pool->run(state.assembly.segment_count(), &run_segments, &context);

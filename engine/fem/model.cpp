@@ -61,6 +61,8 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
     return make_error(
         "model: the neohookean model has no mass-tensor form: use the gradient "
         "formulation");
+  if (d.nodal_pressure && d.constitutive != ConstitutiveModel::kStableNeoHookean)
+    return make_error("model: nodal pressure is implemented for the neohookean model only");
   if (d.inversion == InversionHandling::kClampStretch &&
       (d.constitutive != ConstitutiveModel::kSvk || d.formulation != Formulation::kGradient))
     return make_error(
@@ -112,6 +114,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.inversion = desc.inversion;
   model.element_precision = desc.element_precision;
   model.clamp_stretch = desc.clamp_stretch;
+  model.nodal_pressure = desc.nodal_pressure;
   model.energy_blowup_factor = desc.energy_blowup_factor;
   model.unsafe_allow_dt_above_critical = desc.unsafe_allow_dt_above_critical;
 
@@ -151,6 +154,19 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
       mass[v] += corner_mass;
       alpha_weight[v] += mat.damping * corner_mass;
     }
+  }
+  if (model.nodal_pressure) {
+    model.vertex_inverse_volume.assign(nv, 0.0);
+    model.vertex_lambda.assign(nv, 0.0);
+    for (size_t t = 0; t < nt; ++t) {
+      const double quarter = model.tet_shape[t].volume / 4.0;
+      for (int32_t v : mesh.tets[t]) model.vertex_lambda[v] += quarter * model.tet_lame(t).lambda;
+    }
+    for (size_t v = 0; v < nv; ++v)
+      if (lumped_volume[v] > 0) {
+        model.vertex_inverse_volume[v] = 1.0 / lumped_volume[v];
+        model.vertex_lambda[v] /= lumped_volume[v];
+      }
   }
   std::vector<double> alpha(nv, 0.0);
   for (size_t v = 0; v < nv; ++v) {
@@ -302,9 +318,10 @@ std::string describe_model(const Model& model) {
                                                                      : "tensor_rebuilt";
   char line[512];
   std::snprintf(line, sizeof line,
-                "%zu vertices, %zu tets, %s (%s%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
+                "%zu vertices, %zu tets, %s%s (%s%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
                 "c_d %.4g m/s), mass scaling %g, precompute %.3f ms",
-                model.vertex_count(), model.tet_count(), cm, fm,
+                model.vertex_count(), model.tet_count(), cm,
+                model.nodal_pressure ? " with nodal pressure" : "", fm,
                 model.inversion == InversionHandling::kClampStretch ? ", clamped" : "",
                 model.element_precision == ElementPrecision::kFloat32 ? ", float32 elements" : "",
                 model.dt,

@@ -85,6 +85,12 @@ struct ModelDesc {
   bool unsafe_allow_dt_above_critical = false;
   /// Threads used by the precompute (1: serial). Does not change the result.
   int precompute_threads = 1;
+  /// Stable neo-Hookean only: the volumetric term averaged at the vertices (nodal pressure,
+  /// after Bonet and Burton 1998; fem_element.h snh_first_piola_nodal) instead of taken per
+  /// element. Linear tetrahedra with one volume per element lock when nearly incompressible
+  /// (nu 0.49: coarse meshes far too stiff); with one volume per vertex they do not
+  /// (docs/physics.md, "Nodal pressure").
+  bool nodal_pressure = false;
   /// CPU element math precision; kFloat32 needs the gradient form without the stretch clamp.
   /// The CUDA backend always evaluates elements in float32 and ignores this.
   ElementPrecision element_precision = ElementPrecision::kFloat64;
@@ -121,6 +127,12 @@ struct Model {
   Formulation formulation = Formulation::kGradient;
   InversionHandling inversion = InversionHandling::kReport;
   double clamp_stretch = kSvkCollapseStretch;  ///< [-]
+  /// ModelDesc::nodal_pressure. Then per vertex: 1 / V_v with V_v the sum of a quarter of each
+  /// adjacent element's volume [1/m^3], and lambda_v the V_e / 4-weighted mean of their
+  /// materials' lambda [Pa], (vertex_count); empty otherwise.
+  bool nodal_pressure = false;
+  std::vector<double> vertex_inverse_volume;
+  std::vector<double> vertex_lambda;
 
   // Precomputed element data.
   std::vector<TetShape<double>> tet_shape;  ///< shape gradients [1/m] and volume [m^3], (tet_count)

@@ -28,6 +28,10 @@ State make_state(const Model& model, int thread_count) {
   s.tet_chunks.resize(static_cast<size_t>((static_cast<int64_t>(nt) + kTetChunk - 1) / kTetChunk));
   s.vertex_chunks.resize(
       static_cast<size_t>((static_cast<int64_t>(nv) + kVertexChunk - 1) / kVertexChunk));
+  if (model.nodal_pressure) {
+    s.tet_volume_change.assign(nt, 0.0);
+    s.vertex_pressure.assign(3 * nv, 0.0);
+  }
   if (thread_count <= 0) {
     // One thread per ~2000 tetrahedra (~40 us of element work), up to the hardware's count:
     // below that the hand-off between threads costs more than it saves.

@@ -158,6 +158,12 @@ struct State {
   AssemblyPlan assembly;
   std::vector<TetChunkResult> tet_chunks;        ///< (ceil(tet_count / kTetChunk))
   std::vector<VertexChunkResult> vertex_chunks;  ///< (ceil(vertex_count / kVertexChunk))
+  /// Model::nodal_pressure only, else empty: V_e / 4 (J_e - 1) per tetrahedron [m^3],
+  /// (tet_count), and per vertex (lambda_v (Jbar_v - 1) [Pa], lambda_v / 2 (Jbar_v - 1)^2
+  /// [J/m^3], unused), (3 vertex_count): three doubles so that the element pass finds vertex v's
+  /// at its displacement offset 3 v.
+  std::vector<double> tet_volume_change;
+  std::vector<double> vertex_pressure;
   std::unique_ptr<ThreadPool> pool;              ///< the CPU backend's threads
 };
 

@@ -814,7 +814,8 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   scene.source = source_name;
   scene.name = fs::path(source_name).stem().string();
   Reader root(ctx, &doc, "",
-              {"version", "name", "description", "mesh", "model", "materials", "integrator",
+              {"version", "name", "description", "mesh", "model", "volumetric", "materials",
+               "integrator",
                "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
                "output", "particles"});
   int64_t version = 1;
@@ -823,6 +824,11 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   root.string("description", &scene.description);
   read_mesh(root, scene);
   root.choice("model", kModels, &scene.model);
+  root.choice("volumetric",
+              {Choice<bool>{"element", false}, Choice<bool>{"nodal", true}},
+              &scene.nodal_pressure);
+  if (scene.nodal_pressure && scene.model != ModelKind::kStableNeoHookean)
+    root.fail("volumetric", "\"nodal\" is implemented for \"model\": \"neohookean\" only");
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);

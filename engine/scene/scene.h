@@ -305,6 +305,9 @@ struct Scene {
   std::string source;       ///< file the scene came from ("" when parsed from memory)
   MeshDef mesh;
   ModelKind model = ModelKind::kSvk;
+  /// "volumetric": "nodal" (neohookean only): the law's volumetric term averaged at the
+  /// vertices (ModelDesc::nodal_pressure); "element" (the default) takes it per element.
+  bool nodal_pressure = false;
   ParticlesDef particles;  ///< used when model is kParticles
   std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
   IntegratorDef integrator;

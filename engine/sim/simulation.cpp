@@ -75,6 +75,7 @@ Result<ModelDesc> model_desc_from_scene(const Scene& scene, const Mesh& mesh,
           "linear or neohookean)",
           scene.name.c_str());
   }
+  desc.nodal_pressure = scene.nodal_pressure;
   desc.inversion = desc.constitutive == ConstitutiveModel::kSvk ? options.inversion
                                                                  : InversionHandling::kReport;
 

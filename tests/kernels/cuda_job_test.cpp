@@ -166,6 +166,30 @@ TEST(CudaJob, FastNeedleRaisesMassesWithoutAddingEnergy) {
   EXPECT_NEAR(rg.peak_force, rc.peak_force, 0.1 * rc.peak_force);
 }
 
+TEST(CudaJob, NodalPressureInjectionMatchesCpu) {
+  // The fine scene's physics with nodal pressure on a 3000-vertex cell, 15 um of travel: the
+  // device's two element passes per step against the CPU's.
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                 {"mesh.generate.vertices=3000", "volumetric=nodal", "needle.max_travel=15um",
+                  "puncture.criterion=none", "output.frames=0"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(*scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  ASSERT_TRUE((*gpu)->job_mode());
+  const RunResult rc = run_simulation(**cpu), rg = run_simulation(**gpu);
+  ASSERT_FALSE(rc.stopped_early) << rc.stop_reason;
+  ASSERT_FALSE(rg.stopped_early) << rg.stop_reason;
+  ASSERT_GT(rc.peak_force, 0);
+  std::printf("[ measured ] nodal-pressure job peak force cpu %.4g uN gpu %.4g uN\n",
+              rc.peak_force * 1e6, rg.peak_force * 1e6);
+  EXPECT_NEAR(rg.peak_force, rc.peak_force, 0.02 * rc.peak_force);
+  EXPECT_NEAR(rg.peak_deformation, rc.peak_deformation, 0.02 * rc.peak_deformation);
+}
+
 TEST(CudaJob, TheStepPathDoesNotAllocate) {
   std::string why;
   if (!have_device(&why)) GTEST_SKIP() << why;

@@ -548,6 +548,9 @@ TEST(Scene, OverridesApplyBeforeValidation) {
   ASSERT_TRUE(fine.haptics.max_tip_speed.has_value());
   expect_rel(*fine.haptics.max_tip_speed, fine.needle.speed);
   expect_rel(*load_ok(mouse, {"haptics.max_tip_speed=2 mm/s"}).haptics.max_tip_speed, 2e-3);
+  // Where the volumetric term is taken: per element (default) or at the vertices.
+  EXPECT_FALSE(load_ok(kScenes + "mouse_oocyte_fine.json", {}).nodal_pressure);
+  EXPECT_TRUE(load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=nodal"}).nodal_pressure);
   // Array elements by index; several overrides in order.
   const Scene bench = load_ok(kScenes + "bench_ball.json",
                               {"boundary.1.depth=3 um", "boundary.1.depth=4 um", "output.frames=5"});
@@ -563,6 +566,9 @@ TEST(Scene, OverridesAreValidatedLikeTheFile) {
   expect_error(j, "integrator.duration", "missing unit", {"integrator.duration=0.1"});
   expect_error(j, "model", "not one of", {"model=fem"});
   expect_error(j, "haptics.max_tip_speed", "must be > 0", {"haptics.max_tip_speed=0 m/s"});
+  expect_error(j, "volumetric", "not one of", {"volumetric=mixed"});
+  expect_error(j, "volumetric", "for \"model\": \"neohookean\" only",
+               {"model=svk", "volumetric=nodal"});
   expect_error(j, "haptics.max_tip_speed", "missing unit", {"haptics.max_tip_speed=0.001"});
   // A material for a new region still needs its required keys.
   j["mesh"]["generate"]["zona_thickness"] = "5 um";
