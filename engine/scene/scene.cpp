@@ -828,7 +828,8 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
               {Choice<bool>{"element", false}, Choice<bool>{"nodal", true}},
               &scene.nodal_pressure);
   if (scene.nodal_pressure && scene.model != ModelKind::kStableNeoHookean)
-    root.fail("volumetric", "\"nodal\" is implemented for \"model\": \"neohookean\" only");
+    root.fail("volumetric", "\"nodal\" is implemented for \"model\": \"neohookean\" only "
+                            "(with another model, set \"volumetric\": \"element\")");
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);
