@@ -105,41 +105,61 @@ namespace {
 // face f is opposite local vertex f.
 constexpr int kFaceCorners[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
 
+// A face by its two larger vertices, and where it came from; bucketed by its smallest vertex.
 struct FaceKey {
-  std::array<int32_t, 3> sorted;
+  int32_t mid, high;
   int32_t tet;
-  int8_t face;
+  int32_t face;
+  bool operator<(const FaceKey& o) const {
+    if (mid != o.mid) return mid < o.mid;
+    if (high != o.high) return high < o.high;
+    if (tet != o.tet) return tet < o.tet;
+    return face < o.face;
+  }
 };
 
 }  // namespace
 
 BoundarySurface extract_boundary(const Mesh& mesh) {
-  // Sort all faces by their sorted vertex triple: a face seen once is on the boundary. Sorting
-  // (rather than hashing) keeps the result deterministic and the memory flat.
+  // A face seen once is on the boundary. Faces are bucketed by their smallest vertex (a counting
+  // sort: linear, and each bucket holds the ~20 faces of one vertex's star), then each bucket is
+  // sorted by its other two vertices. Deterministic, flat memory; a comparison sort of all 4 nt
+  // faces took 20-30 % of a 1M-vertex run's setup.
   const size_t nt = mesh.tet_count();
-  std::vector<FaceKey> faces;
-  faces.reserve(4 * nt);
-  for (size_t t = 0; t < nt; ++t) {
+  const size_t nv = mesh.vertex_count();
+  std::vector<int64_t> start(nv + 1, 0);
+  auto sorted_face = [&](size_t t, int f) {
     const Tet& e = mesh.tets[t];
-    for (int f = 0; f < 4; ++f) {
-      std::array<int32_t, 3> k = {e[kFaceCorners[f][0]], e[kFaceCorners[f][1]],
-                                  e[kFaceCorners[f][2]]};
-      std::sort(k.begin(), k.end());
-      faces.push_back({k, static_cast<int32_t>(t), static_cast<int8_t>(f)});
-    }
+    std::array<int32_t, 3> k = {e[kFaceCorners[f][0]], e[kFaceCorners[f][1]],
+                                e[kFaceCorners[f][2]]};
+    std::sort(k.begin(), k.end());
+    return k;
+  };
+  for (size_t t = 0; t < nt; ++t)
+    for (int f = 0; f < 4; ++f) ++start[static_cast<size_t>(sorted_face(t, f)[0]) + 1];
+  for (size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<FaceKey> faces(4 * nt);
+  {
+    std::vector<int64_t> cursor(start.begin(), start.end() - 1);
+    for (size_t t = 0; t < nt; ++t)
+      for (int f = 0; f < 4; ++f) {
+        const std::array<int32_t, 3> k = sorted_face(t, f);
+        faces[static_cast<size_t>(cursor[static_cast<size_t>(k[0])]++)] =
+            FaceKey{k[1], k[2], static_cast<int32_t>(t), f};
+      }
   }
-  std::sort(faces.begin(), faces.end(), [](const FaceKey& a, const FaceKey& b) {
-    if (a.sorted != b.sorted) return a.sorted < b.sorted;
-    if (a.tet != b.tet) return a.tet < b.tet;
-    return a.face < b.face;
-  });
+  for (size_t v = 0; v < nv; ++v)
+    std::sort(faces.begin() + start[v], faces.begin() + start[v + 1]);
 
   std::vector<std::pair<int32_t, int8_t>> boundary;  // (tet, local face)
-  for (size_t i = 0; i < faces.size();) {
-    size_t j = i + 1;
-    while (j < faces.size() && faces[j].sorted == faces[i].sorted) ++j;
-    if (j - i == 1) boundary.emplace_back(faces[i].tet, faces[i].face);
-    i = j;
+  for (size_t v = 0; v < nv; ++v) {
+    const size_t end = static_cast<size_t>(start[v + 1]);
+    for (size_t i = static_cast<size_t>(start[v]); i < end;) {
+      size_t j = i + 1;
+      while (j < end && faces[j].mid == faces[i].mid && faces[j].high == faces[i].high) ++j;
+      if (j - i == 1) boundary.emplace_back(faces[i].tet, static_cast<int8_t>(faces[i].face));
+      i = j;
+    }
   }
   std::sort(boundary.begin(), boundary.end());
 

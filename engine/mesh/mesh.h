@@ -82,6 +82,7 @@ struct BoundarySurface {
 };
 
 /// Extracts the boundary surface. Deterministic: triangles come in order of (tet, local face).
+/// The mesh must index its vertices in range (validate_mesh).
 BoundarySurface extract_boundary(const Mesh& mesh);
 
 /// Compressed vertex-to-tetrahedron adjacency: the tetrahedra around vertex v are
