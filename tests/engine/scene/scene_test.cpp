@@ -550,8 +550,10 @@ TEST(Scene, OverridesApplyBeforeValidation) {
   expect_rel(*fine.haptics.max_tip_speed, fine.needle.speed);
   expect_rel(*load_ok(mouse, {"haptics.max_tip_speed=2 mm/s"}).haptics.max_tip_speed, 2e-3);
   // Where the volumetric term is taken: per element (default) or at the vertices.
-  EXPECT_FALSE(load_ok(kScenes + "mouse_oocyte_fine.json", {}).nodal_pressure);
-  EXPECT_TRUE(load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=nodal"}).nodal_pressure);
+  EXPECT_TRUE(load_ok(kScenes + "mouse_oocyte_fine.json", {}).nodal_pressure);
+  EXPECT_FALSE(
+      load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=element"}).nodal_pressure);
+  EXPECT_FALSE(load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=null"}).nodal_pressure);
   // Array elements by index; several overrides in order.
   const Scene bench = load_ok(kScenes + "bench_ball.json",
                               {"boundary.1.depth=3 um", "boundary.1.depth=4 um", "output.frames=5"});
