@@ -65,6 +65,7 @@ json scene_to_json(const Scene& scene) {
   }
   j["mesh"] = mesh;
   j["model"] = model_name(scene.model);
+  j["volumetric"] = scene.nodal_pressure ? "nodal" : "element";
 
   json materials = json::object();
   for (const RegionMaterialDef& entry : scene.materials) {

@@ -47,6 +47,12 @@ TEST(SceneWrite, WritesSiValuesAndResolvedChoices) {
   Result<Scene> back = parse_scene(scene_to_json(*snh), "");
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(back->model, ModelKind::kStableNeoHookean);
+  // Where the volumetric term is taken (the shipped mouse scene: at the vertices) reads back.
+  EXPECT_EQ(scene_to_json(*snh)["volumetric"], "nodal");
+  EXPECT_TRUE(back->nodal_pressure);
+  Result<Scene> element = load_scene(kScenes + "mouse_oocyte.json", {"volumetric=element"});
+  ASSERT_TRUE(element.ok()) << element.error().message;
+  EXPECT_EQ(scene_to_json(*element)["volumetric"], "element");
 }
 
 TEST(SceneWrite, DisabledToolsAndDefaultsReadBack) {
