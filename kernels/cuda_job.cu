@@ -77,6 +77,11 @@ class CudaJob final : public JobRunner {
   DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
   DeviceBuffer<float4> d_damp_, d_force_prev_;
   DeviceBuffer<JobStepCounters> d_step_counters_;
+  DeviceBuffer<JobBlockSums> d_block_sums_;  // one per block of job_step_kernel
+  DeviceBuffer<double> d_tool_force_;  // tool_kernel's load per tool vertex [N], (3 n)
+  // The branch that runs tool_kernel beside the element pass in the captured graphs.
+  Stream side_;
+  Event fork_, join_;
   DeviceBuffer<JobState> d_job_;
   DeviceBuffer<JobSums> d_sums_;
   DeviceBuffer<JobCounters> d_counters_;
@@ -158,6 +163,12 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = d_tool_index_.upload(tool_index, "tool index"); !s) return s;
   if (Status s = d_step_counters_.allocate(1, "job step counters"); !s) return s;
   if (Status s = d_step_counters_.fill_bytes(0); !s) return s;
+  if (Status s = d_block_sums_.allocate(blocks_for(b_.nv_), "job block sums"); !s) return s;
+  if (Status s = d_tool_force_.allocate(3 * n, "tool loads"); !s) return s;
+  if (Status s = d_tool_force_.fill_bytes(0); !s) return s;
+  if (Status s = side_.create(); !s) return s;
+  if (Status s = fork_.create(false); !s) return s;
+  if (Status s = join_.create(false); !s) return s;
   damping_rate_ = static_cast<float>(params_.stiffness_damping_rate);
   if (params_.stiffness_damping_rate > 0) {
     if (Status s = d_damp_.allocate(b_.nv_, "damping loads"); !s) return s;
@@ -233,8 +244,9 @@ Status CudaJob::start(const JobSetup& setup) {
   return {};
 }
 
-// The two kernels of global step g (buffer roles rotate with g, as in the sub-step graphs):
-// the element pass, then everything else of the step in one kernel (job_step_kernel).
+// The kernels of global step g (buffer roles rotate with g, as in the sub-step graphs), enqueued
+// while a graph is captured: the tool loads (tool_kernel) on a side branch beside the element
+// pass, then everything else of the step in one kernel (job_step_kernel).
 Status CudaJob::enqueue_step(int64_t g) {
   const VertexParams vp = b_.vertex_params(g);
   const cudaStream_t s = b_.stream_.get();
@@ -250,6 +262,22 @@ Status CudaJob::enqueue_step(int64_t g) {
   };
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   const bool energy = g % kEnergyInterval == 0;
+  // Stage 1, every tool load (the needle on the triangles, then the tool vertices): it reads
+  // only u_n and the pose, so it runs on a branch of its own beside the element pass (at 1k
+  // vertices the two are about 10 us each, and one after the other they were the step).
+  keep(cudaEventRecord(fork_.get(), s));
+  keep(cudaStreamWaitEvent(side_.get(), fork_.get(), 0));
+  const int nf = params_.needle_on_faces ? static_cast<int>(d_faces_.size()) : 0;
+  const int face_blocks = static_cast<int>(blocks_for(static_cast<size_t>(nf) * kFaceLanes));
+  const unsigned tool_blocks =
+      static_cast<unsigned>(face_blocks) + blocks_for(static_cast<size_t>(tl_.count));
+  keep(launch(false, tool_kernel, tool_blocks, side_.get(), params_, tl_,
+              static_cast<const int4*>(d_faces_.data()),
+              static_cast<const double*>(d_face_area_.data()), vp,
+              static_cast<const JobState*>(d_job_.data()), d_face_force_.data(),
+              d_face_anchor_.data(), d_tool_force_.data(), d_sums_.data(), face_blocks, nf, st,
+              kSubstep));
+  keep(cudaEventRecord(join_.get(), side_.get()));
   if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
     keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
                 static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
@@ -275,23 +303,16 @@ Status CudaJob::enqueue_step(int64_t g) {
       });
     });
   });
-  if (params_.needle_on_faces) {
-    const int nf = static_cast<int>(d_faces_.size());
-    keep(launch(pdl, needle_face_kernel, blocks_for(static_cast<size_t>(nf) * kFaceLanes), s,
-                params_, tl_,
-                static_cast<const int4*>(d_faces_.data()),
-                static_cast<const double*>(d_face_area_.data()), vp,
-                static_cast<const JobState*>(d_job_.data()), d_face_force_.data(),
-                d_face_anchor_.data(), d_sums_.data(), nf, st, kSubstep));
-  }
+  // The tool loads join here.
+  keep(cudaStreamWaitEvent(s, join_.get(), 0));
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
-  keep(launch(pdl, step_kernel, vb, s, params_, tl_,
-              static_cast<const int32_t*>(d_tool_index_.data()), vp, d_damp_.data(),
+  keep(launch(pdl, step_kernel, vb, s, params_, tl_.force_unit,
+              static_cast<const int32_t*>(d_tool_index_.data()),
+              static_cast<const double*>(d_tool_force_.data()), vp, d_damp_.data(),
               d_force_prev_.data(), damping_rate_, kSubstep, energy, st, d_job_.data(),
-              d_sums_.data(),
-              d_step_counters_.data(), d_counters_.data(), link_,
-              params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
+              d_sums_.data(), d_step_counters_.data(), d_block_sums_.data(), d_counters_.data(),
+              link_, params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }

@@ -67,6 +67,36 @@ struct JobStepCounters {
   unsigned int blocks_done = 0;  ///< blocks of this step's kernel that finished (ticket)
 };
 
+/// One block's share of the sums of job_step_kernel (SI units): each block writes its own,
+/// the block that finishes last adds them up in block order (the totals come out the same on
+/// every run, and no block waits on a same-address atomic).
+struct JobBlockSums {
+  double kinetic = 0, work = 0;
+};
+
+/// The block's total in thread 0 (every thread of the block must call it; it ends with a
+/// barrier, so it can be called again).
+__device__ __forceinline__ JobBlockSums block_reduce_sums(JobBlockSums v) {
+  constexpr int kWarps = kBlock / 32;
+  __shared__ JobBlockSums warp_sums[kWarps];
+  const int warp = threadIdx.x / 32, lane = threadIdx.x % 32;
+  for (int off = 16; off > 0; off >>= 1) {
+    v.kinetic += __shfl_down_sync(0xffffffffu, v.kinetic, off);
+    v.work += __shfl_down_sync(0xffffffffu, v.work, off);
+  }
+  if (lane == 0) warp_sums[warp] = v;
+  __syncthreads();
+  if (warp == 0) {
+    v = lane < kWarps ? warp_sums[lane] : JobBlockSums{};
+    for (int off = kWarps / 2; off > 0; off >>= 1) {
+      v.kinetic += __shfl_down_sync(0xffffffffu, v.kinetic, off);
+      v.work += __shfl_down_sync(0xffffffffu, v.work, off);
+    }
+  }
+  __syncthreads();
+  return v;
+}
+
 /// Stage 1 for one tool vertex (tool index i): its load [N] and the parts the step sums, with
 /// its stick anchors. un: its u_n in device length units.
 __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const ToolParams& tl,
@@ -81,27 +111,64 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
   return tool_vertex_force(p, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
 }
 
-/// Threads per triangle in needle_face_kernel, each taking every kFaceLanes-th point.
+/// Threads per triangle in the face part of tool_kernel, each taking every kFaceLanes-th point.
 inline constexpr int kFaceLanes = 4;
 
-/// Stage 1, the needle on the surface triangles (JobParams::needle_on_faces): kFaceLanes
-/// threads per triangle, each evaluating every kFaceLanes-th quadrature point
+/// Stage 1, every tool load of a step from u_n, in one launch of two parts.
+///
+/// Blocks [0, face_blocks): the needle on the surface triangles (JobParams::needle_on_faces),
+/// kFaceLanes threads per triangle, each evaluating every kFaceLanes-th quadrature point
 /// (needle_face_point), summed over the triangle by shuffles; its first thread adds the corner
 /// loads to face_force [N] (3 per tool vertex; job_step_kernel takes and clears them in the same
-/// step) and the block adds its sums to the step's needle sums. A thread that evaluated all 16
-/// points in float64 made the stage latency-bound (about 20 us per step at 1k vertices); one
-/// point per thread multiplied the threads and the corner loads by 16 (1.76x the bare step at
-/// 1M vertices against 1.58x); four lanes of four points sit between.
+/// step). A thread that evaluated all 16 points in float64 made the stage latency-bound (about
+/// 20 us per step at 1k vertices); one point per thread multiplied the threads and the corner
+/// loads by 16 (1.76x the bare step at 1M vertices against 1.58x); four lanes of four points sit
+/// between.
+///
+/// The blocks after them: one thread per tool vertex (tool_stage: the rim, the suction, the
+/// needle at the vertices, friction), its load written to tool_force [N] (3 per tool vertex).
+/// In the vertex kernel this stage made every warp that held a surface vertex wait on it and
+/// held the kernel's registers at 132 (one block per SM): the step's vertex kernel took 210 us
+/// at 1M vertices, against about 40 us for its own reads and writes.
+///
+/// Both parts add their needle and rim sums to the step's (block sums, then atomics).
 __global__ void __launch_bounds__(kBlock)
-    needle_face_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
-                       const double* __restrict__ face_area, VertexParams vp,
-                       const JobState* __restrict__ job, double* __restrict__ face_force,
-                       StickAnchor* __restrict__ face_anchor, JobSums* sums, int face_count,
-                       DeviceStatus* st, int substep) {
+    tool_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
+                const double* __restrict__ face_area, VertexParams vp,
+                const JobState* __restrict__ job, double* __restrict__ face_force,
+                StickAnchor* __restrict__ face_anchor, double* __restrict__ tool_force,
+                JobSums* sums, int face_blocks, int face_count, DeviceStatus* st, int substep) {
   static_assert(kFacePoints % kFaceLanes == 0 && kBlock % kFaceLanes == 0, "lanes per triangle");
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every thread
+  if (static_cast<int>(blockIdx.x) >= face_blocks) {
+    const int i = static_cast<int>((blockIdx.x - face_blocks) * blockDim.x + threadIdx.x);
+    ToolVertexForce t;
+    if (i < tl.count) {
+      t = tool_stage(p, tl, job->pose, i, vp.u + 3 * static_cast<size_t>(tl.vertex[i]));
+      double* out = tool_force + 3 * static_cast<size_t>(i);
+      out[0] = t.force.x;
+      out[1] = t.force.y;
+      out[2] = t.force.z;
+    }
+    if (__syncthreads_or(t.needle_contact > 0 || t.rim_contact > 0 || t.rim.x != 0 ||
+                         t.rim.y != 0 || t.rim.z != 0)) {
+      for (int c = 0; c < 3; ++c) block_sum_add(t.needle[c], &sums->needle_force[c]);
+      for (int c = 0; c < 3; ++c) block_sum_add(t.rim[c], &sums->rim_force[c]);
+      if (!p.needle_on_faces) block_max_store(t.needle_depth, &sums->needle_depth);
+      using Reduce = cub::BlockReduce<int, kBlock>;
+      __shared__ typename Reduce::TempStorage temp;
+      const int nc = Reduce(temp).Sum(t.needle_contact);
+      __syncthreads();
+      const int rc = Reduce(temp).Sum(t.rim_contact);
+      if (threadIdx.x == 0) {
+        if (nc) atomicAdd(&sums->needle_contacts, nc);
+        if (rc) atomicAdd(&sums->rim_contacts, rc);
+      }
+    }
+    return;
+  }
   const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
   const int f = t / kFaceLanes, lane = t % kFaceLanes;
   double load[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
@@ -244,28 +311,30 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   *st = fresh;
 }
 
-/// Everything of a step after the element pass, one thread per vertex: stage 1 on the tool
-/// vertices (from u_n, u_{n-1}), stage 2 (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged
-/// one step as on the CPU), stage 4 (the centred-difference update), the sums of stage 5
-/// (kinetic energy, the tools' forces and contacts, their centred work f_n . (u_{n+1} -
-/// u_{n-1}) / 2), and, in the block that finishes last, stage 6 (record_stage). One kernel
-/// instead of four: at small meshes a step is a few microseconds and every launch counts.
+/// Everything of a step after the element pass, one thread per vertex: the tool loads of
+/// tool_kernel (tool_force, face_force; the latter cleared for the next step), stage 2
+/// (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged one step as on the CPU), stage 4 (the
+/// centred-difference update), the sums of stage 5 that need u_{n+1} (kinetic energy, the tools'
+/// centred work f_n . (u_{n+1} - u_{n-1}) / 2) per block into block_sums, and, in the block that
+/// finishes last, their totals and stage 6 (record_stage). One kernel instead of three: at small
+/// meshes a step is a few microseconds and every launch counts. At most 64 registers (four
+/// blocks per SM): the record stage, run by one thread per step, would otherwise hold the whole
+/// grid at 128 and halve the occupancy of a memory-bound pass; what spills is its own.
 /// FIXED: the fixed-point scatter's sums.
 template <bool FIXED>
-__global__ void __launch_bounds__(kBlock)
-    job_step_kernel(JobParams p, ToolParams tl, const int32_t* __restrict__ tool_index,
-                    VertexParams vp, float4* damp, float4* force_prev, float damping_rate,
+__global__ void __launch_bounds__(kBlock, 4)
+    job_step_kernel(JobParams p, double force_unit, const int32_t* __restrict__ tool_index,
+                    const double* __restrict__ tool_force, VertexParams vp, float4* damp,
+                    float4* force_prev, float damping_rate,
                     int substep, bool fresh_energy, DeviceStatus* st, JobState* job,
-                    JobSums* sums, JobStepCounters* step_counters, JobCounters* counters,
-                    JobHostLink link, double* __restrict__ face_force) {
+                    JobSums* sums, JobStepCounters* step_counters, JobBlockSums* block_sums,
+                    JobCounters* counters, JobHostLink link, double* __restrict__ face_force) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
   const int v = blockIdx.x * kBlock + threadIdx.x;
   VertexDiag d;
-  double work = 0, nf[3] = {0, 0, 0}, rf[3] = {0, 0, 0}, needle_depth = 0;
-  int needle_contacts = 0, rim_contacts = 0;
-  bool tool_block = false;
+  double work = 0;
   if (v < vp.vertex_count) {
     const float4 f = scattered_force<FIXED>(vp, v);
     if constexpr (FIXED) {
@@ -279,26 +348,17 @@ __global__ void __launch_bounds__(kBlock)
     float4 fe = make_float4(0, 0, 0, 0);
     const int i = tool_index[v];
     Vec3d tool{0, 0, 0};
-    const double* un = vp.u + 3 * static_cast<size_t>(v);
     const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
     if (i >= 0) {
-      const ToolVertexForce t = tool_stage(p, tl, job->pose, i, un);
-      tool = t.force;
+      const double* tf = tool_force + 3 * static_cast<size_t>(i);
+      tool = Vec3d{tf[0], tf[1], tf[2]};
       if (face_force) {
         double* ff = face_force + 3 * static_cast<size_t>(i);
         tool += Vec3d{ff[0], ff[1], ff[2]};
         ff[0] = ff[1] = ff[2] = 0;
       }
-      const double inv = 1.0 / tl.force_unit;
+      const double inv = 1.0 / force_unit;
       fe = make_float4(float(tool.x * inv), float(tool.y * inv), float(tool.z * inv), 0.0f);
-      for (int c = 0; c < 3; ++c) {
-        nf[c] = t.needle[c];
-        rf[c] = t.rim[c];
-      }
-      needle_contacts = t.needle_contact;
-      rim_contacts = t.rim_contact;
-      needle_depth = t.needle_depth;
-      tool_block = true;
     }
     if (damp) {
       const float4 k = damp[v];
@@ -318,35 +378,35 @@ __global__ void __launch_bounds__(kBlock)
                          tool.z * (next[2] - up[2]));
     }
   }
-  block_sum_add(d.kinetic, &st->kinetic_energy);
-  // Blocks without a tool vertex (the interior) skip the tool sums.
-  if (__syncthreads_or(tool_block)) {
-    block_sum_add(work, &sums->tool_work);
-    for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
-    for (int c = 0; c < 3; ++c) block_sum_add(rf[c], &sums->rim_force[c]);
-    if (!p.needle_on_faces) block_max_store(needle_depth, &sums->needle_depth);
-    using Reduce = cub::BlockReduce<int, kBlock>;
-    __shared__ typename Reduce::TempStorage temp;
-    const int nc = Reduce(temp).Sum(needle_contacts);
-    __syncthreads();
-    const int rc = Reduce(temp).Sum(rim_contacts);
-    if (threadIdx.x == 0) {
-      if (nc) atomicAdd(&sums->needle_contacts, nc);
-      if (rc) atomicAdd(&sums->rim_contacts, rc);
-    }
-  }
-  // The last block to finish runs the record stage (every other block's sums and u_next are
-  // visible: each fenced before taking its ticket).
+  // The block's sums (its own slot, no atomics), then the last block to finish adds every
+  // block's up in block order and runs the record stage (every other block's sums and u_next
+  // are visible: each fenced before taking its ticket).
+  JobBlockSums mine;
+  mine.kinetic = d.kinetic;
+  mine.work = work;
+  mine = block_reduce_sums(mine);
   __shared__ bool last;
   if (threadIdx.x == 0) {
+    block_sums[blockIdx.x] = mine;
     __threadfence();
     const unsigned int ticket = atomicAdd(&step_counters->blocks_done, 1u);
     last = ticket == gridDim.x - 1;
   }
   __syncthreads();
-  if (last && threadIdx.x == 0) {
-    __threadfence();
+  if (!last) return;
+  __threadfence();
+  JobBlockSums total;
+  for (unsigned int b = threadIdx.x; b < gridDim.x; b += kBlock) {
+    total.kinetic += __ldcg(&block_sums[b].kinetic);  // past this SM's L1: written by others
+    total.work += __ldcg(&block_sums[b].work);
+  }
+  total = block_reduce_sums(total);
+  if (threadIdx.x == 0) {
     step_counters->blocks_done = 0;
+    volatile DeviceStatus* vst = st;
+    vst->kinetic_energy = vst->kinetic_energy + total.kinetic;
+    volatile JobSums* vs = sums;
+    vs->tool_work = vs->tool_work + total.work;
     record_stage(p, job, sums, st, vp.u_next, vp.length_unit, fresh_energy, counters, link);
   }
 }
