@@ -76,7 +76,6 @@ class CudaJob final : public JobRunner {
   DeviceBuffer<StickAnchor> d_tool_anchor_;  // per tool vertex: needle, then rim
   DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
   DeviceBuffer<float4> d_damp_, d_force_prev_;
-  DeviceBuffer<JobStepCounters> d_step_counters_;
   DeviceBuffer<JobBlockSums> d_block_sums_;  // one per block of job_step_kernel
   DeviceBuffer<double> d_tool_force_;  // tool_kernel's load per tool vertex [N], (3 n)
   // The branch that runs tool_kernel beside the element pass in the captured graphs.
@@ -161,8 +160,6 @@ Status CudaJob::start(const JobSetup& setup) {
   std::vector<int32_t> tool_index(b_.nv_, -1);
   for (size_t i = 0; i < n; ++i) tool_index[static_cast<size_t>(vertex[i])] = static_cast<int32_t>(i);
   if (Status s = d_tool_index_.upload(tool_index, "tool index"); !s) return s;
-  if (Status s = d_step_counters_.allocate(1, "job step counters"); !s) return s;
-  if (Status s = d_step_counters_.fill_bytes(0); !s) return s;
   if (Status s = d_block_sums_.allocate(blocks_for(b_.nv_), "job block sums"); !s) return s;
   if (Status s = d_tool_force_.allocate(3 * n, "tool loads"); !s) return s;
   if (Status s = d_tool_force_.fill_bytes(0); !s) return s;
@@ -307,12 +304,15 @@ Status CudaJob::enqueue_step(int64_t g) {
   keep(cudaStreamWaitEvent(s, join_.get(), 0));
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
-  keep(launch(pdl, step_kernel, vb, s, params_, tl_.force_unit,
+  keep(launch(pdl, step_kernel, vb, s, tl_.force_unit,
               static_cast<const int32_t*>(d_tool_index_.data()),
               static_cast<const double*>(d_tool_force_.data()), vp, d_damp_.data(),
-              d_force_prev_.data(), damping_rate_, kSubstep, energy, st, d_job_.data(),
-              d_sums_.data(), d_step_counters_.data(), d_block_sums_.data(), d_counters_.data(),
-              link_, params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
+              d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data(),
+              params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
+  keep(launch(pdl, job_record_kernel, 1, s, params_,
+              static_cast<const JobBlockSums*>(d_block_sums_.data()), static_cast<int>(vb),
+              static_cast<const double*>(vp.u_next), b_.length_unit_, energy, st, d_job_.data(),
+              d_sums_.data(), d_counters_.data(), link_, kSubstep));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }

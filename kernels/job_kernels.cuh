@@ -62,11 +62,6 @@ struct JobHostLink {
   int publish_interval = 16;
 };
 
-/// Device-side counters of the step kernel.
-struct JobStepCounters {
-  unsigned int blocks_done = 0;  ///< blocks of this step's kernel that finished (ticket)
-};
-
 /// One block's share of the sums of job_step_kernel (SI units): each block writes its own,
 /// the block that finishes last adds them up in block order (the totals come out the same on
 /// every run, and no block waits on a same-address atomic).
@@ -231,8 +226,9 @@ __global__ void __launch_bounds__(kBlock)
 
 /// Stages 5 (the deformation) and 6, run by one thread once every vertex of the step is done:
 /// reads the step's sums and status, runs job_finish_step, publishes the record (latest, and a
-/// sample when due) to mapped host memory, and resets the sums for the next step. A halted job
-/// stays halted: the status keeps failed_substep at 0, which stops every later kernel.
+/// sample when due) to mapped host memory, and resets the sums and the status for the next step.
+/// A halted job stays halted: the status keeps failed_substep at 0, which stops every later
+/// kernel.
 __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, DeviceStatus* st,
                              const double* u_next, double length_unit, bool fresh_energy,
                              JobCounters* counters, const JobHostLink& link) {
@@ -263,23 +259,15 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   if (p.has_entry) {
     Vec3d e[3];
     for (int k = 0; k < 3; ++k) {
-      const volatile double* x = u_next + 3 * static_cast<size_t>(p.entry_vertex[k]);
+      const double* x = u_next + 3 * static_cast<size_t>(p.entry_vertex[k]);
       e[k] = Vec3d{x[0] * length_unit, x[1] * length_unit, x[2] * length_unit};
     }
     tot.deformation = job_entry_deformation(p, e[0], e[1], e[2]);
   }
-  // The sums came from other blocks' atomics: read them past any cached copy.
-  JobSums total;
-  const volatile JobSums* vs = sums;
-  for (int c = 0; c < 3; ++c) {
-    total.needle_force[c] = vs->needle_force[c];
-    total.rim_force[c] = vs->rim_force[c];
-  }
-  total.tool_work = vs->tool_work;
-  total.needle_contacts = vs->needle_contacts;
-  total.rim_contacts = vs->rim_contacts;
-  total.needle_depth = vs->needle_depth;
-  tot.kinetic_energy = static_cast<const volatile DeviceStatus*>(st)->kinetic_energy;
+  // The sums and u_{n+1} come from the step's earlier kernels (visible past the grid
+  // dependency): plain loads, issued together, not a chain of volatile ones.
+  const JobSums total = *sums;
+  tot.kinetic_energy = st->kinetic_energy;
   // The job's scalars in registers for the stage (one load and one store of the block, not a
   // chain of dependent global accesses on the step's serial tail).
   JobState js = *job;
@@ -314,21 +302,16 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
 /// Everything of a step after the element pass, one thread per vertex: the tool loads of
 /// tool_kernel (tool_force, face_force; the latter cleared for the next step), stage 2
 /// (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged one step as on the CPU), stage 4 (the
-/// centred-difference update), the sums of stage 5 that need u_{n+1} (kinetic energy, the tools'
-/// centred work f_n . (u_{n+1} - u_{n-1}) / 2) per block into block_sums, and, in the block that
-/// finishes last, their totals and stage 6 (record_stage). One kernel instead of three: at small
-/// meshes a step is a few microseconds and every launch counts. At most 64 registers (four
-/// blocks per SM): the record stage, run by one thread per step, would otherwise hold the whole
-/// grid at 128 and halve the occupancy of a memory-bound pass; what spills is its own.
+/// centred-difference update), and the sums of stage 5 that need u_{n+1} (kinetic energy, the
+/// tools' centred work f_n . (u_{n+1} - u_{n-1}) / 2), per block into block_sums for
+/// job_record_kernel.
 /// FIXED: the fixed-point scatter's sums.
 template <bool FIXED>
-__global__ void __launch_bounds__(kBlock, 4)
-    job_step_kernel(JobParams p, double force_unit, const int32_t* __restrict__ tool_index,
+__global__ void __launch_bounds__(kBlock)
+    job_step_kernel(double force_unit, const int32_t* __restrict__ tool_index,
                     const double* __restrict__ tool_force, VertexParams vp, float4* damp,
-                    float4* force_prev, float damping_rate,
-                    int substep, bool fresh_energy, DeviceStatus* st, JobState* job,
-                    JobSums* sums, JobStepCounters* step_counters, JobBlockSums* block_sums,
-                    JobCounters* counters, JobHostLink link, double* __restrict__ face_force) {
+                    float4* force_prev, float damping_rate, int substep, DeviceStatus* st,
+                    JobBlockSums* __restrict__ block_sums, double* __restrict__ face_force) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
@@ -385,29 +368,33 @@ __global__ void __launch_bounds__(kBlock, 4)
   mine.kinetic = d.kinetic;
   mine.work = work;
   mine = block_reduce_sums(mine);
-  __shared__ bool last;
-  if (threadIdx.x == 0) {
-    block_sums[blockIdx.x] = mine;
-    __threadfence();
-    const unsigned int ticket = atomicAdd(&step_counters->blocks_done, 1u);
-    last = ticket == gridDim.x - 1;
-  }
-  __syncthreads();
-  if (!last) return;
-  __threadfence();
+  if (threadIdx.x == 0) block_sums[blockIdx.x] = mine;
+}
+
+/// The end of a step, one block: adds job_step_kernel's block sums up in block order, then its
+/// first thread runs the record stage (stages 5 and 6, record_stage). A kernel of its own: in
+/// the vertex kernel's last block the record stage held the whole grid at 128 registers. (On a
+/// branch beside the next step's element pass, with a status per step, it measured slower: the
+/// branch's own cost outweighed what it hid.)
+__global__ void __launch_bounds__(kBlock)
+    job_record_kernel(JobParams p, const JobBlockSums* __restrict__ block_sums, int block_count,
+                      const double* __restrict__ u_next, double length_unit, bool fresh_energy,
+                      DeviceStatus* st, JobState* job, JobSums* sums, JobCounters* counters,
+                      JobHostLink link, int substep) {
+  wait_for_previous_kernel();
+  allow_next_kernel();
+  if (halted(st, substep)) return;  // the step kernel did nothing either
   JobBlockSums total;
-  for (unsigned int b = threadIdx.x; b < gridDim.x; b += kBlock) {
-    total.kinetic += __ldcg(&block_sums[b].kinetic);  // past this SM's L1: written by others
-    total.work += __ldcg(&block_sums[b].work);
+  for (int b = threadIdx.x; b < block_count; b += kBlock) {
+    total.kinetic += block_sums[b].kinetic;
+    total.work += block_sums[b].work;
   }
   total = block_reduce_sums(total);
   if (threadIdx.x == 0) {
-    step_counters->blocks_done = 0;
-    volatile DeviceStatus* vst = st;
-    vst->kinetic_energy = vst->kinetic_energy + total.kinetic;
-    volatile JobSums* vs = sums;
-    vs->tool_work = vs->tool_work + total.work;
-    record_stage(p, job, sums, st, vp.u_next, vp.length_unit, fresh_energy, counters, link);
+    // The tool kernel added its sums with atomics: add to them.
+    st->kinetic_energy += total.kinetic;
+    sums->tool_work += total.work;
+    record_stage(p, job, sums, st, u_next, length_unit, fresh_energy, counters, link);
   }
 }
 
