@@ -63,8 +63,8 @@ struct JobHostLink {
 };
 
 /// One block's share of the sums of job_step_kernel (SI units): each block writes its own,
-/// the block that finishes last adds them up in block order (the totals come out the same on
-/// every run, and no block waits on a same-address atomic).
+/// job_record_kernel adds them up in block order (the totals come out the same on every run,
+/// and no block waits on a same-address atomic).
 struct JobBlockSums {
   double kinetic = 0, work = 0;
 };
@@ -361,9 +361,7 @@ __global__ void __launch_bounds__(kBlock)
                          tool.z * (next[2] - up[2]));
     }
   }
-  // The block's sums (its own slot, no atomics), then the last block to finish adds every
-  // block's up in block order and runs the record stage (every other block's sums and u_next
-  // are visible: each fenced before taking its ticket).
+  // The block's sums into its own slot (no atomics); job_record_kernel adds them up.
   JobBlockSums mine;
   mine.kinetic = d.kinetic;
   mine.work = work;
