@@ -27,12 +27,12 @@ class CudaJob final : public JobRunner {
   void set_tip(Vec3d tip) override;
   int64_t steps_advanced() const override { return advanced_; }
   uint64_t host_bytes_moved() const override {
-    // Per step the progress counter; per publication (every few steps) the latest record and
-    // the pose mailbox read; per sample one record.
+    // Per publication (every few steps) the latest record, the counters and the pose mailbox
+    // read; per sample one record.
     const volatile unsigned long long* count = h_sample_count_.data();
     const volatile unsigned long long* published = &h_latest_.data()->seq;
-    return static_cast<uint64_t>(steps_done()) * sizeof(unsigned long long) +
-           static_cast<uint64_t>(*published) * (sizeof(JobRecord) + sizeof(TipMailbox)) +
+    return static_cast<uint64_t>(*published) *
+               (sizeof(JobRecord) + 3 * sizeof(unsigned long long) + sizeof(TipMailbox)) +
            static_cast<uint64_t>(*count) * sizeof(JobRecord);
   }
   int64_t mass_raises() override {
@@ -77,6 +77,7 @@ class CudaJob final : public JobRunner {
   DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
   DeviceBuffer<float4> d_damp_, d_force_prev_;
   DeviceBuffer<JobBlockSums> d_block_sums_;  // one per block of job_step_kernel
+  DeviceBuffer<JobRecord> d_staged_;         // samples between publications (JobHostLink)
   DeviceBuffer<double> d_tool_force_;  // tool_kernel's load per tool vertex [N], (3 n)
   // The branch that runs tool_kernel beside the element pass in the captured graphs.
   Stream side_;
@@ -235,8 +236,12 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = h_sample_count_.allocate(1, "job sample count"); !s) return s;
   if (Status s = h_latest_.allocate(1, "job record"); !s) return s;
   if (Status s = h_tip_.allocate(1, "needle pose"); !s) return s;
-  link_ = JobHostLink{h_samples_.data(), h_sample_count_.data(), capacity, h_latest_.data(),
-                      h_tip_.data()};
+  link_ = JobHostLink{h_samples_.data(), nullptr, h_sample_count_.data(), capacity,
+                      h_latest_.data(), h_tip_.data()};
+  if (Status s = d_staged_.allocate(static_cast<size_t>(link_.publish_interval), "staged samples");
+      !s)
+    return s;
+  link_.staged = d_staged_.data();
   ZONA_CUDA_TRY(cudaDeviceSynchronize());
   return {};
 }

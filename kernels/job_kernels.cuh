@@ -30,7 +30,8 @@ struct ToolParams {
 /// that sees seq unchanged by less than 2 around its copy has a whole record.
 struct LatestRecord {
   unsigned long long seq = 0;
-  unsigned long long steps_done = 0;  ///< steps finished (progress for the host's throttle)
+  /// Steps finished (progress for the host's throttle), written at each publication.
+  unsigned long long steps_done = 0;
   JobRecord slot[2];
 };
 
@@ -42,15 +43,20 @@ struct TipMailbox {
 
 /// Device-side counters of the record stage.
 struct JobCounters {
-  unsigned long long samples = 0;     ///< samples written so far
+  unsigned long long samples = 0;     ///< samples written to the host's ring so far
+  unsigned long long staged = 0;      ///< samples waiting in JobHostLink::staged
   unsigned long long latest_seq = 0;  ///< records published so far
   double elastic_energy = 0;          ///< the last evaluated elastic energy [J]
 };
 
 /// Where the record kernel publishes: mapped pinned host memory (written over the bus, read by
-/// the host without any stream synchronisation).
+/// the host without any stream synchronisation), and the device-side staging of the samples.
 struct JobHostLink {
   JobRecord* samples = nullptr;               ///< ring of samples, (capacity)
+  /// Device memory, (publish_interval): the samples since the last publication, copied to the
+  /// ring when it comes. A step whose kernel writes host memory ends only when the bus has taken
+  /// the writes, so the steps between publications write none.
+  JobRecord* staged = nullptr;
   unsigned long long* sample_count = nullptr; ///< samples written so far
   unsigned long long capacity = 0;
   LatestRecord* latest = nullptr;
@@ -276,22 +282,25 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   const bool sample = job_finish_step(p, js, total, tot, &r);
   *job = js;
   const bool publish = publish_step || r.halted || r.puncture.punctured != punctured_before;
-  // Samples go into the ring as they come; they and the latest record become visible to the
-  // host at a publication: records first, one system fence, then the counters.
-  if (sample) {
-    link.samples[counters->samples % link.capacity] = r;
-    counters->samples += 1;
-  }
+  // Samples wait on the device (at most one per step, so publish_interval of them); at a
+  // publication they go to the ring, then the latest record, one system fence, the counters.
+  JobCounters c = *counters;
+  if (sample) link.staged[c.staged++] = r;
   if (publish) {
-    link.latest->slot[counters->latest_seq % 2] = r;
+    for (unsigned long long k = 0; k < c.staged; ++k)
+      link.samples[(c.samples + k) % link.capacity] = link.staged[k];
+    c.samples += c.staged;
+    c.staged = 0;
+    link.latest->slot[c.latest_seq % 2] = r;
     __threadfence_system();
-    *reinterpret_cast<volatile unsigned long long*>(link.sample_count) = counters->samples;
-    counters->latest_seq += 1;
-    *reinterpret_cast<volatile unsigned long long*>(&link.latest->seq) = counters->latest_seq;
+    *reinterpret_cast<volatile unsigned long long*>(link.sample_count) = c.samples;
+    c.latest_seq += 1;
+    *reinterpret_cast<volatile unsigned long long*>(&link.latest->seq) = c.latest_seq;
+    // Progress for the throttle (order does not matter for it).
+    *reinterpret_cast<volatile unsigned long long*>(&link.latest->steps_done) =
+        static_cast<unsigned long long>(r.step);
   }
-  // Progress for the throttle: a posted write, no fence (order does not matter for it).
-  *reinterpret_cast<volatile unsigned long long*>(&link.latest->steps_done) =
-      static_cast<unsigned long long>(r.step);
+  *counters = c;
   // The next step starts from clean sums; a halted job keeps every later kernel out.
   *sums = JobSums{};
   DeviceStatus fresh;
