@@ -74,11 +74,10 @@ class CudaJob final : public JobRunner {
   DeviceBuffer<int32_t> d_tool_vertex_;
   DeviceBuffer<double> d_tool_rest_, d_tool_area_, d_tool_suction_;
   DeviceBuffer<StickAnchor> d_tool_anchor_;  // per tool vertex: needle, then rim
-  DeviceBuffer<int32_t> d_tool_index_;  // device vertex -> tool index, -1 off the surface
   DeviceBuffer<float4> d_damp_, d_force_prev_;
   DeviceBuffer<JobBlockSums> d_block_sums_;  // one per block of job_step_kernel
   DeviceBuffer<JobRecord> d_staged_;         // samples between publications (JobHostLink)
-  DeviceBuffer<double> d_tool_force_;  // tool_kernel's load per tool vertex [N], (3 n)
+  DeviceBuffer<float4> d_tool_load_;  // tool_kernel's loads per device vertex [force_unit]
   // The branch that runs tool_kernel beside the element pass in the captured graphs.
   Stream side_;
   Event fork_, join_;
@@ -92,7 +91,7 @@ class CudaJob final : public JobRunner {
   // The needle's face quadrature: corners (tool indices, w unused), rest areas [m^2], and the
   // corner loads of the step [N] (3 per tool vertex).
   DeviceBuffer<int4> d_faces_;
-  DeviceBuffer<double> d_face_area_, d_face_force_;
+  DeviceBuffer<double> d_face_area_;
   DeviceBuffer<StickAnchor> d_face_anchor_;  // kFacePoints per triangle
   PinnedBuffer<JobRecord> h_samples_;
   PinnedBuffer<unsigned long long> h_sample_count_;
@@ -158,12 +157,9 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = d_tool_anchor_.allocate(2 * n, "stick anchors"); !s) return s;
   if (Status s = d_tool_anchor_.fill_bytes(0); !s) return s;
   if (Status s = d_tool_suction_.upload(suction, "suction loads"); !s) return s;
-  std::vector<int32_t> tool_index(b_.nv_, -1);
-  for (size_t i = 0; i < n; ++i) tool_index[static_cast<size_t>(vertex[i])] = static_cast<int32_t>(i);
-  if (Status s = d_tool_index_.upload(tool_index, "tool index"); !s) return s;
   if (Status s = d_block_sums_.allocate(blocks_for(b_.nv_), "job block sums"); !s) return s;
-  if (Status s = d_tool_force_.allocate(3 * n, "tool loads"); !s) return s;
-  if (Status s = d_tool_force_.fill_bytes(0); !s) return s;
+  if (Status s = d_tool_load_.allocate(b_.nv_, "tool loads"); !s) return s;
+  if (Status s = d_tool_load_.fill_bytes(0); !s) return s;
   if (Status s = side_.create(); !s) return s;
   if (Status s = fork_.create(false); !s) return s;
   if (Status s = join_.create(false); !s) return s;
@@ -221,8 +217,6 @@ Status CudaJob::start(const JobSetup& setup) {
       faces[f] = make_int4(setup.tool_faces[f][0], setup.tool_faces[f][1], setup.tool_faces[f][2], 0);
     if (Status s = d_faces_.upload(faces, "needle faces"); !s) return s;
     if (Status s = d_face_area_.upload(setup.tool_face_area, "needle face areas"); !s) return s;
-    if (Status s = d_face_force_.allocate(3 * n, "needle face loads"); !s) return s;
-    if (Status s = d_face_force_.fill_bytes(0); !s) return s;
     if (Status s = d_face_anchor_.allocate(nf * kFacePoints, "face stick anchors"); !s) return s;
     if (Status s = d_face_anchor_.fill_bytes(0); !s) return s;
   }
@@ -276,9 +270,8 @@ Status CudaJob::enqueue_step(int64_t g) {
   keep(launch(false, tool_kernel, tool_blocks, side_.get(), params_, tl_,
               static_cast<const int4*>(d_faces_.data()),
               static_cast<const double*>(d_face_area_.data()), vp,
-              static_cast<const JobState*>(d_job_.data()), d_face_force_.data(),
-              d_face_anchor_.data(), d_tool_force_.data(), d_sums_.data(), face_blocks, nf, st,
-              kSubstep));
+              static_cast<const JobState*>(d_job_.data()), d_face_anchor_.data(),
+              d_tool_load_.data(), d_sums_.data(), face_blocks, nf, st, kSubstep));
   keep(cudaEventRecord(join_.get(), side_.get()));
   if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
     keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
@@ -309,11 +302,8 @@ Status CudaJob::enqueue_step(int64_t g) {
   keep(cudaStreamWaitEvent(s, join_.get(), 0));
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
-  keep(launch(pdl, step_kernel, vb, s, tl_.force_unit,
-              static_cast<const int32_t*>(d_tool_index_.data()),
-              static_cast<const double*>(d_tool_force_.data()), vp, d_damp_.data(),
-              d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data(),
-              params_.needle_on_faces ? d_face_force_.data() : static_cast<double*>(nullptr)));
+  keep(launch(pdl, step_kernel, vb, s, d_tool_load_.data(), vp, d_damp_.data(),
+              d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data()));
   keep(launch(pdl, job_record_kernel, 1, s, params_,
               static_cast<const JobBlockSums*>(d_block_sums_.data()), static_cast<int>(vb),
               static_cast<const double*>(vp.u_next), b_.length_unit_, energy, st, d_job_.data(),

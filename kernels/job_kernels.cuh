@@ -120,25 +120,27 @@ inline constexpr int kFaceLanes = 4;
 /// Blocks [0, face_blocks): the needle on the surface triangles (JobParams::needle_on_faces),
 /// kFaceLanes threads per triangle, each evaluating every kFaceLanes-th quadrature point
 /// (needle_face_point), summed over the triangle by shuffles; its first thread adds the corner
-/// loads to face_force [N] (3 per tool vertex; job_step_kernel takes and clears them in the same
-/// step). A thread that evaluated all 16 points in float64 made the stage latency-bound (about
+/// loads to tool_load (per device vertex, force units; job_step_kernel takes and clears them in
+/// the same step). A thread that evaluated all 16 points in float64 made the stage latency-bound (about
 /// 20 us per step at 1k vertices); one point per thread multiplied the threads and the corner
 /// loads by 16 (1.76x the bare step at 1M vertices against 1.58x); four lanes of four points sit
 /// between.
 ///
 /// The blocks after them: one thread per tool vertex (tool_stage: the rim, the suction, the
-/// needle at the vertices, friction), its load written to tool_force [N] (3 per tool vertex).
-/// In the vertex kernel this stage made every warp that held a surface vertex wait on it and
-/// held the kernel's registers at 132 (one block per SM): the step's vertex kernel took 210 us
-/// at 1M vertices, against about 40 us for its own reads and writes.
+/// needle at the vertices, friction), its load added to tool_load. In the vertex kernel this
+/// stage made every warp that held a surface vertex wait on it and held the kernel's registers
+/// at 132 (one block per SM): the step's vertex kernel took 210 us at 1M vertices, against about
+/// 40 us for its own reads and writes. The loads are kept per device vertex so that the vertex
+/// kernel reads them in order (read through a tool index, they made it wait on two dependent
+/// loads: 83 us at 1M vertices, 44 % of the memory bandwidth).
 ///
 /// Both parts add their needle and rim sums to the step's (block sums, then atomics).
 __global__ void __launch_bounds__(kBlock)
     tool_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
                 const double* __restrict__ face_area, VertexParams vp,
-                const JobState* __restrict__ job, double* __restrict__ face_force,
-                StickAnchor* __restrict__ face_anchor, double* __restrict__ tool_force,
-                JobSums* sums, int face_blocks, int face_count, DeviceStatus* st, int substep) {
+                const JobState* __restrict__ job, StickAnchor* __restrict__ face_anchor,
+                float4* __restrict__ tool_load, JobSums* sums, int face_blocks, int face_count,
+                DeviceStatus* st, int substep) {
   static_assert(kFacePoints % kFaceLanes == 0 && kBlock % kFaceLanes == 0, "lanes per triangle");
   wait_for_previous_kernel();
   allow_next_kernel();
@@ -147,11 +149,14 @@ __global__ void __launch_bounds__(kBlock)
     const int i = static_cast<int>((blockIdx.x - face_blocks) * blockDim.x + threadIdx.x);
     ToolVertexForce t;
     if (i < tl.count) {
-      t = tool_stage(p, tl, job->pose, i, vp.u + 3 * static_cast<size_t>(tl.vertex[i]));
-      double* out = tool_force + 3 * static_cast<size_t>(i);
-      out[0] = t.force.x;
-      out[1] = t.force.y;
-      out[2] = t.force.z;
+      const int v = tl.vertex[i];
+      t = tool_stage(p, tl, job->pose, i, vp.u + 3 * static_cast<size_t>(v));
+      if (t.force.x != 0 || t.force.y != 0 || t.force.z != 0) {
+        const double inv = 1.0 / tl.force_unit;
+        atomicAdd(&tool_load[v].x, float(t.force.x * inv));
+        atomicAdd(&tool_load[v].y, float(t.force.y * inv));
+        atomicAdd(&tool_load[v].z, float(t.force.z * inv));
+      }
     }
     if (__syncthreads_or(t.needle_contact > 0 || t.rim_contact > 0 || t.rim.x != 0 ||
                          t.rim.y != 0 || t.rim.z != 0)) {
@@ -175,18 +180,17 @@ __global__ void __launch_bounds__(kBlock)
   double load[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
   double depth = 0;  // deepest of this thread's points inside the needle
   int contact = 0;
-  int corner[3] = {0, 0, 0};
+  int corner[3] = {0, 0, 0};  // device vertices
   if (f < face_count) {
     const int4 c4 = faces[f];
-    corner[0] = c4.x;
-    corner[1] = c4.y;
-    corner[2] = c4.z;
+    const int k3[3] = {c4.x, c4.y, c4.z};
     const double lu = tl.length_unit;
     // Positions first: most triangles are far from the needle and need nothing else.
     ToolFaceInput in;
     for (int c = 0; c < 3; ++c) {
-      const int k = corner[c];
-      const double* un = vp.u + 3 * static_cast<size_t>(tl.vertex[k]);
+      const int k = k3[c];
+      corner[c] = tl.vertex[k];
+      const double* un = vp.u + 3 * static_cast<size_t>(corner[c]);
       in.x[c] = Vec3d{tl.rest[3 * k] + un[0] * lu, tl.rest[3 * k + 1] + un[1] * lu,
                       tl.rest[3 * k + 2] + un[2] * lu};
     }
@@ -213,11 +217,13 @@ __global__ void __launch_bounds__(kBlock)
   double nf[3] = {0, 0, 0};
   int contacts = 0;
   if (lane == 0 && contact > 0) {
-    for (int c = 0; c < 3; ++c)
-      for (int j = 0; j < 3; ++j) {
-        atomicAdd(face_force + 3 * static_cast<size_t>(corner[c]) + j, load[3 * c + j]);
-        nf[j] += load[3 * c + j];
-      }
+    const double inv = 1.0 / tl.force_unit;
+    for (int c = 0; c < 3; ++c) {
+      atomicAdd(&tool_load[corner[c]].x, float(load[3 * c] * inv));
+      atomicAdd(&tool_load[corner[c]].y, float(load[3 * c + 1] * inv));
+      atomicAdd(&tool_load[corner[c]].z, float(load[3 * c + 2] * inv));
+      for (int j = 0; j < 3; ++j) nf[j] += load[3 * c + j];
+    }
     contacts = contact;
   }
   if (__syncthreads_or(contacts > 0)) {
@@ -309,7 +315,7 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
 }
 
 /// Everything of a step after the element pass, one thread per vertex: the tool loads of
-/// tool_kernel (tool_force, face_force; the latter cleared for the next step), stage 2
+/// tool_kernel (tool_load, cleared for the next step), stage 2
 /// (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged one step as on the CPU), stage 4 (the
 /// centred-difference update), and the sums of stage 5 that need u_{n+1} (kinetic energy, the
 /// tools' centred work f_n . (u_{n+1} - u_{n-1}) / 2), per block into block_sums for
@@ -317,10 +323,9 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
 /// FIXED: the fixed-point scatter's sums.
 template <bool FIXED>
 __global__ void __launch_bounds__(kBlock)
-    job_step_kernel(double force_unit, const int32_t* __restrict__ tool_index,
-                    const double* __restrict__ tool_force, VertexParams vp, float4* damp,
+    job_step_kernel(float4* __restrict__ tool_load, VertexParams vp, float4* damp,
                     float4* force_prev, float damping_rate, int substep, DeviceStatus* st,
-                    JobBlockSums* __restrict__ block_sums, double* __restrict__ face_force) {
+                    JobBlockSums* __restrict__ block_sums) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
@@ -337,21 +342,12 @@ __global__ void __launch_bounds__(kBlock)
       vp.force_clear[v] = make_float4(0, 0, 0, 0);
     }
     if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
-    float4 fe = make_float4(0, 0, 0, 0);
-    const int i = tool_index[v];
-    Vec3d tool{0, 0, 0};
+    // The tools' load on this vertex (zero off the tools), taken and cleared for the next step.
+    const float4 tool = tool_load[v];
+    const bool loaded = tool.x != 0 || tool.y != 0 || tool.z != 0;
+    if (loaded) tool_load[v] = make_float4(0, 0, 0, 0);
+    float4 fe = tool;
     const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
-    if (i >= 0) {
-      const double* tf = tool_force + 3 * static_cast<size_t>(i);
-      tool = Vec3d{tf[0], tf[1], tf[2]};
-      if (face_force) {
-        double* ff = face_force + 3 * static_cast<size_t>(i);
-        tool += Vec3d{ff[0], ff[1], ff[2]};
-        ff[0] = ff[1] = ff[2] = 0;
-      }
-      const double inv = 1.0 / force_unit;
-      fe = make_float4(float(tool.x * inv), float(tool.y * inv), float(tool.z * inv), 0.0f);
-    }
     if (damp) {
       const float4 k = damp[v];
       fe.x += k.x;
@@ -363,11 +359,11 @@ __global__ void __launch_bounds__(kBlock)
       force_prev[v] = f;
     }
     update_vertex(vp, v, f, fe, substep, st, &d);
-    if (i >= 0) {
+    if (loaded) {
       const double* next = vp.u_next + 3 * static_cast<size_t>(v);
-      const double lu = vp.length_unit;
-      work = 0.5 * lu * (tool.x * (next[0] - up[0]) + tool.y * (next[1] - up[1]) +
-                         tool.z * (next[2] - up[2]));
+      work = 0.5 * vp.length_unit * vp.force_unit *
+             (double(tool.x) * (next[0] - up[0]) + double(tool.y) * (next[1] - up[1]) +
+              double(tool.z) * (next[2] - up[2]));
     }
   }
   // The block's sums into its own slot (no atomics); job_record_kernel adds them up.
