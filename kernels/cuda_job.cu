@@ -264,10 +264,13 @@ Status CudaJob::enqueue_step(int64_t g) {
   keep(cudaEventRecord(fork_.get(), s));
   keep(cudaStreamWaitEvent(side_.get(), fork_.get(), 0));
   const int nf = params_.needle_on_faces ? static_cast<int>(d_faces_.size()) : 0;
-  const int face_blocks = static_cast<int>(blocks_for(static_cast<size_t>(nf) * kFaceLanes));
+  const bool small = nf <= kFaceLanesSmallMaxFaces;
+  const int lanes = small ? kFaceLanesSmall : kFaceLanes;
+  const int face_blocks = static_cast<int>(blocks_for(static_cast<size_t>(nf) * lanes));
   const unsigned tool_blocks =
       static_cast<unsigned>(face_blocks) + blocks_for(static_cast<size_t>(tl_.count));
-  keep(launch(false, tool_kernel, tool_blocks, side_.get(), params_, tl_,
+  keep(launch(false, small ? tool_kernel<kFaceLanesSmall> : tool_kernel<kFaceLanes>, tool_blocks,
+              side_.get(), params_, tl_,
               static_cast<const int4*>(d_faces_.data()),
               static_cast<const double*>(d_face_area_.data()), vp,
               static_cast<const JobState*>(d_job_.data()), d_face_anchor_.data(),

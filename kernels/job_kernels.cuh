@@ -112,13 +112,19 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
   return tool_vertex_force(p, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
 }
 
-/// Threads per triangle in the face part of tool_kernel, each taking every kFaceLanes-th point.
+/// Threads per triangle in the face part of tool_kernel, each taking every LANES-th point: four
+/// on large surfaces (where the threads that only test a far triangle dominate), sixteen, one
+/// point each, on small ones (where the few triangles under the needle are the step's critical
+/// path: on a 1k-vertex cell the tools run beside the element pass and finish after it).
 inline constexpr int kFaceLanes = 4;
+inline constexpr int kFaceLanesSmall = 16;
+/// Surfaces of at most this many triangles take kFaceLanesSmall.
+inline constexpr int kFaceLanesSmallMaxFaces = 16384;
 
 /// Stage 1, every tool load of a step from u_n, in one launch of two parts.
 ///
 /// Blocks [0, face_blocks): the needle on the surface triangles (JobParams::needle_on_faces),
-/// kFaceLanes threads per triangle, each evaluating every kFaceLanes-th quadrature point
+/// LANES threads per triangle, each evaluating every LANES-th quadrature point
 /// (needle_face_point), summed over the triangle by shuffles; its first thread adds the corner
 /// loads to tool_load (per device vertex, force units; job_step_kernel takes and clears them in
 /// the same step). A thread that evaluated all 16 points in float64 made the stage latency-bound (about
@@ -135,13 +141,14 @@ inline constexpr int kFaceLanes = 4;
 /// loads: 83 us at 1M vertices, 44 % of the memory bandwidth).
 ///
 /// Both parts add their needle and rim sums to the step's (block sums, then atomics).
+template <int LANES>
 __global__ void __launch_bounds__(kBlock)
     tool_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
                 const double* __restrict__ face_area, VertexParams vp,
                 const JobState* __restrict__ job, StickAnchor* __restrict__ face_anchor,
                 float4* __restrict__ tool_load, JobSums* sums, int face_blocks, int face_count,
                 DeviceStatus* st, int substep) {
-  static_assert(kFacePoints % kFaceLanes == 0 && kBlock % kFaceLanes == 0, "lanes per triangle");
+  static_assert(kFacePoints % LANES == 0 && kBlock % LANES == 0, "lanes per triangle");
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every thread
@@ -176,7 +183,7 @@ __global__ void __launch_bounds__(kBlock)
     return;
   }
   const int t = static_cast<int>(blockIdx.x * blockDim.x + threadIdx.x);
-  const int f = t / kFaceLanes, lane = t % kFaceLanes;
+  const int f = t / LANES, lane = t % LANES;
   double load[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
   double depth = 0;  // deepest of this thread's points inside the needle
   int contact = 0;
@@ -198,7 +205,7 @@ __global__ void __launch_bounds__(kBlock)
     if (needle_face_may_touch(p, pose, in)) {
       in.area = face_area[f];
       StickAnchor* anchors = face_anchor + static_cast<size_t>(f) * kFacePoints;
-      for (int q = lane; q < kFacePoints; q += kFaceLanes) {
+      for (int q = lane; q < kFacePoints; q += LANES) {
         Vec3d force;
         double b[3], point_depth = 0;
         if (!needle_face_point(p, pose, in, q, &force, &point_depth, b, anchors + q)) continue;
@@ -210,9 +217,9 @@ __global__ void __launch_bounds__(kBlock)
     }
   }
   // Sum the triangle's lanes onto its first one.
-  for (int offset = kFaceLanes / 2; offset > 0; offset /= 2) {
-    for (int k = 0; k < 9; ++k) load[k] += __shfl_down_sync(0xffffffffu, load[k], offset, kFaceLanes);
-    contact += __shfl_down_sync(0xffffffffu, contact, offset, kFaceLanes);
+  for (int offset = LANES / 2; offset > 0; offset /= 2) {
+    for (int k = 0; k < 9; ++k) load[k] += __shfl_down_sync(0xffffffffu, load[k], offset, LANES);
+    contact += __shfl_down_sync(0xffffffffu, contact, offset, LANES);
   }
   double nf[3] = {0, 0, 0};
   int contacts = 0;
