@@ -127,10 +127,10 @@ inline constexpr int kFaceLanesSmallMaxFaces = 16384;
 /// LANES threads per triangle, each evaluating every LANES-th quadrature point
 /// (needle_face_point), summed over the triangle by shuffles; its first thread adds the corner
 /// loads to tool_load (per device vertex, force units; job_step_kernel takes and clears them in
-/// the same step). A thread that evaluated all 16 points in float64 made the stage latency-bound (about
-/// 20 us per step at 1k vertices); one point per thread multiplied the threads and the corner
-/// loads by 16 (1.76x the bare step at 1M vertices against 1.58x); four lanes of four points sit
-/// between.
+/// the same step). A thread that evaluated all 16 points in float64 made the stage
+/// latency-bound (about 20 us per step at 1k vertices); on large surfaces four lanes of four
+/// points keep the threads that only test a far triangle few, on small ones one point per
+/// thread shortens the chain (kFaceLanes, kFaceLanesSmall).
 ///
 /// The blocks after them: one thread per tool vertex (tool_stage: the rim, the suction, the
 /// needle at the vertices, friction), its load added to tool_load. In the vertex kernel this
