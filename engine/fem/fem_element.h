@@ -395,14 +395,13 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> snh_cofactor_of_f(const Mat3<T>& h) {
   return c;
 }
 
-/// SNH first Piola-Kirchhoff stress P [Pa] at displacement gradient H, written to *p; energy
-/// density Psi [J/m^3] returned; J - 1 [-] to *j_minus_one. lambda, mu: the material's Lame
-/// constants [Pa] (the law's lambda_s = snh_lambda(lambda, mu) is formed here). Defined for
-/// every H, inverted (J <= 0) included.
+/// The SNH stress with the volumetric coefficient and an added pressure given: P = mu (H + H^T -
+/// tr(H) I - cof H) + k (I + tr(H) I - H^T + cof H), k = lambda_e (J - 1) + pressure, written to
+/// *p; the energy density mu (|H|^2 / 2 - I2 - det H) + lambda_e (J - 1)^2 / 2 [J/m^3]
+/// returned (the pressure's energy is its caller's); J - 1 [-] to *j_minus_one.
 template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu, Mat3<T>* p,
-                                               T* j_minus_one) {
-  const T lam = snh_lambda(lambda, mu);
+ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_with(const Mat3<T>& h, T mu, T lambda_e,
+                                                    T pressure, Mat3<T>* p, T* j_minus_one) {
   const Mat3<T> ch = cofactor(h);
   const T tr = trace(h);
   T hh = 0;
@@ -411,14 +410,23 @@ ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu,
   const T i2 = principal_minor_sum(h);
   const T det_h = determinant(h);
   const T jm1 = tr + i2 + det_h;
-  // P = mu (H + H^T - tr(H) I - cof H) + lambda_s (J - 1) (I + tr(H) I - H^T + cof H).
-  const T k = lam * jm1;
+  const T k = lambda_e * jm1 + pressure;
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       p->m[r][c] = mu * (h.m[r][c] + h.m[c][r] - ch.m[r][c]) + k * (ch.m[r][c] - h.m[c][r]);
   for (int r = 0; r < 3; ++r) p->m[r][r] += k * (T(1) + tr) - mu * tr;
   *j_minus_one = jm1;
-  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lam * jm1 * jm1;
+  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lambda_e * jm1 * jm1;
+}
+
+/// SNH first Piola-Kirchhoff stress P [Pa] at displacement gradient H, written to *p; energy
+/// density Psi [J/m^3] returned; J - 1 [-] to *j_minus_one. lambda, mu: the material's Lame
+/// constants [Pa] (the law's lambda_s = snh_lambda(lambda, mu) is formed here). Defined for
+/// every H, inverted (J <= 0) included.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu, Mat3<T>* p,
+                                               T* j_minus_one) {
+  return snh_first_piola_with(h, mu, snh_lambda(lambda, mu), T(0.0), p, j_minus_one);
 }
 
 /// SNH with its volumetric term taken at the vertices (nodal pressure; ModelDesc::
@@ -433,21 +441,7 @@ ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu,
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_nodal(const Mat3<T>& h, T mu, T pressure,
                                                      Mat3<T>* p, T* j_minus_one) {
-  const Mat3<T> ch = cofactor(h);
-  const T tr = trace(h);
-  T hh = 0;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) hh += h.m[r][c] * h.m[r][c];
-  const T i2 = principal_minor_sum(h);
-  const T det_h = determinant(h);
-  const T jm1 = tr + i2 + det_h;
-  const T k = mu * jm1 + pressure;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c)
-      p->m[r][c] = mu * (h.m[r][c] + h.m[c][r] - ch.m[r][c]) + k * (ch.m[r][c] - h.m[c][r]);
-  for (int r = 0; r < 3; ++r) p->m[r][r] += k * (T(1) + tr) - mu * tr;
-  *j_minus_one = jm1;
-  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * mu * jm1 * jm1;
+  return snh_first_piola_with(h, mu, mu, pressure, p, j_minus_one);
 }
 
 /// SNH stress differential dP = (d^2 Psi / dF^2) : dF [Pa] at displacement gradient H, for a
