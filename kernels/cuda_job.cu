@@ -258,9 +258,22 @@ Status CudaJob::enqueue_step(int64_t g) {
   };
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   const bool energy = g % kEnergyInterval == 0;
+  // Dynamic mass scaling first: it changes the masses and u_{n-1} that the rim's damper reads.
+  if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
+    keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
+                static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
+                static_cast<float>(params_.mass_gate), params_.mass_law));
+    keep(launch(pdl, mass_raise_kernel, vb, s, static_cast<const float*>(d_vertex_need_.data()),
+                static_cast<const float*>(d_vertex_volume_.data()), b_.d_mass_.data(),
+                b_.d_update_.data(), vp.u,
+                // The step's u_{n-1} buffer (the vertex view only reads it).
+                const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
+                static_cast<int>(b_.nv_)));
+  }
   // Stage 1, every tool load (the needle on the triangles, then the tool vertices): it reads
-  // only u_n and the pose, so it runs on a branch of its own beside the element pass (at 1k
-  // vertices the two are about 10 us each, and one after the other they were the step).
+  // only u_n, u_{n-1}, the masses and the pose, so it runs on a branch of its own beside the
+  // element pass (at 1k vertices the two are about 10 us each, and one after the other they
+  // were the step).
   keep(cudaEventRecord(fork_.get(), s));
   keep(cudaStreamWaitEvent(side_.get(), fork_.get(), 0));
   const int nf = params_.needle_on_faces ? static_cast<int>(d_faces_.size()) : 0;
@@ -276,17 +289,6 @@ Status CudaJob::enqueue_step(int64_t g) {
               static_cast<const JobState*>(d_job_.data()), d_face_anchor_.data(),
               d_tool_load_.data(), d_sums_.data(), face_blocks, nf, st, kSubstep));
   keep(cudaEventRecord(join_.get(), side_.get()));
-  if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
-    keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
-                static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
-                static_cast<float>(params_.mass_gate), params_.mass_law));
-    keep(launch(pdl, mass_raise_kernel, vb, s, static_cast<const float*>(d_vertex_need_.data()),
-                static_cast<const float*>(d_vertex_volume_.data()), b_.d_mass_.data(),
-                b_.d_update_.data(), vp.u,
-                // The step's u_{n-1} buffer (the vertex view only reads it).
-                const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
-                static_cast<int>(b_.nv_)));
-  }
   if (b_.tp_.vertex_q)
     keep(launch(pdl, volume_change_kernel, tb, s, b_.tp_, vp.u, kSubstep, st));
   with_kind(b_.kind_, [&](auto kc) {

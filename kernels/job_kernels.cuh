@@ -98,17 +98,24 @@ __device__ __forceinline__ JobBlockSums block_reduce_sums(JobBlockSums v) {
   return v;
 }
 
-/// Stage 1 for one tool vertex (tool index i): its load [N] and the parts the step sums, with
-/// its stick anchors. un: its u_n in device length units.
+/// Stage 1 for one tool vertex (tool index i, device vertex v): its load [N] and the parts the
+/// step sums, with its stick anchors. The rim's damper reads u_{n-1} and the mass.
 __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const ToolParams& tl,
-                                                     const ToolPose& pose, int i,
-                                                     const double* un) {
+                                                     const VertexParams& vp,
+                                                     const ToolPose& pose, int i, int v) {
   const double lu = tl.length_unit;
+  const double* un = vp.u + 3 * static_cast<size_t>(v);
   ToolVertexInput in;
   in.x = Vec3d{tl.rest[3 * i] + un[0] * lu, tl.rest[3 * i + 1] + un[1] * lu,
                tl.rest[3 * i + 2] + un[2] * lu};
   in.area = tl.area[i];
   in.suction = Vec3d{tl.suction[3 * i], tl.suction[3 * i + 1], tl.suction[3 * i + 2]};
+  if (p.rim_damping > 0) {
+    const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
+    const double s = lu / p.dt;
+    in.velocity = Vec3d{(un[0] - up[0]) * s, (un[1] - up[1]) * s, (un[2] - up[2]) * s};
+    in.mass = vp.mass[v];
+  }
   return tool_vertex_force(p, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
 }
 
@@ -157,7 +164,7 @@ __global__ void __launch_bounds__(kBlock)
     ToolVertexForce t;
     if (i < tl.count) {
       const int v = tl.vertex[i];
-      t = tool_stage(p, tl, job->pose, i, vp.u + 3 * static_cast<size_t>(v));
+      t = tool_stage(p, tl, vp, job->pose, i, v);
       if (t.force.x != 0 || t.force.y != 0 || t.force.z != 0) {
         const double inv = 1.0 / tl.force_unit;
         atomicAdd(&tool_load[v].x, float(t.force.x * inv));

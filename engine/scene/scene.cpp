@@ -418,7 +418,8 @@ void read_puncture(Reader& root, Scene& scene) {
 }
 
 void read_contact(Reader& root, Scene& scene) {
-  Reader r = root.object("contact", {"model", "stiffness", "needle_quadrature", "note"});
+  Reader r = root.object("contact", {"model", "stiffness", "needle_quadrature", "rim_damping",
+                                     "note"});
   if (!r.present()) return;
   ContactDef& c = scene.contact;
   r.choice("model", {Choice<ContactModel>{"penalty", ContactModel::kPenalty},
@@ -427,6 +428,7 @@ void read_contact(Reader& root, Scene& scene) {
   r.number("stiffness", &c.stiffness, Range::positive());
   r.choice("needle_quadrature", {Choice<bool>{"faces", true}, Choice<bool>{"vertices", false}},
            &c.needle_on_faces);
+  r.number("rim_damping", &c.rim_damping, Range::non_negative());
 }
 
 void read_holding_pipette(Reader& root, Scene& scene) {

@@ -236,6 +236,11 @@ struct ContactDef {
   /// Penalty: the needle's pressure integrated over the surface triangles (true) or lumped at
   /// the surface vertices (false; the tip can then pass between vertices it pushes apart).
   bool needle_on_faces = true;
+  /// Penalty: the holding pipette's rim contact gets a normal damper of this fraction of each
+  /// contact point's critical damping, at most m / dt (engine/sim/job.h,
+  /// rim_damper_coefficient) [-]. Without it the cell, seated on the stiff rim by the suction,
+  /// bounced on it: the holding force swung by several uN from one sample to the next. 0: off.
+  double rim_damping = 1.0;
 };
 
 enum class HoldingMode {

@@ -195,6 +195,7 @@ json scene_to_json(const Scene& scene) {
   contact["model"] = scene.contact.model == ContactModel::kPenalty ? "penalty" : "kinematic";
   contact["stiffness"] = scene.contact.stiffness;
   contact["needle_quadrature"] = scene.contact.needle_on_faces ? "faces" : "vertices";
+  contact["rim_damping"] = scene.contact.rim_damping;
   j["contact"] = contact;
 
   const HoldingPipetteDef& h = scene.holding_pipette;

@@ -169,6 +169,9 @@ struct JobParams {
   double rim_inner_radius = 0, rim_outer_radius = 0;  ///< [m]
   double rim_pressure_stiffness = 0;  ///< [Pa/m]
   double rim_friction = 0;            ///< [-]
+  /// Normal damper of the rim contact as a fraction of each contact point's critical damping
+  /// (rim_damper_coefficient) [-]; 0: an undamped spring.
+  double rim_damping = 0;
   double suction_ramp_time = 0;       ///< suction reaches full strength after this [s]
   // Stiffness-proportional damping: load k (f(u_{n-1}) - f(u_{n-2})), k = beta / dt [-].
   double stiffness_damping_rate = 0;
@@ -220,6 +223,8 @@ struct ToolVertexInput {
   Vec3d x{0, 0, 0};        ///< position rest + u_n [m]
   double area = 0;         ///< rest tributary surface area [m^2]
   Vec3d suction{0, 0, 0};  ///< full-strength suction load [N] (zero off the aspirated patch)
+  Vec3d velocity{0, 0, 0}; ///< (u_n - u_{n-1}) / dt [m/s]; read by the rim's damper only
+  double mass = 0;         ///< the vertex's (scaled) mass [kg]; read by the rim's damper only
 };
 
 /// Where a contact point stuck to its tool, for the friction's stick spring: its position
@@ -259,11 +264,22 @@ struct ToolVertexForce {
 /// sticking point carries its tangential load at rest, whatever the step, the speed or the
 /// (scaled) mass: a viscous stick force (stop the slip velocity in one step, m v_t / dt) let
 /// it creep at a rate set by the mass scaling (docs/injection.md).
+///
+/// `damper` [kg/s] adds a normal dashpot against `velocity`, the point's velocity relative to
+/// the tool [m/s]: it resists the approach and the rebound, and the normal force never turns
+/// into a pull (a point leaving the tool faster than its spring relaxes is let go). At rest it
+/// carries nothing, so a static answer does not depend on it.
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, double kappa,
                                                        double mu, double area, Vec3d rel,
-                                                       int64_t step, StickAnchor* anchor) {
+                                                       int64_t step, StickAnchor* anchor,
+                                                       double damper = 0,
+                                                       Vec3d velocity = Vec3d{0, 0, 0}) {
   const double k = kappa * area;
-  const double fn = k * (-sdf.distance);  // > 0 inside
+  double fn = k * (-sdf.distance);  // > 0 inside
+  if (damper > 0) {
+    fn -= damper * dot(velocity, sdf.normal);
+    if (fn < 0) fn = 0;
+  }
   if (anchor->mark != step + 1) anchor->at = rel;  // a fresh contact sticks where it touched
   anchor->mark = step + 2;
   const Vec3d d = rel - anchor->at;
@@ -275,6 +291,20 @@ ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, dou
     anchor->at = rel + (1.0 / k) * ft;  // slid: the spring stays at the Coulomb limit
   }
   return fn * sdf.normal + ft;
+}
+
+/// The rim damper's coefficient for a vertex of rest area `area` [m^2] and mass `mass` [kg]:
+/// `rim_damping` times the critical damping 2 sqrt(k m) of its contact spring k = kappa area,
+/// at most m / dt. The cap keeps the explicit (one step lagged) damper at half its stability
+/// limit (c dt / m < 2); the contact's mass raise (m >= k dt^2, Simulation) puts most rim
+/// vertices at omega dt = 1, where the cap is the critical damping itself. [kg/s]
+ZONA_HOST_DEVICE ZONA_INLINE double rim_damper_coefficient(const JobParams& p, double area,
+                                                          double mass) {
+  if (!(p.rim_damping > 0) || !(mass > 0)) return 0;
+  const double critical = 2.0 * sqrt(p.rim_pressure_stiffness * area * mass);
+  const double c = p.rim_damping * critical;
+  const double cap = mass / p.dt;
+  return c < cap ? c : cap;
 }
 
 /// Stage 1 for one surface vertex: needle, rim and suction, with the vertex's stick anchors
@@ -303,7 +333,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
         holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x);
     if (sdf.distance < 0) {
       out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in.area,
-                                      in.x - p.rim_mouth, pose.step, rim_anchor);
+                                      in.x - p.rim_mouth, pose.step, rim_anchor,
+                                      rim_damper_coefficient(p, in.area, in.mass), in.velocity);
       out.rim_contact = 1;
     }
     out.rim += pose.suction_ramp * in.suction;

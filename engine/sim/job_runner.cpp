@@ -147,6 +147,10 @@ class CpuJobRunner final : public JobRunner {
       in.x = model_.rest_positions[v] + state_.u[v];
       in.area = setup_.tool_area[i];
       in.suction = setup_.tool_suction[i];
+      if (p.rim_damping > 0) {
+        in.velocity = (1.0 / p.dt) * (state_.u[v] - state_.u_prev[v]);
+        in.mass = model_.vertex_mass[v];
+      }
       ToolVertexForce f = tool_vertex_force(p, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
       f.force += face_force_[i];
       Vec3d& ext = state_.external_force[v];

@@ -85,6 +85,7 @@ Status Simulation::prepare_job() {
     p.rim_outer_radius = holding_->geometry.outer_radius;
     p.rim_pressure_stiffness = kappa;
     p.rim_friction = holding_->friction;
+    p.rim_damping = scene_.contact.rim_damping;
     // Suction ramped in over half the needle's approach, so the cell settles without ringing.
     double ramp_time = 0.05 * end_time_;
     if (has_needle_ && script_.speed > 0)
