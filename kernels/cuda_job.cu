@@ -308,7 +308,9 @@ Status CudaJob::enqueue_step(int64_t g) {
   auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
                                                                       : job_step_kernel<false>;
   keep(launch(pdl, step_kernel, vb, s, d_tool_load_.data(), vp, d_damp_.data(),
-              d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data()));
+              d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data(),
+              params_.drift_damping > 0 ? static_cast<const JobState*>(d_job_.data())
+                                        : static_cast<const JobState*>(nullptr)));
   keep(launch(pdl, job_record_kernel, 1, s, params_,
               static_cast<const JobBlockSums*>(d_block_sums_.data()), static_cast<int>(vb),
               static_cast<const double*>(vp.u_next), b_.length_unit_, energy, st, d_job_.data(),

@@ -73,7 +73,29 @@ struct JobHostLink {
 /// and no block waits on a same-address atomic).
 struct JobBlockSums {
   double kinetic = 0, work = 0;
+  /// Drift damping only: m (u_{n+1} - u_n) / dt [kg m/s] and m [kg] of the free vertices.
+  double momentum[3] = {0, 0, 0};
+  double mass = 0;
 };
+
+/// The sum of two blocks' (or threads') sums.
+__device__ __forceinline__ JobBlockSums add_sums(JobBlockSums a, const JobBlockSums& b) {
+  a.kinetic += b.kinetic;
+  a.work += b.work;
+  for (int c = 0; c < 3; ++c) a.momentum[c] += b.momentum[c];
+  a.mass += b.mass;
+  return a;
+}
+
+/// Shuffles every field of a block sum down by `off` lanes.
+__device__ __forceinline__ JobBlockSums shfl_down_sums(const JobBlockSums& v, int off) {
+  JobBlockSums o;
+  o.kinetic = __shfl_down_sync(0xffffffffu, v.kinetic, off);
+  o.work = __shfl_down_sync(0xffffffffu, v.work, off);
+  for (int c = 0; c < 3; ++c) o.momentum[c] = __shfl_down_sync(0xffffffffu, v.momentum[c], off);
+  o.mass = __shfl_down_sync(0xffffffffu, v.mass, off);
+  return o;
+}
 
 /// The block's total in thread 0 (every thread of the block must call it; it ends with a
 /// barrier, so it can be called again).
@@ -81,18 +103,12 @@ __device__ __forceinline__ JobBlockSums block_reduce_sums(JobBlockSums v) {
   constexpr int kWarps = kBlock / 32;
   __shared__ JobBlockSums warp_sums[kWarps];
   const int warp = threadIdx.x / 32, lane = threadIdx.x % 32;
-  for (int off = 16; off > 0; off >>= 1) {
-    v.kinetic += __shfl_down_sync(0xffffffffu, v.kinetic, off);
-    v.work += __shfl_down_sync(0xffffffffu, v.work, off);
-  }
+  for (int off = 16; off > 0; off >>= 1) v = add_sums(v, shfl_down_sums(v, off));
   if (lane == 0) warp_sums[warp] = v;
   __syncthreads();
   if (warp == 0) {
     v = lane < kWarps ? warp_sums[lane] : JobBlockSums{};
-    for (int off = kWarps / 2; off > 0; off >>= 1) {
-      v.kinetic += __shfl_down_sync(0xffffffffu, v.kinetic, off);
-      v.work += __shfl_down_sync(0xffffffffu, v.work, off);
-    }
+    for (int off = kWarps / 2; off > 0; off >>= 1) v = add_sums(v, shfl_down_sums(v, off));
   }
   __syncthreads();
   return v;
@@ -254,10 +270,11 @@ __global__ void __launch_bounds__(kBlock)
 /// reads the step's sums and status, runs job_finish_step, publishes the record (latest, and a
 /// sample when due) to mapped host memory, and resets the sums and the status for the next step.
 /// A halted job stays halted: the status keeps failed_substep at 0, which stops every later
-/// kernel.
+/// kernel. momentum, mass: the free vertices' sums for the drift damping.
 __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, DeviceStatus* st,
                              const double* u_next, double length_unit, bool fresh_energy,
-                             JobCounters* counters, const JobHostLink& link) {
+                             JobCounters* counters, const JobHostLink& link, Vec3d momentum,
+                             double mass) {
   const bool publish_step = (job->step + 1) % link.publish_interval == 0;
   // (A halted job is not stepped again: its last record is always published.)
   // The pose the host handed in (haptics), when a whole one is there.
@@ -294,6 +311,8 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   // dependency): plain loads, issued together, not a chain of volatile ones.
   const JobSums total = *sums;
   tot.kinetic_energy = st->kinetic_energy;
+  tot.momentum = momentum;
+  tot.mass = mass;
   // The job's scalars in registers for the stage (one load and one store of the block, not a
   // chain of dependent global accesses on the step's serial tail).
   JobState js = *job;
@@ -333,19 +352,21 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
 /// (stiffness damping k (f(u_{n-1}) - f(u_{n-2})), lagged one step as on the CPU), stage 4 (the
 /// centred-difference update), and the sums of stage 5 that need u_{n+1} (kinetic energy, the
 /// tools' centred work f_n . (u_{n+1} - u_{n-1}) / 2), per block into block_sums for
-/// job_record_kernel.
+/// job_record_kernel. With drift damping (`job` non-null) every free vertex also takes
+/// m job->drift_accel and adds its momentum and mass to the sums (job_drift_update).
 /// FIXED: the fixed-point scatter's sums.
 template <bool FIXED>
 __global__ void __launch_bounds__(kBlock)
     job_step_kernel(float4* __restrict__ tool_load, VertexParams vp, float4* damp,
                     float4* force_prev, float damping_rate, int substep, DeviceStatus* st,
-                    JobBlockSums* __restrict__ block_sums) {
+                    JobBlockSums* __restrict__ block_sums, const JobState* __restrict__ job) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the same for every block: set by an earlier step
   const int v = blockIdx.x * kBlock + threadIdx.x;
   VertexDiag d;
   double work = 0;
+  JobBlockSums mine;
   if (v < vp.vertex_count) {
     const float4 f = scattered_force<FIXED>(vp, v);
     if constexpr (FIXED) {
@@ -372,7 +393,22 @@ __global__ void __launch_bounds__(kBlock)
                             damping_rate * (f.z - fp.z), 0.0f);
       force_prev[v] = f;
     }
+    const bool drifting = job != nullptr && vp.update[v].y > 0;  // free vertices only
+    if (drifting) {
+      const Vec3d a = job->drift_accel;
+      const double s = vp.mass[v] / vp.force_unit;
+      fe.x += float(s * a.x);
+      fe.y += float(s * a.y);
+      fe.z += float(s * a.z);
+    }
     update_vertex(vp, v, f, fe, substep, st, &d);
+    if (drifting) {
+      const double* un = vp.u + 3 * static_cast<size_t>(v);
+      const double* next = vp.u_next + 3 * static_cast<size_t>(v);
+      const double m = vp.mass[v], s = m * vp.length_unit * (2.0 * vp.half_inv_dt);
+      for (int c = 0; c < 3; ++c) mine.momentum[c] = s * (next[c] - un[c]);
+      mine.mass = m;
+    }
     if (loaded) {
       const double* next = vp.u_next + 3 * static_cast<size_t>(v);
       work = 0.5 * vp.length_unit * vp.force_unit *
@@ -381,7 +417,6 @@ __global__ void __launch_bounds__(kBlock)
     }
   }
   // The block's sums into its own slot (no atomics); job_record_kernel adds them up.
-  JobBlockSums mine;
   mine.kinetic = d.kinetic;
   mine.work = work;
   mine = block_reduce_sums(mine);
@@ -402,16 +437,14 @@ __global__ void __launch_bounds__(kBlock)
   allow_next_kernel();
   if (halted(st, substep)) return;  // the step kernel did nothing either
   JobBlockSums total;
-  for (int b = threadIdx.x; b < block_count; b += kBlock) {
-    total.kinetic += block_sums[b].kinetic;
-    total.work += block_sums[b].work;
-  }
+  for (int b = threadIdx.x; b < block_count; b += kBlock) total = add_sums(total, block_sums[b]);
   total = block_reduce_sums(total);
   if (threadIdx.x == 0) {
     // The tool kernel added its sums with atomics: add to them.
     st->kinetic_energy += total.kinetic;
     sums->tool_work += total.work;
-    record_stage(p, job, sums, st, u_next, length_unit, fresh_energy, counters, link);
+    record_stage(p, job, sums, st, u_next, length_unit, fresh_energy, counters, link,
+                 Vec3d{total.momentum[0], total.momentum[1], total.momentum[2]}, total.mass);
   }
 }
 

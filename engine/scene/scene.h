@@ -119,6 +119,12 @@ struct IntegratorDef {
   /// limit (omega dt / 2) that its stiffening may reach before its corners' masses are raised
   /// (engine/fem/mass_scaling.h); 0: off.
   double dynamic_mass_safety = 0.5;
+  /// Penalty-contact step: damping rate c [1/s] of the cell's drift, the whole cell's
+  /// translation velocity v against its running mean w (time constant drift_window): every
+  /// vertex gets -c m (v - w) (engine/sim/job.h). It damps the swing of the mass-scaled cell on
+  /// its holder and carries no load while the cell moves steadily. 0: off.
+  double drift_damping = 0.0;
+  double drift_window = 0.05;  ///< [s], > 0
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 

@@ -175,6 +175,10 @@ struct JobParams {
   double suction_ramp_time = 0;       ///< suction reaches full strength after this [s]
   // Stiffness-proportional damping: load k (f(u_{n-1}) - f(u_{n-2})), k = beta / dt [-].
   double stiffness_damping_rate = 0;
+  // Drift damping (job_drift_update): rate [1/s] (0: off) and the running mean's time
+  // constant [s].
+  double drift_damping = 0;
+  double drift_window = 0;
   // Puncture.
   int32_t criterion = kJobCriterionNone;
   double threshold = 0;        ///< [N] or [J]
@@ -516,6 +520,10 @@ struct JobState {
   double stiffness = 0, stiffness_force = 0, stiffness_travel = 0;
   int32_t stiffness_anchor = 0;
   int32_t released_contacts = 0;  ///< needle contacts at puncture
+  Vec3d drift_mean{0, 0, 0};  ///< running mean of the cell's translation velocity [m/s]
+  /// The drift damping's acceleration for the next step: every free vertex gets m times this
+  /// as a load [m/s^2] (job_drift_update).
+  Vec3d drift_accel{0, 0, 0};
   JobPuncture puncture;
 };
 
@@ -564,7 +572,29 @@ struct JobStepTotals {
   uint32_t status = 0;        ///< integrator StepStatusBits
   int64_t first_bad = -1;     ///< first non-finite vertex / inverted element
   double deformation = 0;     ///< [m]
+  /// Drift damping only: sum of m (u_{n+1} - u_n) / dt [kg m/s] and of m [kg] over the free
+  /// vertices.
+  Vec3d momentum{0, 0, 0};
+  double mass = 0;
 };
+
+/// Drift damping, in the record stage: v = momentum / mass is the cell's translation velocity
+/// over the step, w its running mean (exponential, time constant drift_window); the next step
+/// loads every free vertex with -c m (v - w). The swing of a mass-scaled cell on its holder
+/// (its whole mass on the compliance of the held side: periods of 50-200 ms, as long as the
+/// first micrometres of loading) is a translation that changes faster than w follows, so it is
+/// damped at the rate c; a steady drift (the cell pushed along at a constant rate) is w itself
+/// and carries no load. Mass-proportional damping damps the same swing but also the drift, and
+/// on the scaled mass that drag carried several % of the needle force. Explicit (one step
+/// lagged): stable for c dt << 1.
+ZONA_HOST_DEVICE ZONA_INLINE void job_drift_update(const JobParams& p, JobState& s,
+                                                 const JobStepTotals& tot) {
+  if (!(p.drift_damping > 0) || !(tot.mass > 0)) return;
+  const Vec3d v = (1.0 / tot.mass) * tot.momentum;
+  const double a = p.dt / (p.drift_window > p.dt ? p.drift_window : p.dt);
+  s.drift_mean += a * (v - s.drift_mean);
+  s.drift_accel = (-p.drift_damping) * (v - s.drift_mean);
+}
 
 /// Stage 6: the record of the step that took s from t_n to t_{n+1}: force filter, blow-up
 /// verdict (a non-finite value, or kinetic + elastic energy above energy_blowup_factor times the
@@ -594,6 +624,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   r.deformation = tot.deformation;
   r.elastic_energy = tot.elastic_energy;
   r.kinetic_energy = tot.kinetic_energy;
+  job_drift_update(p, s, tot);
   // Health: the state must be finite and its energy explained by the work put in.
   const double energy = tot.elastic_energy + tot.kinetic_energy;
   if (!(energy - energy == 0) || !(r.raw_force - r.raw_force == 0) ||

@@ -137,7 +137,7 @@ class CpuJobRunner final : public JobRunner {
   // faces' loads gathered before, into external_force, and the chunk's sums.
   void tool_vertices(size_t chunk) {
     const JobParams& p = setup_.params;
-    const bool damping = p.stiffness_damping_rate > 0;
+    const bool damping = p.stiffness_damping_rate > 0 || p.drift_damping > 0;
     JobSums& sums = tool_chunk_sums_[chunk];
     sums = JobSums{};
     const size_t end = std::min(setup_.tool_vertices.size(), (chunk + 1) * kToolChunk);
@@ -179,6 +179,15 @@ class CpuJobRunner final : public JobRunner {
       for (size_t v = 0; v < nv; ++v) {
         ext[v] = k * (state_.force[v] - force_prev_[v]);
         force_prev_[v] = state_.force[v];
+      }
+    }
+    // The drift damping's load (job_drift_update), on every free vertex.
+    if (p.drift_damping > 0) {
+      const bool add = p.stiffness_damping_rate > 0;
+      const Vec3d a = job_.drift_accel;
+      for (size_t v = 0; v < nv; ++v) {
+        const Vec3d f = model_.vertex_fixed[v] ? Vec3d{0, 0, 0} : model_.vertex_mass[v] * a;
+        ext[v] = add ? ext[v] + f : f;
       }
     }
     // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
@@ -244,6 +253,15 @@ class CpuJobRunner final : public JobRunner {
     tot.status = status;
     tot.first_bad = state_.diag.first_nonfinite >= 0 ? state_.diag.first_nonfinite
                                                      : state_.diag.first_inverted;
+    if (p.drift_damping > 0) {
+      const double inv_dt = 1.0 / p.dt;
+      for (size_t v = 0; v < nv; ++v) {
+        if (model_.vertex_fixed[v]) continue;
+        const double m = model_.vertex_mass[v];
+        tot.momentum += (m * inv_dt) * (state_.u[v] - state_.u_prev[v]);
+        tot.mass += m;
+      }
+    }
     if (p.has_entry) {
       const auto& u = state_.u;
       tot.deformation = job_entry_deformation(p, u[static_cast<size_t>(p.entry_vertex[0])],

@@ -93,6 +93,8 @@ Status Simulation::prepare_job() {
     p.suction_ramp_time = ramp_time;
   }
   p.stiffness_damping_rate = scene_.integrator.stiffness_damping / model_.dt;
+  p.drift_damping = scene_.integrator.drift_damping;
+  p.drift_window = scene_.integrator.drift_window;
   p.sample_interval = std::max(scene_.output.sample_interval, 0.0);
   p.stiffness_window = options_.stiffness_window;
   p.energy_blowup_factor = model_.energy_blowup_factor;
