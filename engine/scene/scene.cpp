@@ -231,8 +231,8 @@ void read_integrator(Reader& root, Scene& scene) {
   r.quantity("stiffness_damping", dim::kTime, &in.stiffness_damping, Range::non_negative());
   r.number("dynamic_mass_safety", &in.dynamic_mass_safety,
            Range{0.0, 1.0, false, false, "0 switches it off; at most 1 (the stability limit)"});
-  r.quantity("drift_damping", dim::kFrequency, &in.drift_damping, Range::non_negative());
-  r.quantity("drift_window", dim::kTime, &in.drift_window, Range::positive());
+  r.auto_or_quantity("drift_damping", dim::kFrequency, &in.drift_damping, Range::non_negative());
+  r.auto_or_quantity("drift_window", dim::kTime, &in.drift_window, Range::positive());
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 

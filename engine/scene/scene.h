@@ -122,9 +122,13 @@ struct IntegratorDef {
   /// Penalty-contact step: damping rate c [1/s] of the cell's drift, the whole cell's
   /// translation velocity v against its running mean w (time constant drift_window): every
   /// vertex gets -c m (v - w) (engine/sim/job.h). It damps the swing of the mass-scaled cell on
-  /// its holder and carries no load while the cell moves steadily. 0: off.
-  double drift_damping = 0.0;
-  double drift_window = 0.05;  ///< [s], > 0
+  /// its holder and carries no load while the cell moves steadily. 0: off; nullopt ("auto"):
+  /// 2 omega_s, with omega_s the swing's estimated angular frequency (Simulation::prepare_job:
+  /// the cell's scaled mass on the held side's stiffness), critical damping of the swing.
+  std::optional<double> drift_damping = 0.0;
+  /// [s], > 0; nullopt ("auto"): 3 / omega_s (50 ms without a suction holder), so that the
+  /// running mean lags the swing and follows the slower loading.
+  std::optional<double> drift_window;
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 

@@ -126,8 +126,9 @@ json scene_to_json(const Scene& scene) {
   integrator["mass_scaling_mode"] =
       in.mass_scaling_mode == MassScalingMode::kSelective ? "selective" : "uniform";
   integrator["stiffness_damping"] = quantity_json(in.stiffness_damping, kTime);
-  integrator["drift_damping"] = quantity_json(in.drift_damping, kFrequency);
-  integrator["drift_window"] = quantity_json(in.drift_window, kTime);
+  integrator["drift_damping"] =
+      in.drift_damping ? quantity_json(*in.drift_damping, kFrequency) : json("auto");
+  integrator["drift_window"] = in.drift_window ? quantity_json(*in.drift_window, kTime) : json("auto");
   integrator["dynamic_mass_safety"] = in.dynamic_mass_safety;
   integrator["duration"] = quantity_json(in.duration, kTime);
   j["integrator"] = integrator;
