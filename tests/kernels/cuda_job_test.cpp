@@ -174,7 +174,8 @@ TEST(CudaJob, FastNeedleRaisesMassesWithoutAddingEnergy) {
 
 TEST(CudaJob, NodalPressureInjectionMatchesCpu) {
   // The fine scene's physics with nodal pressure on a 3000-vertex cell, 15 um of travel: the
-  // device's two element passes per step against the CPU's.
+  // device's two element passes per step against the CPU's, with the scene's drift damping
+  // (the momentum summed over the device's blocks, the load applied by the vertex kernel).
   std::string why;
   if (!have_device(&why)) GTEST_SKIP() << why;
   Result<Scene> scene =

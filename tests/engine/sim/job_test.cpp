@@ -584,6 +584,33 @@ TEST(JobSimulation, RimDamperStopsTheCellBouncingOnTheHoldingPipette) {
   EXPECT_LT(damped_median, 0.05 * bounce_median);
 }
 
+TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
+  JobParams p;
+  p.dt = 1e-4;
+  p.drift_damping = 100;  // [1/s]
+  p.drift_window = 0.01;  // 100 steps
+  JobState s;
+  JobStepTotals tot;
+  tot.mass = 2.0;
+  // The cell pushed along x at a steady 1 m/s: the running mean catches up and the load fades.
+  tot.momentum = Vec3d{2.0, 0, 0};
+  for (int i = 0; i < 3000; ++i) job_drift_update(p, s, tot);
+  EXPECT_NEAR(s.drift_mean.x, 1.0, 1e-9);
+  EXPECT_NEAR(s.drift_accel.x, 0.0, 1e-7);
+  // A swing's velocity on top (0.1 m/s along y, faster than the mean follows): the load
+  // opposes it at nearly the full rate, -c (v - w) with w one step's 1 % of the way there.
+  tot.momentum = Vec3d{2.0, 0.2, 0};
+  job_drift_update(p, s, tot);
+  EXPECT_NEAR(s.drift_accel.y, -100.0 * (0.1 - 0.01 * 0.1), 1e-9);
+  EXPECT_NEAR(s.drift_accel.x, 0.0, 1e-7);
+  // Off: no load, whatever the motion.
+  JobParams off = p;
+  off.drift_damping = 0;
+  JobState quiet;
+  job_drift_update(off, quiet, tot);
+  EXPECT_EQ(quiet.drift_accel.y, 0.0);
+}
+
 TEST(JobMassRaise, KeepsTheMomentumAndAddsNoKineticEnergy) {
   // A vertex moving at 2 m/s whose mass rises fourfold: p = m v is kept, v falls to 0.5 m/s and
   // the kinetic energy to a quarter (energy goes, never comes).
