@@ -28,6 +28,7 @@ class CpuJobRunner final : public JobRunner {
       face_hit_.assign(setup.tool_faces.size(), 0);
     }
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
+    drift_chunks_.assign((model.vertex_count() + kDriftChunk - 1) / kDriftChunk, DriftChunk{});
     if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
     job_set_pose(setup_.params, job_);
@@ -133,6 +134,32 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
+  // Drift damping on the vertices of chunk `chunk` (kDriftChunk of them): the step's load
+  // m drift_accel into external_force (after the stiffness damping's, which it adds to), and
+  // after the update the chunk's momentum m (u_{n+1} - u_n) / dt and mass.
+  void drift_load(size_t chunk) {
+    const bool add = setup_.params.stiffness_damping_rate > 0;
+    const Vec3d a = job_.drift_accel;
+    const size_t end = std::min(model_.vertex_count(), (chunk + 1) * kDriftChunk);
+    for (size_t v = chunk * kDriftChunk; v < end; ++v) {
+      const Vec3d f = model_.vertex_fixed[v] ? Vec3d{0, 0, 0} : model_.vertex_mass[v] * a;
+      Vec3d& ext = state_.external_force[v];
+      ext = add ? ext + f : f;
+    }
+  }
+  void drift_momentum(size_t chunk) {
+    const double inv_dt = 1.0 / setup_.params.dt;
+    DriftChunk sum;
+    const size_t end = std::min(model_.vertex_count(), (chunk + 1) * kDriftChunk);
+    for (size_t v = chunk * kDriftChunk; v < end; ++v) {
+      if (model_.vertex_fixed[v]) continue;
+      const double m = model_.vertex_mass[v];
+      sum.momentum += (m * inv_dt) * (state_.u[v] - state_.u_prev[v]);
+      sum.mass += m;
+    }
+    drift_chunks_[chunk] = sum;
+  }
+
   // Stage 1 on the tool vertices of chunk `chunk` (kToolChunk of them): the vertex tools plus the
   // faces' loads gathered before, into external_force, and the chunk's sums.
   void tool_vertices(size_t chunk) {
@@ -182,14 +209,14 @@ class CpuJobRunner final : public JobRunner {
       }
     }
     // The drift damping's load (job_drift_update), on every free vertex.
-    if (p.drift_damping > 0) {
-      const bool add = p.stiffness_damping_rate > 0;
-      const Vec3d a = job_.drift_accel;
-      for (size_t v = 0; v < nv; ++v) {
-        const Vec3d f = model_.vertex_fixed[v] ? Vec3d{0, 0, 0} : model_.vertex_mass[v] * a;
-        ext[v] = add ? ext[v] + f : f;
-      }
-    }
+    if (p.drift_damping > 0)
+      state_.pool->run(
+          static_cast<int64_t>(drift_chunks_.size()),
+          [](void* context, int64_t begin, int64_t end) {
+            auto* self = static_cast<CpuJobRunner*>(context);
+            for (int64_t c = begin; c < end; ++c) self->drift_load(static_cast<size_t>(c));
+          },
+          this);
     // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
     // surface vertices.
     JobSums sums;
@@ -254,12 +281,18 @@ class CpuJobRunner final : public JobRunner {
     tot.first_bad = state_.diag.first_nonfinite >= 0 ? state_.diag.first_nonfinite
                                                      : state_.diag.first_inverted;
     if (p.drift_damping > 0) {
-      const double inv_dt = 1.0 / p.dt;
-      for (size_t v = 0; v < nv; ++v) {
-        if (model_.vertex_fixed[v]) continue;
-        const double m = model_.vertex_mass[v];
-        tot.momentum += (m * inv_dt) * (state_.u[v] - state_.u_prev[v]);
-        tot.mass += m;
+      // Per fixed chunk on the pool, the chunks then in order (the same sums on any thread
+      // count).
+      state_.pool->run(
+          static_cast<int64_t>(drift_chunks_.size()),
+          [](void* context, int64_t begin, int64_t end) {
+            auto* self = static_cast<CpuJobRunner*>(context);
+            for (int64_t c = begin; c < end; ++c) self->drift_momentum(static_cast<size_t>(c));
+          },
+          this);
+      for (const DriftChunk& c : drift_chunks_) {
+        tot.momentum += c.momentum;
+        tot.mass += c.mass;
       }
     }
     if (p.has_entry) {
@@ -291,6 +324,12 @@ class CpuJobRunner final : public JobRunner {
   std::vector<StickAnchor> needle_anchor_, rim_anchor_, face_anchor_;
   static constexpr size_t kToolChunk = 1024;  // tool vertices per chunk of stage 1
   std::vector<JobSums> tool_chunk_sums_;      // stage 1's sums per chunk
+  struct DriftChunk {
+    Vec3d momentum{0, 0, 0};
+    double mass = 0;
+  };
+  static constexpr size_t kDriftChunk = 4096;  // vertices per chunk of the drift damping
+  std::vector<DriftChunk> drift_chunks_;      // its momentum and mass per chunk
   std::vector<ToolFaceForce> face_out_;  // the step's load per face (valid where face_hit_)
   std::vector<uint8_t> face_hit_;        // the face had points inside the needle this step
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
