@@ -60,6 +60,7 @@ class CudaJob final : public JobRunner {
   /// Graphs depend on the step index modulo this (6 buffer phases, 4 energy phases, 8 phases
   /// of the dynamic mass scaling).
   static constexpr int kPhases = 24;
+  static_assert(kPhases % kDriftInterval == 0, "a graph phase starts on a drift-damping step");
   Result<cudaGraphExec_t> graph(int steps, int phase);
   // Steps finished on the device (from the published sequence number; no synchronisation).
   int64_t steps_done() const {
@@ -305,16 +306,19 @@ Status CudaJob::enqueue_step(int64_t g) {
   });
   // The tool loads join here.
   keep(cudaStreamWaitEvent(s, join_.get(), 0));
-  auto step_kernel = b_.options_.assembly == Assembly::kScatterFixed ? job_step_kernel<true>
-                                                                      : job_step_kernel<false>;
+  const bool drift = params_.drift_damping > 0;
+  const bool momentum = drift && g % kDriftInterval == 0;  // kPhases is a multiple of it
+  const bool fixed = b_.options_.assembly == Assembly::kScatterFixed;
+  auto step_kernel = fixed ? (momentum ? job_step_kernel<true, true> : job_step_kernel<true, false>)
+                           : (momentum ? job_step_kernel<false, true> : job_step_kernel<false, false>);
   keep(launch(pdl, step_kernel, vb, s, d_tool_load_.data(), vp, d_damp_.data(),
               d_force_prev_.data(), damping_rate_, kSubstep, st, d_block_sums_.data(),
-              params_.drift_damping > 0 ? static_cast<const JobState*>(d_job_.data())
-                                        : static_cast<const JobState*>(nullptr)));
+              drift ? static_cast<const JobState*>(d_job_.data())
+                    : static_cast<const JobState*>(nullptr)));
   keep(launch(pdl, job_record_kernel, 1, s, params_,
               static_cast<const JobBlockSums*>(d_block_sums_.data()), static_cast<int>(vb),
               static_cast<const double*>(vp.u_next), b_.length_unit_, energy, st, d_job_.data(),
-              d_sums_.data(), d_counters_.data(), link_, kSubstep));
+              d_sums_.data(), d_counters_.data(), link_, kSubstep, momentum));
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (job step)", __FILE__, __LINE__);
   return {};
 }

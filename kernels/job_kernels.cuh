@@ -98,17 +98,27 @@ __device__ __forceinline__ JobBlockSums shfl_down_sums(const JobBlockSums& v, in
 }
 
 /// The block's total in thread 0 (every thread of the block must call it; it ends with a
-/// barrier, so it can be called again).
+/// barrier, so it can be called again). MOMENTUM: also the drift damping's momentum and mass
+/// (left zero otherwise).
+template <bool MOMENTUM>
 __device__ __forceinline__ JobBlockSums block_reduce_sums(JobBlockSums v) {
   constexpr int kWarps = kBlock / 32;
   __shared__ JobBlockSums warp_sums[kWarps];
   const int warp = threadIdx.x / 32, lane = threadIdx.x % 32;
-  for (int off = 16; off > 0; off >>= 1) v = add_sums(v, shfl_down_sums(v, off));
+  auto shfl_add = [](JobBlockSums& x, int off) {
+    if constexpr (MOMENTUM) {
+      x = add_sums(x, shfl_down_sums(x, off));
+    } else {
+      x.kinetic += __shfl_down_sync(0xffffffffu, x.kinetic, off);
+      x.work += __shfl_down_sync(0xffffffffu, x.work, off);
+    }
+  };
+  for (int off = 16; off > 0; off >>= 1) shfl_add(v, off);
   if (lane == 0) warp_sums[warp] = v;
   __syncthreads();
   if (warp == 0) {
     v = lane < kWarps ? warp_sums[lane] : JobBlockSums{};
-    for (int off = kWarps / 2; off > 0; off >>= 1) v = add_sums(v, shfl_down_sums(v, off));
+    for (int off = kWarps / 2; off > 0; off >>= 1) shfl_add(v, off);
   }
   __syncthreads();
   return v;
@@ -353,9 +363,10 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
 /// centred-difference update), and the sums of stage 5 that need u_{n+1} (kinetic energy, the
 /// tools' centred work f_n . (u_{n+1} - u_{n-1}) / 2), per block into block_sums for
 /// job_record_kernel. With drift damping (`job` non-null) every free vertex also takes
-/// m job->drift_accel and adds its momentum and mass to the sums (job_drift_update).
+/// m job->drift_accel, and on the steps that sum it (MOMENTUM, every kDriftInterval) adds its
+/// momentum and mass to the sums (job_drift_update).
 /// FIXED: the fixed-point scatter's sums.
-template <bool FIXED>
+template <bool FIXED, bool MOMENTUM>
 __global__ void __launch_bounds__(kBlock)
     job_step_kernel(float4* __restrict__ tool_load, VertexParams vp, float4* damp,
                     float4* force_prev, float damping_rate, int substep, DeviceStatus* st,
@@ -402,7 +413,7 @@ __global__ void __launch_bounds__(kBlock)
       fe.z += float(s * a.z);
     }
     update_vertex(vp, v, f, fe, substep, st, &d);
-    if (drifting) {
+    if (MOMENTUM && drifting) {
       const double* un = vp.u + 3 * static_cast<size_t>(v);
       const double* next = vp.u_next + 3 * static_cast<size_t>(v);
       const double m = vp.mass[v], s = m * vp.length_unit * (2.0 * vp.half_inv_dt);
@@ -419,7 +430,7 @@ __global__ void __launch_bounds__(kBlock)
   // The block's sums into its own slot (no atomics); job_record_kernel adds them up.
   mine.kinetic = d.kinetic;
   mine.work = work;
-  mine = block_reduce_sums(mine);
+  mine = block_reduce_sums<MOMENTUM>(mine);
   if (threadIdx.x == 0) block_sums[blockIdx.x] = mine;
 }
 
@@ -432,13 +443,13 @@ __global__ void __launch_bounds__(kBlock)
     job_record_kernel(JobParams p, const JobBlockSums* __restrict__ block_sums, int block_count,
                       const double* __restrict__ u_next, double length_unit, bool fresh_energy,
                       DeviceStatus* st, JobState* job, JobSums* sums, JobCounters* counters,
-                      JobHostLink link, int substep) {
+                      JobHostLink link, int substep, bool momentum) {
   wait_for_previous_kernel();
   allow_next_kernel();
   if (halted(st, substep)) return;  // the step kernel did nothing either
   JobBlockSums total;
   for (int b = threadIdx.x; b < block_count; b += kBlock) total = add_sums(total, block_sums[b]);
-  total = block_reduce_sums(total);
+  total = momentum ? block_reduce_sums<true>(total) : block_reduce_sums<false>(total);
   if (threadIdx.x == 0) {
     // The tool kernel added its sums with atomics: add to them.
     st->kinetic_energy += total.kinetic;

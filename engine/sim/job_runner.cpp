@@ -280,7 +280,7 @@ class CpuJobRunner final : public JobRunner {
     tot.status = status;
     tot.first_bad = state_.diag.first_nonfinite >= 0 ? state_.diag.first_nonfinite
                                                      : state_.diag.first_inverted;
-    if (p.drift_damping > 0) {
+    if (p.drift_damping > 0 && (steps_run_ - 1) % kDriftInterval == 0) {
       // Per fixed chunk on the pool, the chunks then in order (the same sums on any thread
       // count).
       state_.pool->run(
