@@ -83,6 +83,27 @@ Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double
   return report;
 }
 
+double selective_scaling_total_mass(const Model& model, double target_dt, double dt_safety,
+                                    std::vector<double>* need) {
+  const size_t nv = model.vertex_count();
+  if (need->size() != nv) {
+    const std::vector<double> lumped = vertex_lumped_volumes(model);
+    need->assign(nv, 0.0);
+    for (size_t v = 0; v < nv; ++v) {
+      double s = 0;
+      for (int32_t k = model.adjacency.offsets[v]; k < model.adjacency.offsets[v + 1]; ++k) {
+        const size_t t = static_cast<size_t>(model.adjacency.tets[static_cast<size_t>(k)]);
+        s = std::max(s, element_stiffness_measure(model.tet_shape[t], model.tet_lame(t)));
+      }
+      (*need)[v] = s * lumped[v];
+    }
+  }
+  const double crit = target_dt / dt_safety;
+  double total = 0;
+  for (size_t v = 0; v < nv; ++v) total += std::max(model.vertex_mass[v], crit * crit * (*need)[v]);
+  return total;
+}
+
 std::vector<double> vertex_lumped_volumes(const Model& model) {
   std::vector<double> lumped(model.vertex_count(), 0.0);
   for (size_t t = 0; t < model.tet_count(); ++t) {

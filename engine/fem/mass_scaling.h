@@ -35,6 +35,13 @@ struct SelectiveScalingReport {
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
                                                             double dt_safety);
 
+/// The total mass [kg] apply_selective_mass_scaling would give at target_dt (the model is not
+/// changed): each vertex max(m, (target_dt / dt_safety)^2 q) with q its elements' largest
+/// stiffness measure times its lumped volume. `need` caches q per vertex between calls (filled
+/// when empty).
+double selective_scaling_total_mass(const Model& model, double target_dt, double dt_safety,
+                                    std::vector<double>* need);
+
 /// Each vertex's lumped volume [m^3]: a quarter of every tetrahedron around it, (vertex_count).
 std::vector<double> vertex_lumped_volumes(const Model& model);
 

@@ -129,6 +129,11 @@ struct IntegratorDef {
   /// [s], > 0; nullopt ("auto"): 3 / omega_s (50 ms without a suction holder), so that the
   /// running mean lags the swing and follows the slower loading.
   std::optional<double> drift_window;
+  /// Selective scaling with a suction holder and a moving needle: the target step is lowered
+  /// from target_dt where the cell's swing on its holder (its scaled mass on the held side's
+  /// stiffness, Simulation::holder_swing_omega) would take longer than the needle needs for
+  /// this travel [m]; 0: target_dt as given.
+  double quasi_static_travel = 0.0;
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 

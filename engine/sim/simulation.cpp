@@ -292,8 +292,41 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   }
   if (!particles_ && scene.integrator.target_dt &&
       scene.integrator.mass_scaling_mode == MassScalingMode::kSelective) {
+    double target = *scene.integrator.target_dt;
+    // The step lowered until the cell's swing on its holder is no slower than the needle's
+    // quasi_static_travel (the swing's period grows with the added mass, which grows as dt^2).
+    const double travel = scene.integrator.quasi_static_travel;
+    if (travel > 0 && has_needle_ && script_.speed > 0 && holding_ &&
+        holding_->mode == HoldingMode::kSuction) {
+      const double loading = travel / script_.speed;  // [s]
+      const double safety = scene.integrator.dt_safety;
+      const double bore = holding_->geometry.inner_radius;
+      std::vector<double> need;
+      auto period = [&](double dt) {
+        const double w = holder_swing_omega(
+            model_.materials, bore, selective_scaling_total_mass(model_, dt, safety, &need));
+        return w > 0 ? 2.0 * 3.14159265358979 / w : 0.0;
+      };
+      const double at_target = period(target);
+      if (at_target > loading) {
+        double lo = target * 1e-3, hi = target;  // period(lo) <= loading < period(hi)
+        for (int i = 0; i < 60 && hi - lo > 1e-4 * hi; ++i) {
+          const double mid = 0.5 * (lo + hi);
+          (period(mid) > loading ? hi : lo) = mid;
+        }
+        char line[240];
+        std::snprintf(line, sizeof line,
+                      "target step %.3g us (from %.3g us): the cell's swing on its holder "
+                      "(%.3g ms at %.3g us) within the %.3g ms the needle takes for "
+                      "quasi_static_travel %.3g um",
+                      lo * 1e6, target * 1e6, at_target * 1e3, target * 1e6, loading * 1e3,
+                      travel * 1e6);
+        notes_.push_back(line);
+        target = lo;
+      }
+    }
     Result<SelectiveScalingReport> r =
-        apply_selective_mass_scaling(model_, *scene.integrator.target_dt, scene.integrator.dt_safety);
+        apply_selective_mass_scaling(model_, target, scene.integrator.dt_safety);
     if (!r.ok()) return make_error("%s: %s", name.c_str(), r.error().message.c_str());
     char line[200];
     std::snprintf(line, sizeof line,

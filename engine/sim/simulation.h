@@ -112,6 +112,13 @@ struct SurfaceSnapshot {
 struct RunOptions;
 struct RunResult;
 
+/// Angular frequency [rad/s] of a cell of total (scaled) mass `mass` [kg] swinging on a suction
+/// holder of bore radius `bore_radius` [m]: the held side's stiffness taken as Boussinesq's
+/// rigid flat punch of that radius on an elastic half-space of the stiffest material,
+/// k = 2 E a / (1 - nu^2), and omega = sqrt(k / mass); 0 without a material or a mass. On the
+/// mouse cells it is within a factor of about 1.5 of the swing the runs show (docs/injection.md).
+double holder_swing_omega(const std::vector<Material>& materials, double bore_radius, double mass);
+
 /// One injection experiment. Create with Simulation::create; step with step() or step1/step2.
 class Simulation {
  public:

@@ -12,6 +12,16 @@
 
 namespace zona {
 
+double holder_swing_omega(const std::vector<Material>& materials, double bore_radius,
+                          double mass) {
+  if (materials.empty() || !(mass > 0) || !(bore_radius > 0)) return 0;
+  const Material* stiff = &materials.front();
+  for (const Material& m : materials)
+    if (m.young > stiff->young) stiff = &m;
+  const double k = 2.0 * stiff->young * bore_radius / (1.0 - stiff->poisson * stiff->poisson);
+  return std::sqrt(k / mass);
+}
+
 Status Simulation::prepare_job() {
   const std::string& name = scene_.name;
   JobSetup& js = job_setup_;
@@ -164,15 +174,10 @@ Status Simulation::prepare_job() {
     const IntegratorDef& in = scene_.integrator;
     double omega = 0;
     if (suction && (!in.drift_damping || !in.drift_window)) {
-      const Material* stiff = &model_.materials.front();
-      for (const Material& m : model_.materials)
-        if (m.young > stiff->young) stiff = &m;
       double mass = 0;
       for (size_t v = 0; v < model_.vertex_count(); ++v)
         if (!model_.vertex_fixed[v]) mass += model_.vertex_mass[v];
-      const double k = 2.0 * stiff->young * holding_->geometry.inner_radius /
-                       (1.0 - stiff->poisson * stiff->poisson);
-      if (mass > 0) omega = std::sqrt(k / mass);
+      omega = holder_swing_omega(model_.materials, holding_->geometry.inner_radius, mass);
     }
     p.drift_damping = in.drift_damping ? *in.drift_damping : 2.0 * omega;
     p.drift_window = in.drift_window ? *in.drift_window : (omega > 0 ? 3.0 / omega : 0.05);
