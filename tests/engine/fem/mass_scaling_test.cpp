@@ -25,6 +25,22 @@ Mesh graded_ball() {
   return *mesh;
 }
 
+TEST(MassScaling, TotalMassPredictionMatchesTheScaling) {
+  // selective_scaling_total_mass (the derived step's bisection) predicts, without changing the
+  // model, the total mass apply_selective_mass_scaling then gives; it grows with the step.
+  const Mesh mesh = graded_ball();
+  ModelDesc desc;
+  Result<Model> m = build_model(mesh, desc);
+  ASSERT_TRUE(m.ok());
+  std::vector<double> need;
+  const double small = selective_scaling_total_mass(*m, 1e-6, desc.dt_safety, &need);
+  const double predicted = selective_scaling_total_mass(*m, 2e-6, desc.dt_safety, &need);
+  EXPECT_GT(predicted, small);
+  Result<SelectiveScalingReport> r = apply_selective_mass_scaling(*m, 2e-6, desc.dt_safety);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_NEAR(predicted, r->mass_after, 1e-9 * r->mass_after);
+}
+
 TEST(MassScaling, SelectiveScalingReachesTheTargetWithLessMass) {
   const Mesh mesh = graded_ball();
   ModelDesc desc;

@@ -612,6 +612,38 @@ TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
   EXPECT_EQ(quiet.drift_accel.y, 0.0);
 }
 
+TEST(JobSimulation, TheStepFollowsTheSwingOnTheHolder) {
+  // integrator.quasi_static_travel: the target step is lowered until the cell's estimated swing
+  // on its holder takes no longer than the needle needs for that travel. On the 3000-vertex
+  // fine cell 10 um (100 ms at 0.1 mm/s) leaves the 5 us target; 0.5 um (5 ms) lowers it, to a
+  // step whose swing fits, and a longer travel never gives a shorter step.
+  auto built = [](const char* travel) {
+    Result<Scene> scene =
+        load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                   {"mesh.generate.vertices=3000", "output.frames=0",
+                    std::string("integrator.quasi_static_travel=") + travel});
+    EXPECT_TRUE(scene.ok()) << scene.error().message;
+    Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene);
+    EXPECT_TRUE(sim.ok()) << sim.error().message;
+    return std::move(*sim);
+  };
+  const std::unique_ptr<Simulation> loose = built("10um"), tight = built("0.5um"),
+                                    tighter = built("0.25um");
+  EXPECT_NEAR(loose->model().dt, 5e-6, 1e-3 * 5e-6);
+  EXPECT_LT(tight->model().dt, 0.9 * loose->model().dt);
+  EXPECT_LT(tighter->model().dt, tight->model().dt);
+  bool noted = false;
+  for (const std::string& n : tight->notes()) noted |= n.find("target step") != std::string::npos;
+  EXPECT_TRUE(noted);
+  // The swing at the chosen step fits the 5 ms (within the bisection's tolerance).
+  const Model& m = tight->model();
+  double mass = 0;
+  for (double v : m.vertex_mass) mass += v;
+  const double omega = holder_swing_omega(m.materials, 10e-6, mass);
+  ASSERT_GT(omega, 0);
+  EXPECT_LT(2 * 3.14159265358979 / omega, 5e-3 * 1.01);
+}
+
 TEST(JobMassRaise, KeepsTheMomentumAndAddsNoKineticEnergy) {
   // A vertex moving at 2 m/s whose mass rises fourfold: p = m v is kept, v falls to 0.5 m/s and
   // the kinetic energy to a quarter (energy goes, never comes).
