@@ -3,8 +3,10 @@
 //
 //   1. tools      tool forces on the surface vertices: the needle and the holding pipette's rim
 //                 as penalty contact on the tools' signed distance fields, Coulomb friction,
-//                 suction on the aspirated patch, the released tip load after puncture
-//   2. loads      stiffness-proportional damping from the change of the elastic forces
+//                 suction on the aspirated patch, the released tip load after puncture, the
+//                 rim contact's damper
+//   2. loads      stiffness-proportional damping from the change of the elastic forces, and
+//                 the drift damping's load (job_drift_update)
 //   3. internal   elastic forces (the backend's element pass)
 //   4. integrate  centred difference with the loads of 1 and 2
 //   5. measure    needle force vector, holding force, contacts, deformation at the entry point,
