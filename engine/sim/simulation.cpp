@@ -310,6 +310,12 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
       const double at_target = period(target);
       if (at_target > loading) {
         double lo = target * 1e-3, hi = target;  // period(lo) <= loading < period(hi)
+        if (period(lo) > loading)
+          return make_error("%s: integrator.quasi_static_travel: even at a %.3g us step the "
+                            "cell's swing on its holder (%.3g ms) outlasts the %.3g ms the "
+                            "needle takes for %.3g um; lengthen the travel",
+                            name.c_str(), lo * 1e6, period(lo) * 1e3, loading * 1e3,
+                            travel * 1e6);
         for (int i = 0; i < 60 && hi - lo > 1e-4 * hi; ++i) {
           const double mid = 0.5 * (lo + hi);
           (period(mid) > loading ? hi : lo) = mid;

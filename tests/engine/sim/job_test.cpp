@@ -642,6 +642,17 @@ TEST(JobSimulation, TheStepFollowsTheSwingOnTheHolder) {
   const double omega = holder_swing_omega(m.materials, 10e-6, mass);
   ASSERT_GT(omega, 0);
   EXPECT_LT(2 * 3.14159265358979 / omega, 5e-3 * 1.01);
+  // A travel no step can satisfy (1 nm: 10 us of loading, shorter than the swing of the cell
+  // at its physical mass) is an error that names the key, not a near-zero step.
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                 {"mesh.generate.vertices=3000", "output.frames=0",
+                  "integrator.quasi_static_travel=1nm"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  Result<std::unique_ptr<Simulation>> bad = Simulation::create(*scene);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("quasi_static_travel"), std::string::npos)
+      << bad.error().message;
 }
 
 TEST(JobMassRaise, KeepsTheMomentumAndAddsNoKineticEnergy) {
