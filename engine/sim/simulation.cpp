@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numbers>
 #include <limits>
 #include <set>
 
@@ -305,7 +306,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
       auto period = [&](double dt) {
         const double w = holder_swing_omega(
             model_.materials, bore, selective_scaling_total_mass(model_, dt, safety, &need));
-        return w > 0 ? 2.0 * 3.14159265358979 / w : 0.0;
+        return w > 0 ? 2.0 * std::numbers::pi / w : 0.0;
       };
       const double at_target = period(target);
       if (at_target > loading) {

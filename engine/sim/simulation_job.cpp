@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numbers>
 #include <limits>
 
 #include "engine/fem/fem_element.h"
@@ -187,7 +188,7 @@ Status Simulation::prepare_job() {
                     "drift damping: %.4g 1/s over a %.3g ms window (the swing on the holder "
                     "estimated at a %.3g ms period)",
                     p.drift_damping, p.drift_window * 1e3,
-                    omega > 0 ? 2e3 * 3.14159265358979 / omega : 0.0);
+                    omega > 0 ? 2e3 * std::numbers::pi / omega : 0.0);
       notes_.push_back(line);
     }
   }
