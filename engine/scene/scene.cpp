@@ -210,7 +210,7 @@ void read_integrator(Reader& root, Scene& scene) {
   Reader r = root.object("integrator", {"dt", "dt_safety", "mass_scaling", "target_dt",
                                         "mass_scaling_mode", "stiffness_damping", "dynamic_mass_safety",
                                         "drift_damping", "drift_window", "quasi_static_travel",
-                                        "duration"});
+                                        "quasi_static_speed", "duration"});
   if (!r.present()) return;
   IntegratorDef& in = scene.integrator;
   r.auto_or_quantity("dt", dim::kTime, &in.dt, Range::positive());
@@ -235,6 +235,7 @@ void read_integrator(Reader& root, Scene& scene) {
   r.auto_or_quantity("drift_damping", dim::kFrequency, &in.drift_damping, Range::non_negative());
   r.auto_or_quantity("drift_window", dim::kTime, &in.drift_window, Range::positive());
   r.quantity("quasi_static_travel", dim::kLength, &in.quasi_static_travel, Range::non_negative());
+  r.quantity("quasi_static_speed", dim::kSpeed, &in.quasi_static_speed, Range::non_negative());
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 

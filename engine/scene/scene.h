@@ -134,6 +134,10 @@ struct IntegratorDef {
   /// stiffness, Simulation::holder_swing_omega) would take longer than the needle needs for
   /// this travel [m]; 0: target_dt as given.
   double quasi_static_travel = 0.0;
+  /// [m/s] the loading speed quasi_static_travel is timed at: the faster of this and the
+  /// needle's speed, so that a slower needle keeps the step (halving the speed tests the rate
+  /// at the same discretisation) and a faster one lowers it; 0: the needle's speed.
+  double quasi_static_speed = 0.0;
   double duration = 0.0;      ///< simulated time [s]; 0: until the needle has moved max_travel
 };
 

@@ -130,6 +130,7 @@ json scene_to_json(const Scene& scene) {
       in.drift_damping ? quantity_json(*in.drift_damping, kFrequency) : json("auto");
   integrator["drift_window"] = in.drift_window ? quantity_json(*in.drift_window, kTime) : json("auto");
   integrator["quasi_static_travel"] = quantity_json(in.quasi_static_travel, kLength);
+  integrator["quasi_static_speed"] = quantity_json(in.quasi_static_speed, kSpeed);
   integrator["dynamic_mass_safety"] = in.dynamic_mass_safety;
   integrator["duration"] = quantity_json(in.duration, kTime);
   j["integrator"] = integrator;

@@ -299,7 +299,10 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     const double travel = scene.integrator.quasi_static_travel;
     if (travel > 0 && has_needle_ && script_.speed > 0 && holding_ &&
         holding_->mode == HoldingMode::kSuction) {
-      const double loading = travel / script_.speed;  // [s]
+      // Timed at the faster of the needle and quasi_static_speed: a slower needle keeps the
+      // step (the same discretisation, loaded more slowly), a faster one lowers it.
+      const double speed = std::max(script_.speed, scene.integrator.quasi_static_speed);
+      const double loading = travel / speed;  // [s]
       const double safety = scene.integrator.dt_safety;
       const double bore = holding_->geometry.inner_radius;
       std::vector<double> need;
@@ -313,10 +316,10 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
         double lo = target * 1e-3, hi = target;  // period(lo) <= loading < period(hi)
         if (period(lo) > loading)
           return make_error("%s: integrator.quasi_static_travel: even at a %.3g us step the "
-                            "cell's swing on its holder (%.3g ms) outlasts the %.3g ms the "
-                            "needle takes for %.3g um; lengthen the travel",
+                            "cell's swing on its holder (%.3g ms) outlasts the %.3g ms of "
+                            "%.3g um at %.3g mm/s; lengthen the travel",
                             name.c_str(), lo * 1e6, period(lo) * 1e3, loading * 1e3,
-                            travel * 1e6);
+                            travel * 1e6, speed * 1e3);
         for (int i = 0; i < 60 && hi - lo > 1e-4 * hi; ++i) {
           const double mid = 0.5 * (lo + hi);
           (period(mid) > loading ? hi : lo) = mid;
@@ -324,10 +327,10 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
         char line[240];
         std::snprintf(line, sizeof line,
                       "target step %.3g us (from %.3g us): the cell's swing on its holder "
-                      "(%.3g ms at %.3g us) within the %.3g ms the needle takes for "
-                      "quasi_static_travel %.3g um",
+                      "(%.3g ms at %.3g us) within the %.3g ms of quasi_static_travel "
+                      "%.3g um at %.3g mm/s",
                       lo * 1e6, target * 1e6, at_target * 1e3, target * 1e6, loading * 1e3,
-                      travel * 1e6);
+                      travel * 1e6, speed * 1e3);
         notes_.push_back(line);
         target = lo;
       }

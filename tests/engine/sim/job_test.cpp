@@ -617,11 +617,14 @@ TEST(JobSimulation, TheStepFollowsTheSwingOnTheHolder) {
   // on its holder takes no longer than the needle needs for that travel. On the 3000-vertex
   // fine cell 10 um (100 ms at 0.1 mm/s) leaves the 5 us target; 0.5 um (5 ms) lowers it, to a
   // step whose swing fits, and a longer travel never gives a shorter step.
-  auto built = [](const char* travel) {
+  auto built = [](const char* travel, const char* speed = "0.1mm/s",
+                  const char* timed_at = "0.1mm/s") {
     Result<Scene> scene =
         load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
                    {"mesh.generate.vertices=3000", "output.frames=0",
-                    std::string("integrator.quasi_static_travel=") + travel});
+                    std::string("integrator.quasi_static_travel=") + travel,
+                    std::string("needle.speed=") + speed,
+                    std::string("integrator.quasi_static_speed=") + timed_at});
     EXPECT_TRUE(scene.ok()) << scene.error().message;
     Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene);
     EXPECT_TRUE(sim.ok()) << sim.error().message;
@@ -642,6 +645,13 @@ TEST(JobSimulation, TheStepFollowsTheSwingOnTheHolder) {
   const double omega = holder_swing_omega(m.materials, 10e-6, mass);
   ASSERT_GT(omega, 0);
   EXPECT_LT(2 * 3.14159265358979 / omega, 5e-3 * 1.01);
+  // The travel is timed at the faster of the needle and quasi_static_speed: half the speed
+  // keeps the step (rate independence is tested at the same discretisation), without the
+  // reference speed half the speed doubles the time and raises the step, and twice the speed
+  // lowers it.
+  EXPECT_DOUBLE_EQ(built("0.5um", "0.05mm/s")->model().dt, tight->model().dt);
+  EXPECT_GT(built("0.5um", "0.05mm/s", "0")->model().dt, 1.2 * tight->model().dt);
+  EXPECT_LT(built("0.5um", "0.2mm/s")->model().dt, 0.9 * tight->model().dt);
   // A travel no step can satisfy (1 nm: 10 us of loading, shorter than the swing of the cell
   // at its physical mass) is an error that names the key, not a near-zero step.
   Result<Scene> scene =
