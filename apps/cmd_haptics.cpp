@@ -194,9 +194,15 @@ void run_haptics(const HapticsArgs& a) {
   // the scene's scripted insertion.
   if (!(scene.integrator.duration > 0)) scene.integrator.duration = 3600.0;
 
+  // The tip follows the hand at up to haptics.max_tip_speed in simulated time (auto: 20x the
+  // scene's insertion speed): here for every step the host hands over, and in the job for every
+  // step it runs (the GPU takes the hand's pose up every few steps).
+  const double max_tip_speed =
+      h.max_tip_speed ? *h.max_tip_speed : 20 * std::max(scene.needle.speed, 1e-6);
   SimulationOptions so;
   so.threads = a.threads;
   so.stiffness_window = a.stiffness_window;
+  so.external_tip_max_speed = max_tip_speed;
   if (*kind != BackendKind::kCpu) {
     BackendOptions bo;
     bo.cpu_threads = a.threads;
@@ -225,10 +231,6 @@ void run_haptics(const HapticsArgs& a) {
   lo.try_realtime = !a.no_realtime;
   lo.keep_log = !a.log.empty();
   HapticLoop loop(**device, renderer, channel, lo);
-  // The tip follows the hand at up to haptics.max_tip_speed in simulated time (auto: 20x the
-  // scene's insertion speed).
-  const double max_tip_speed =
-      h.max_tip_speed ? *h.max_tip_speed : 20 * std::max(script.speed, 1e-6);
   SimulationPortAdapter port(**sim, max_tip_speed, a.lateral_force);
   const HapticLoopStats s = run_haptic_session(port, loop, channel);
 

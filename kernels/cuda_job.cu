@@ -185,6 +185,7 @@ Status CudaJob::start(const JobSetup& setup) {
   // The job's scalars: the first pose, as the CPU runner starts.
   JobState js;
   js.pose.tip = params_.needle_start;
+  job_follow_tip(params_, js);
   job_set_pose(params_, js);
   if (Status s = d_job_.allocate(1, "job state"); !s) return s;
   ZONA_CUDA_TRY(cudaMemcpy(d_job_.data(), &js, sizeof js, cudaMemcpyHostToDevice));

@@ -158,6 +158,11 @@ struct JobParams {
   Vec3d needle_direction{1, 0, 0}; ///< unit direction of travel [-]
   double needle_speed = 0;         ///< [m/s]
   double needle_max_travel = 0;    ///< travel after which the tip stops [m]; 0: no limit
+  /// A tip handed in by the haptic thread (set_tip) is followed at most at this speed [m/s],
+  /// step by step on the stepping side: the host hands poses in batches (the GPU reads its
+  /// mailbox every few steps), and a jump of a batch's travel in one step shakes the contact.
+  /// 0: the handed-in tip is taken as it is.
+  double external_tip_max_speed = 0;
   double needle_radius = 0;        ///< tip and shaft radius [m]
   double needle_pressure_stiffness = 0;  ///< contact pressure per penetration [Pa/m]
   double needle_friction = 0;      ///< Coulomb coefficient [-]
@@ -512,7 +517,8 @@ struct JobState {
   double time = 0;            ///< t_n [s]
   ToolPose pose;              ///< tools at t_n
   int32_t external_tip = 0;   ///< the tip comes from set_tip (haptics), not the script
-  Vec3d external_tip_value{0, 0, 0};  ///< [m]
+  Vec3d external_tip_value{0, 0, 0};  ///< the handed-in tip [m]
+  Vec3d external_tip_now{0, 0, 0};    ///< the tip following it (external_tip_max_speed) [m]
   double filtered_force = 0;  ///< [N]
   int32_t filter_started = 0;
   double next_sample = 0;     ///< [s]
@@ -542,17 +548,33 @@ ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, doubl
   return 1.0 - p.force_drop * ramp;
 }
 
+/// The tip for the step that starts at s.time, once per step before job_set_pose: the
+/// script's, or one step of at most external_tip_max_speed dt towards the tip the haptic thread
+/// handed in. It starts from where the script had the tip when the first one comes.
+ZONA_HOST_DEVICE ZONA_INLINE void job_follow_tip(const JobParams& p, JobState& s) {
+  if (!s.external_tip) {
+    s.external_tip_now = job_scripted_tip(p, s.time);
+    return;
+  }
+  const Vec3d d = s.external_tip_value - s.external_tip_now;
+  const double len = sqrt(dot(d, d));
+  const double max_step = p.external_tip_max_speed * p.dt;
+  s.external_tip_now = p.external_tip_max_speed > 0 && len > max_step
+                           ? s.external_tip_now + (max_step / len) * d
+                           : s.external_tip_value;
+}
+
 /// The tool pose for the step s.step, which starts at s.time.
 ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s) {
   ToolPose& pose = s.pose;
   pose.step = s.step;
+  const Vec3d tip = s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time);
   const double ramp = p.suction_ramp_time > 0 ? s.time / p.suction_ramp_time : 1.0;
   pose.suction_ramp = ramp < 1.0 ? ramp : 1.0;
   if (s.puncture.punctured) {
     // The needle is inside: the tip load stays where it was, released over drop_time, and the
     // shaft drag pulls the rim of the hole along the axis.
-    const double travel = dot(s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time),
-                              p.needle_direction) -
+    const double travel = dot(tip, p.needle_direction) -
                           dot(p.needle_start, p.needle_direction);
     const double inserted = travel > s.puncture.needle_travel ? travel - s.puncture.needle_travel : 0;
     pose.needle_scale = job_release_factor(p, s.time - s.puncture.time);
@@ -562,7 +584,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s) 
                                 : Vec3d{0, 0, 0};
     return;
   }
-  pose.tip = s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time);
+  pose.tip = tip;
   pose.needle_scale = 1;
   pose.drag_per_contact = Vec3d{0, 0, 0};
 }
@@ -664,8 +686,9 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   s.filter_started = 1;
   r.force = s.filtered_force;
   // The next pose (tip at t_{n+1}); the record reports the tip the step ended at.
+  job_follow_tip(p, s);
   job_set_pose(p, s);
-  r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_value : job_scripted_tip(p, s.time))
+  r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time))
                                : s.pose.tip;
   r.travel = dot(r.tip - p.needle_start, p.needle_direction);
   // Local stiffness for the haptic thread: slope of force over at least stiffness_window.

@@ -31,6 +31,7 @@ class CpuJobRunner final : public JobRunner {
     drift_chunks_.assign((model.vertex_count() + kDriftChunk - 1) / kDriftChunk, DriftChunk{});
     if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
     job_.pose.tip = setup.params.needle_start;
+    job_follow_tip(setup_.params, job_);
     job_set_pose(setup_.params, job_);
     // The state starts without loads: the stages own external_force from here on.
     std::fill(state_.external_force.begin(), state_.external_force.end(), Vec3d{0, 0, 0});
@@ -60,9 +61,9 @@ class CpuJobRunner final : public JobRunner {
   Status download(State&) override { return {}; }  // the state is the simulation's own
 
   void set_tip(Vec3d tip) override {
+    // Taken up at the end of the step, as the GPU's record stage takes up its mailbox.
     job_.external_tip = 1;
     job_.external_tip_value = tip;
-    if (!job_.puncture.punctured) job_.pose.tip = tip;
   }
 
   int64_t steps_advanced() const override { return advanced_; }

@@ -67,6 +67,9 @@ struct SimulationOptions {
   double slip_relax = 0.5;
   /// Travel over which the local stiffness estimate is taken [m].
   double stiffness_window = 20e-9;
+  /// The device-resident job follows a tip handed in by set_needle_tip at most at this speed
+  /// [m/s], one step at a time (JobParams::external_tip_max_speed); 0: it takes the tip as is.
+  double external_tip_max_speed = 0;
   /// Steps between surface snapshots for a render thread; 0: none.
   int snapshot_interval = 0;
   /// Tests: drive a CPU backend from the factory through the Backend interface (uploads,

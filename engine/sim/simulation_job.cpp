@@ -51,6 +51,7 @@ Status Simulation::prepare_job() {
     p.needle_direction = script_.direction;
     p.needle_speed = script_.speed;
     p.needle_max_travel = script_.max_travel;
+    p.external_tip_max_speed = options_.external_tip_max_speed;
     p.needle_radius = scene_.needle.tip_radius;
     p.needle_pressure_stiffness = kappa;
     p.needle_friction = scene_.needle.friction;

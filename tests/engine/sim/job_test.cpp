@@ -584,6 +584,60 @@ TEST(JobSimulation, RimDamperStopsTheCellBouncingOnTheHoldingPipette) {
   EXPECT_LT(damped_median, 0.05 * bounce_median);
 }
 
+TEST(JobTip, FollowsTheHandedInTipAtMostAtTheSpeedLimit) {
+  // Without a handed-in tip the follower is the script's tip; a tip handed in 2 um ahead is
+  // reached in steps of v dt (0.1 m/s x 1 us: 0.1 um per step), never overshot; without a limit
+  // it is taken at once.
+  JobParams p;
+  p.dt = 1e-6;
+  p.needle_start = Vec3d{-1e-6, 0, 0};
+  p.needle_direction = Vec3d{1, 0, 0};
+  p.needle_speed = 1e-3;
+  p.external_tip_max_speed = 0.1;
+  JobState s;
+  s.time = 2e-6;
+  job_follow_tip(p, s);
+  EXPECT_NEAR(s.external_tip_now.x, -1e-6 + 2e-9, 1e-18);
+  s.external_tip = 1;
+  s.external_tip_value = Vec3d{1e-6 - 2e-9, 0, 0};  // 2 um ahead of the scripted tip
+  for (int i = 0; i < 5; ++i) job_follow_tip(p, s);
+  EXPECT_NEAR(s.external_tip_now.x, -1e-6 + 2e-9 + 5 * 0.1e-6, 1e-15);
+  job_set_pose(p, s);
+  EXPECT_EQ(s.pose.tip.x, s.external_tip_now.x);  // the pose is the follower's
+  for (int i = 0; i < 20; ++i) job_follow_tip(p, s);
+  EXPECT_EQ(s.external_tip_now.x, s.external_tip_value.x);  // reached, not overshot
+  JobParams jump = p;
+  jump.external_tip_max_speed = 0;
+  s.external_tip_value = Vec3d{5e-6, 1e-6, 0};
+  job_follow_tip(jump, s);
+  EXPECT_EQ(s.external_tip_now.x, 5e-6);
+  EXPECT_EQ(s.external_tip_now.y, 1e-6);
+}
+
+TEST(JobSimulation, AHandedInTipIsFollowedAtTheSpeedLimitStepByStep) {
+  // A haptic hand far ahead (10 um at once): the job's tip moves v dt per step, as the
+  // scripted needle does, instead of jumping into the cell.
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                 {"mesh.generate.vertices=3000", "output.frames=0"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  SimulationOptions options;
+  options.threads = 1;
+  options.external_tip_max_speed = 1e-3;
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene, options);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  Simulation& s = **sim;
+  const Vec3d start = s.needle_script().start, axis = s.needle_script().direction;
+  const int steps = 20;
+  for (int i = 0; i < steps; ++i) {
+    s.step1();
+    s.set_needle_tip(start + 10e-6 * axis);
+    ASSERT_FALSE(s.step2() & kStepFailed);
+  }
+  const double dt = s.model().dt;
+  EXPECT_NEAR(s.report().travel, steps * 1e-3 * dt, 1e-3 * dt * 1e-6);
+}
+
 TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
   JobParams p;
   p.dt = 1e-4;
