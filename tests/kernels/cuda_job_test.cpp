@@ -216,5 +216,50 @@ TEST(CudaJob, TheStepPathDoesNotAllocate) {
   ASSERT_TRUE((*gpu)->sync_state().ok());
 }
 
+TEST(CudaJob, AHandedInTipIsFollowedStepByStep) {
+  // The haptic path: a hand 10 um ahead, handed over every step. The device takes the pose up
+  // from its mailbox every few steps; the job's tip follows it at the speed limit one step at a
+  // time, as on the CPU, never in jumps: after 480 steps the travel is the limit's, less the
+  // few steps before the mailbox was first read, and every record moved it by at most v dt.
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                 {"mesh.generate.vertices=3000", "output.frames=0"});
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  SimulationOptions options = gpu_options();
+  options.external_tip_max_speed = 1e-3;
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, options);
+  ASSERT_TRUE(gpu.ok()) << gpu.error().message;
+  Simulation& s = **gpu;
+  ASSERT_TRUE(s.job_mode());
+  const Vec3d start = s.needle_script().start, axis = s.needle_script().direction;
+  const int steps = 480;
+  const double v = 1e-3;
+  double time = -1, travel = 0;
+  int records = 0;
+  for (int i = 0; i < steps; ++i) {
+    s.step1();
+    s.set_needle_tip(start + 10e-6 * axis);
+    ASSERT_FALSE(s.step2() & kStepFailed);
+    // Each record the host sees (the latest, however many steps apart) moved the tip by at
+    // most the limit over its time.
+    const NeedleReport& r = s.report();
+    if (r.time > time) {
+      if (time >= 0) {
+        ASSERT_LE(r.travel - travel, v * (r.time - time) * (1 + 1e-6) + 1e-15) << "step " << i;
+        ++records;
+      }
+      time = r.time;
+      travel = r.travel;
+    }
+  }
+  ASSERT_TRUE(s.sync_state().ok());
+  const double dt = s.model().dt;
+  EXPECT_GT(records, 10);
+  EXPECT_LE(s.report().travel, steps * v * dt * (1 + 1e-9));
+  EXPECT_GE(s.report().travel, (steps - 32) * v * dt);
+}
+
 }  // namespace
 }  // namespace zona
