@@ -116,7 +116,7 @@ class SimulationPortAdapter final : public HapticSimulationPort {
 
 Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Scene& scene,
                                                   const DeviceInfo& info, const Vec3d& axis,
-                                                  double hand_speed) {
+                                                  double hand_speed, double coupling_stiffness) {
   if (!a.plugin.empty()) return make_plugin_device(a.plugin, a.plugin_config);
   // Hand-side path: the needle axis, a travel of 6 cm at most (a stylus workspace).
   const double travel = scene.needle.max_travel > 0
@@ -126,7 +126,11 @@ Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Sc
     ScriptedDeviceDef d;
     d.direction = axis;
     d.speed = hand_speed;
-    d.max_travel = travel;
+    // A scripted hand holds its path rigidly; the coupling spring is what pushes the needle.
+    // It aims past the path's end by the spring's stretch at the device's full force: a hand
+    // stopped at the end alone stalls where the spring's pull meets the cell's resistance (the
+    // mouse cell: about 4 of the 7.5 uN it punctures at, the tip stuck near 34 um).
+    d.max_travel = std::min(0.06, travel + info.max_force / coupling_stiffness);
     return make_scripted_device(info, d);
   }
   if (a.device == "emulated") {
@@ -216,7 +220,7 @@ void run_haptics(const HapticsArgs& a) {
   const double hand_speed =
       a.hand_speed > 0 ? a.hand_speed : script.speed / h.workspace_scale;
 
-  auto device = make_device(a, scene, *info, script.direction, hand_speed);
+  auto device = make_device(a, scene, *info, script.direction, hand_speed, gains->stiffness);
   if (!device) return fail(device.error().message);
 
   HapticRenderConfig config =
