@@ -8,6 +8,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -123,6 +124,35 @@ TEST(CmdHaptics, TipFollowsTheHandAtMostAtTheSceneSpeedLimit) {
   ASSERT_GT(sim_time, 1e-3);
   EXPECT_LE(travel, 0.02e-3 * sim_time + 1e-9);
   EXPECT_GE(travel, 0.5 * 0.02e-3 * sim_time);
+}
+
+TEST(CmdHaptics, ScriptedHandPushesPastThePathsEndByTheCouplingsStretch) {
+  // The scripted hand holds its path rigidly and the coupling's spring pushes the needle: it
+  // aims past the path's end (max_travel 2 um: 0.4 mm of hand) by the spring's stretch at the
+  // device's force (Touch: 3.3 N), so that the spring can push the device's full force into a
+  // membrane at the path's end. At 2 cm/s the hand is there after about 0.55 s.
+  TempDir dir;
+  std::string text = kScene;
+  const std::string key = R"("max_travel": "80 um")";
+  text.replace(text.find(key), key.size(), R"("max_travel": "2 um")");
+  const fs::path scene = write_scene(dir, text.c_str());
+  const fs::path log = dir.path / "session.csv";
+  const CliRun r = run_zona("haptics " + scene.string() +
+                                " --device scripted --profile touch --duration 0.8 --no-realtime "
+                                "--json --log " + log.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  const double kc = j["coupling_stiffness_N_per_m"].get<double>();
+  ASSERT_GT(kc, 0);
+  std::string header;
+  const auto rows = read_rows(log, header);
+  ASSERT_GT(rows.size(), 100u);
+  const double end = 2e-6 / (50e-6 / 1e-2) + 3.3 / kc;
+  EXPECT_NEAR(rows.back()[1], end, 1e-9);
+  double furthest = 0;
+  for (const auto& row : rows) furthest = std::max(furthest, row[1]);
+  EXPECT_LE(furthest, end + 1e-9);
 }
 
 TEST(CmdHaptics, ReplaysRecordedSession) {
