@@ -117,6 +117,9 @@ Status CudaBackend::upload(const Model& model, const State& state) {
   // Nodal pressure: per device vertex (lambda_v, 1 / V_v) in device units, and the sums of the
   // step's first pass, zero between steps.
   d_vertex_q_ = DeviceBuffer<float>{};
+  d_vertex_q_fixed_ = DeviceBuffer<unsigned long long>{};
+  tp_.vertex_q = nullptr;
+  tp_.vertex_q_fixed = nullptr;
   d_vertex_nodal_ = DeviceBuffer<float2>{};
   if (model.nodal_pressure) {
     const double volume_unit = L.length_unit * L.length_unit * L.length_unit;
@@ -127,9 +130,16 @@ Status CudaBackend::upload(const Model& model, const State& state) {
                              static_cast<float>(model.vertex_inverse_volume[v] * volume_unit));
     }
     if (Status s = d_vertex_nodal_.upload(nodal, "nodal pressure coefficients"); !s) return s;
-    if (Status s = d_vertex_q_.allocate(nv_, "nodal volume changes"); !s) return s;
-    if (Status s = d_vertex_q_.fill_bytes(0); !s) return s;
-    tp_.vertex_q = d_vertex_q_.data();
+    if (options_.assembly == Assembly::kScatterFixed) {
+      // Fixed point like the forces: the sums, and so the run, independent of atomic order.
+      if (Status s = d_vertex_q_fixed_.allocate(nv_, "nodal volume changes"); !s) return s;
+      if (Status s = d_vertex_q_fixed_.fill_bytes(0); !s) return s;
+      tp_.vertex_q_fixed = d_vertex_q_fixed_.data();
+    } else {
+      if (Status s = d_vertex_q_.allocate(nv_, "nodal volume changes"); !s) return s;
+      if (Status s = d_vertex_q_.fill_bytes(0); !s) return s;
+      tp_.vertex_q = d_vertex_q_.data();
+    }
     tp_.vertex_nodal = d_vertex_nodal_.data();
   }
 
@@ -289,6 +299,7 @@ VertexParams CudaBackend::vertex_params(int64_t g) {
   vp.gather_entries = d_gather_entries_.data();
   vp.vertex_new_to_old = d_vertex_new_to_old_.data();
   vp.nodal_clear = tp_.vertex_q;
+  vp.nodal_clear_fixed = tp_.vertex_q_fixed;
   vp.vertex_count = static_cast<int>(nv_);
   vp.length_unit = length_unit_;
   vp.force_unit = force_unit_;
@@ -316,7 +327,7 @@ Status CudaBackend::enqueue_substep(int64_t g, int substep, bool diag, DeviceSta
     with_bool(diag, [&](auto dc) {
       constexpr ElementKind K = decltype(kc)::value;
       constexpr bool D = decltype(dc)::value;
-      if (tp_.vertex_q) keep(launch(pdl, volume_change_kernel, tb, s, tp_, vp.u, substep, st));
+      if (has_nodal(tp_)) keep(launch(pdl, volume_change_kernel, tb, s, tp_, vp.u, substep, st));
       if (a != Assembly::kGatherRecompute)
         with_scatter(scatter_of(a, options_.warp_aggregate), [&](auto mc) {
           constexpr Scatter M = decltype(mc)::value;
@@ -435,6 +446,15 @@ StepReport CudaBackend::step(int substeps) {
   phase_step_ += steps;
   step_count_ += steps;
   time_ += static_cast<double>(steps) * m.dt;
+  if (steps != substeps && has_nodal(tp_)) {
+    // A halted window stops before the update that zeroes the nodal pressure's sums: zeroed
+    // here, the invariant the next window's first pass relies on (ordered on the stream).
+    if (Status z = clear_nodal_sums(s); !z) {
+      std::snprintf(step_log_.message, sizeof step_log_.message, "%s",
+                    z.error().message.c_str());
+      step_log_.failed = true;
+    }
+  }
 
   StepDiagnostics& d = diag_;
   auto first = [](long long x) { return x == LLONG_MAX ? int64_t{-1} : int64_t{x}; };
@@ -535,6 +555,14 @@ Status CudaBackend::download(State& state) {
   return {};
 }
 
+Status CudaBackend::clear_nodal_sums(cudaStream_t s) {
+  if (tp_.vertex_q)
+    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
+  if (tp_.vertex_q_fixed)
+    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_fixed_.data(), 0, d_vertex_q_fixed_.bytes(), s));
+  return {};
+}
+
 Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) {
   if (!model_) return make_error("cuda backend: nothing uploaded");
   if (f.size() != nv_)
@@ -573,8 +601,8 @@ Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f)
   cudaError_t err = cudaSuccess;
   // Nodal pressure: the first pass's sums from zero, and zero again afterwards (the stepping
   // state's invariant between steps).
-  if (tp_.vertex_q) {
-    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
+  if (has_nodal(tp_)) {
+    if (Status z = clear_nodal_sums(s); !z) return z;
     err = launch(false, volume_change_kernel, tb, s, tp_, vp.u, 0, st);
   }
   with_kind(kind_, [&](auto kc) {
@@ -594,7 +622,8 @@ Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f)
   });
   if (err != cudaSuccess) return cuda_error(err, "cudaLaunchKernelEx (forces)", __FILE__, __LINE__);
   ZONA_CUDA_TRY_LAUNCH();
-  if (tp_.vertex_q) ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
+  if (has_nodal(tp_))
+    if (Status z = clear_nodal_sums(s); !z) return z;
   std::vector<float4> out(nv_);
   ZONA_CUDA_TRY(cudaMemcpyAsync(out.data(), d_scratch_force_.data(), d_scratch_force_.bytes(),
                                 cudaMemcpyDeviceToHost, s));

@@ -128,6 +128,8 @@ class CudaBackend final : public Backend {
   StepReport step(int substeps) override;
   Status download(State& state) override;
   Status elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) override;
+  /// Zeroes the nodal pressure's sums (either form) on stream s.
+  Status clear_nodal_sums(cudaStream_t s);
   Result<StateSummary> summarize() override;
   Result<JobRunner*> start_job(const JobSetup& setup) override;  // cuda_job.cu
 
@@ -172,6 +174,7 @@ class CudaBackend final : public Backend {
   DeviceBuffer<float2> d_shape_c_;
   DeviceBuffer<float> d_tensors_;
   DeviceBuffer<float> d_vertex_q_;        ///< nodal pressure: TetParams::vertex_q
+  DeviceBuffer<unsigned long long> d_vertex_q_fixed_;  ///< or TetParams::vertex_q_fixed
   DeviceBuffer<float2> d_vertex_nodal_;   ///< nodal pressure: TetParams::vertex_nodal
   DeviceBuffer<int32_t> d_tet_new_to_old_, d_vertex_new_to_old_;
   DeviceBuffer<double> d_u_[3];

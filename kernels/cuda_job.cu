@@ -291,7 +291,7 @@ Status CudaJob::enqueue_step(int64_t g) {
               static_cast<const JobState*>(d_job_.data()), d_face_anchor_.data(),
               d_tool_load_.data(), d_sums_.data(), face_blocks, nf, st, kSubstep));
   keep(cudaEventRecord(join_.get(), side_.get()));
-  if (b_.tp_.vertex_q)
+  if (has_nodal(b_.tp_))
     keep(launch(pdl, volume_change_kernel, tb, s, b_.tp_, vp.u, kSubstep, st));
   with_kind(b_.kind_, [&](auto kc) {
     constexpr ElementKind K = decltype(kc)::value;

@@ -387,7 +387,7 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       vp.force_clear[v] = make_float4(0, 0, 0, 0);
     }
-    if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
+    clear_nodal(vp, v);
     // The tools' load on this vertex (zero off the tools), taken and cleared for the next step.
     const float4 tool = tool_load[v];
     const bool loaded = tool.x != 0 || tool.y != 0 || tool.z != 0;

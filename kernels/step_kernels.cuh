@@ -59,9 +59,25 @@ struct TetParams {
   /// volume_change_kernel and zeroed by the step's vertex kernel after the element pass, and
   /// (lambda_v [stress_unit], 1 / V_v [1/length_unit^3]).
   float* vertex_q = nullptr;
+  /// Nodal pressure with the fixed-point scatter (Assembly::kScatterFixed): the same sums in
+  /// 64-bit fixed point (kFixedScale), so that they, and the run, do not depend on the order of
+  /// the atomics; vertex_q is then null.
+  unsigned long long* vertex_q_fixed = nullptr;
   const float2* vertex_nodal = nullptr;
   double energy_unit = 1;  ///< J per device energy unit (stress_unit * length_unit^3)
 };
+
+/// Whether the model has nodal pressure (either form of the sums).
+__host__ __device__ inline bool has_nodal(const TetParams& tp) {
+  return tp.vertex_q != nullptr || tp.vertex_q_fixed != nullptr;
+}
+
+/// The vertex's nodal sum of V_e / 4 (J_e - 1) [length_unit^3].
+__device__ __forceinline__ float nodal_sum(const TetParams& tp, int v) {
+  if (tp.vertex_q_fixed)
+    return float(double(static_cast<long long>(tp.vertex_q_fixed[v])) * kFixedInverse);
+  return tp.vertex_q[v];
+}
 
 /// Per-vertex arrays of one sub-step (pointers chosen by the sub-step's buffer phase).
 struct VertexParams {
@@ -80,11 +96,18 @@ struct VertexParams {
   const int* gather_entries = nullptr;
   const int32_t* vertex_new_to_old = nullptr;
   float* nodal_clear = nullptr;  ///< TetParams::vertex_q, zeroed by the update (nodal pressure)
+  unsigned long long* nodal_clear_fixed = nullptr;  ///< TetParams::vertex_q_fixed, likewise
   int vertex_count = 0;
   double length_unit = 1;  ///< [m]
   double force_unit = 1;   ///< [N]
   double half_inv_dt = 0;  ///< 1 / (2 dt) [1/s]
 };
+
+/// Zeroes the vertex's nodal sum for the next step (the update kernels).
+__device__ __forceinline__ void clear_nodal(const VertexParams& vp, int v) {
+  if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
+  if (vp.nodal_clear_fixed) vp.nodal_clear_fixed[v] = 0ull;
+}
 
 /// Prescribed vertices of one window.
 struct PrescribedParams {
@@ -212,7 +235,7 @@ __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetSh
   float pressure = 0, density = 0;
   for (int c = 0; c < 4; ++c) {
     const float2 n = tp.vertex_nodal[v[c]];
-    const float jm1 = tp.vertex_q[v[c]] * n.y;
+    const float jm1 = nodal_sum(tp, v[c]) * n.y;
     pressure += n.x * jm1;
     density += 0.5f * n.x * jm1 * jm1;
   }
@@ -244,6 +267,19 @@ static __global__ void __launch_bounds__(kBlock)
   load_relative_displacements(u64, id, du);
   const float q =
       0.25f * s.volume * snh_volume_change(tet_displacement_gradient_from_edges(s, du));
+  if (tp.vertex_q_fixed) {
+    // Integer sums: the same bits in any order. A non-finite q is the element's own non-finite
+    // state, which its forces report; it adds nothing here.
+    const unsigned long long qf = fabsf(q) < kFixedLimit
+                                      ? static_cast<unsigned long long>(
+                                            __double2ll_rn(double(q) * kFixedScale))
+                                      : 0ull;
+    atomicAdd(tp.vertex_q_fixed + id.x, qf);
+    atomicAdd(tp.vertex_q_fixed + id.y, qf);
+    atomicAdd(tp.vertex_q_fixed + id.z, qf);
+    atomicAdd(tp.vertex_q_fixed + id.w, qf);
+    return;
+  }
   atomicAdd(tp.vertex_q + id.x, q);
   atomicAdd(tp.vertex_q + id.y, q);
   atomicAdd(tp.vertex_q + id.z, q);
@@ -270,7 +306,7 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
   uint32_t bits = 0;
   float energy;
   if constexpr (K == ElementKind::kSnhGradient) {
-    if (tp.vertex_q)
+    if (has_nodal(tp))
       energy = eval_nodal_tet(tp, s, mu, id, u, f, &bits);
     else
       energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
@@ -574,7 +610,7 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       vp.force_clear[v] = make_float4(0, 0, 0, 0);
     }
-    if (vp.nodal_clear) vp.nodal_clear[v] = 0.0f;
+    clear_nodal(vp, v);
     update_vertex(vp, v, f, substep, st, &d);
   }
   reduce_vertex_diag<DIAG>(vp, d, st);
