@@ -446,10 +446,18 @@ StepReport CudaBackend::step(int substeps) {
   phase_step_ += steps;
   step_count_ += steps;
   time_ += static_cast<double>(steps) * m.dt;
-  if (steps != substeps && has_nodal(tp_)) {
-    // A halted window stops before the update that zeroes the nodal pressure's sums: zeroed
-    // here, the invariant the next window's first pass relies on (ordered on the stream).
-    if (Status z = clear_nodal_sums(s); !z) {
+  if (steps != substeps) {
+    // A halted window stops inside a sub-step: its scatter sums (forces, fixed-point forces,
+    // the nodal pressure's volume changes) hold what that sub-step added and its update did not
+    // take and zero. Zeroed here, the invariant the next window's first sub-step relies on
+    // (ordered on the stream).
+    const size_t g = static_cast<size_t>(phase_step_ % 2);
+    auto clear = [&]() -> Status {
+      if (Status a = d_force_[g].fill_bytes_async(0, s); !a) return a;
+      if (Status b = d_fixed_[g].fill_bytes_async(0, s); !b) return b;
+      return clear_nodal_sums(s);
+    };
+    if (Status z = clear(); !z) {
       std::snprintf(step_log_.message, sizeof step_log_.message, "%s",
                     z.error().message.c_str());
       step_log_.failed = true;
@@ -556,11 +564,8 @@ Status CudaBackend::download(State& state) {
 }
 
 Status CudaBackend::clear_nodal_sums(cudaStream_t s) {
-  if (tp_.vertex_q)
-    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_.data(), 0, d_vertex_q_.bytes(), s));
-  if (tp_.vertex_q_fixed)
-    ZONA_CUDA_TRY(cudaMemsetAsync(d_vertex_q_fixed_.data(), 0, d_vertex_q_fixed_.bytes(), s));
-  return {};
+  if (Status z = d_vertex_q_.fill_bytes_async(0, s); !z) return z;
+  return d_vertex_q_fixed_.fill_bytes_async(0, s);
 }
 
 Status CudaBackend::elastic_forces(std::span<const Vec3d> u, std::span<Vec3d> f) {

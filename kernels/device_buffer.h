@@ -74,6 +74,12 @@ class DeviceBuffer {
     return {};
   }
 
+  /// The same, ordered on stream s.
+  Status fill_bytes_async(int byte, cudaStream_t s) {
+    if (count_) ZONA_CUDA_TRY(cudaMemsetAsync(ptr_, byte, bytes(), s));
+    return {};
+  }
+
   T* data() { return ptr_; }
   const T* data() const { return ptr_; }
   size_t size() const { return count_; }
