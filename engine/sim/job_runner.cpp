@@ -135,6 +135,19 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
+  // Chunks [0, count) of a per-chunk stage on the pool, each writing only its own vertices or
+  // slot; callers sum the slots in chunk order (the same sums on any thread count).
+  template <void (CpuJobRunner::*kStage)(size_t)>
+  void run_chunks(size_t count) {
+    state_.pool->run(
+        static_cast<int64_t>(count),
+        [](void* context, int64_t begin, int64_t end) {
+          auto* self = static_cast<CpuJobRunner*>(context);
+          for (int64_t c = begin; c < end; ++c) (self->*kStage)(static_cast<size_t>(c));
+        },
+        this);
+  }
+
   // Drift damping on the vertices of chunk `chunk` (kDriftChunk of them): the step's load
   // m drift_accel into external_force (after the stiffness damping's, which it adds to), and
   // after the update the chunk's momentum m (u_{n+1} - u_n) / dt and mass.
@@ -211,13 +224,7 @@ class CpuJobRunner final : public JobRunner {
     }
     // The drift damping's load (job_drift_update), on every free vertex.
     if (p.drift_damping > 0)
-      state_.pool->run(
-          static_cast<int64_t>(drift_chunks_.size()),
-          [](void* context, int64_t begin, int64_t end) {
-            auto* self = static_cast<CpuJobRunner*>(context);
-            for (int64_t c = begin; c < end; ++c) self->drift_load(static_cast<size_t>(c));
-          },
-          this);
+      run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
     // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
     // surface vertices.
     JobSums sums;
@@ -248,13 +255,7 @@ class CpuJobRunner final : public JobRunner {
     }
     // Every tool vertex on the pool, summed per fixed chunk, the chunks then in order (the same
     // sums on any thread count).
-    state_.pool->run(
-        static_cast<int64_t>(tool_chunk_sums_.size()),
-        [](void* context, int64_t begin, int64_t end) {
-          auto* self = static_cast<CpuJobRunner*>(context);
-          for (int64_t c = begin; c < end; ++c) self->tool_vertices(static_cast<size_t>(c));
-        },
-        this);
+    run_chunks<&CpuJobRunner::tool_vertices>(tool_chunk_sums_.size());
     for (const JobSums& c : tool_chunk_sums_) {
       for (int k = 0; k < 3; ++k) {
         sums.needle_force[k] += c.needle_force[k];
@@ -284,13 +285,7 @@ class CpuJobRunner final : public JobRunner {
     if (p.drift_damping > 0 && (steps_run_ - 1) % kDriftInterval == 0) {
       // Per fixed chunk on the pool, the chunks then in order (the same sums on any thread
       // count).
-      state_.pool->run(
-          static_cast<int64_t>(drift_chunks_.size()),
-          [](void* context, int64_t begin, int64_t end) {
-            auto* self = static_cast<CpuJobRunner*>(context);
-            for (int64_t c = begin; c < end; ++c) self->drift_momentum(static_cast<size_t>(c));
-          },
-          this);
+      run_chunks<&CpuJobRunner::drift_momentum>(drift_chunks_.size());
       for (const DriftChunk& c : drift_chunks_) {
         tot.momentum += c.momentum;
         tot.mass += c.mass;
