@@ -104,7 +104,9 @@ Status write_outputs(const std::filesystem::path& out, ConvergenceStudy study,
       "imbalance_at_D (needle force + holding force along the axis) / needle force there, 0 "
       "in static equilibrium, the share carried by inertia and damping; "
       "largest_drop_rel the largest sample-to-sample fall of the force on the loading branch "
-      "over the puncture force (the peak force without puncture); free text has ',' as ';'");
+      "over the puncture force (the peak force without puncture); inverted_from_um the "
+      "deformation of the first sample before puncture with an inverted element, empty where "
+      "none; free text has ',' as ';'");
   if (Status s =
           write_text((out / "convergence.csv").string(), convergence_csv(study, samples_comments));
       !s)

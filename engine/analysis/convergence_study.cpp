@@ -199,6 +199,13 @@ ConvergenceRun summarize_convergence_run(int64_t target_vertices, const RunResul
   for (const double d : deformations) out.imbalance_at.push_back(imbalance_at_deformation(branch, d));
   out.largest_drop =
       largest_force_drop(branch, out.punctured ? out.puncture_force : out.peak_force);
+  for (const ForceSample& s : run.samples) {
+    if (s.punctured) break;
+    if (s.status & kStepInvertedElement) {
+      out.inverted_from = s.deformation;
+      break;
+    }
+  }
   std::vector<std::string> flags = step_flag_names(run.status);
   if (run.sample_buffer_full) flags.push_back("sample buffer full");
   for (const std::string& name : flags) {
@@ -314,7 +321,7 @@ std::string convergence_summary_csv(const ConvergenceStudy& study,
     out.append(",force_at_").append(deformation_tag(d)).append("_un");
   for (const double d : study.deformations) out.append(",rel_diff_at_").append(deformation_tag(d));
   for (const double d : study.deformations) out.append(",imbalance_at_").append(deformation_tag(d));
-  out += ",largest_drop_rel,step_flags,stopped_early,stop_reason\n";
+  out += ",largest_drop_rel,inverted_from_um,step_flags,stopped_early,stop_reason\n";
   for (const ConvergenceRun& r : study.runs) {
     const bool ran = r.vertices > 0;
     std::vector<std::string> f = {std::to_string(r.target_vertices),
@@ -334,6 +341,7 @@ std::string convergence_summary_csv(const ConvergenceStudy& study,
     for (size_t k = 0; k < study.deformations.size(); ++k)
       f.push_back(k < r.imbalance_at.size() ? format_optional(r.imbalance_at[k]) : "");
     f.push_back(ran ? format(r.largest_drop) : "");
+    f.push_back(format_optional(r.inverted_from, 1e6));
     f.push_back(csv_text(r.step_flags));
     f.push_back(r.stopped_early ? "1" : "0");
     f.push_back(csv_text(r.stop_reason));

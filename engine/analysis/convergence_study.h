@@ -91,6 +91,9 @@ struct ConvergenceRun {
   /// imbalance_at_deformation at each requested deformation [-], (deformation count).
   std::vector<std::optional<double>> imbalance_at;
   double largest_drop = 0;           ///< largest_force_drop of the branch [-]
+  /// Deformation of the first sample before puncture with an inverted element [m]; nullopt:
+  /// none on the loading branch.
+  std::optional<double> inverted_from;
   std::string step_flags;            ///< step_flag_names of the run, joined by '|'
   bool stopped_early = false;        ///< a step was not advanced, or setup failed
   std::string stop_reason;           ///< why (empty when the run reached its end)

@@ -856,6 +856,7 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
     s.elastic_energy = r.elastic_energy;
     s.kinetic_energy = r.kinetic_energy;
     s.punctured = r.punctured;
+    s.status = r.status;
     result.samples.push_back(s);
     if (options.on_sample) options.on_sample(s);
   };

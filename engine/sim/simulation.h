@@ -298,6 +298,7 @@ struct ForceSample {
   double elastic_energy = 0;  ///< [J]
   double kinetic_energy = 0;  ///< [J]
   bool punctured = false;
+  StepStatus status = kStepOk;  ///< the integrator's flags of the sampled step
 };
 
 /// Progress of a run, passed to RunOptions::progress.

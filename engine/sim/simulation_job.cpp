@@ -202,9 +202,11 @@ Status Simulation::prepare_job() {
   const ConstitutiveModel law = model_.constitutive;
   if (safety > 0 && law != ConstitutiveModel::kLinear) {
     p.mass_interval = 24;
-    p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
-                                          ? StiffeningLaw::kStableNeoHookean
-                                          : StiffeningLaw::kSvk);
+    p.mass_law = static_cast<int32_t>(law != ConstitutiveModel::kStableNeoHookean
+                                          ? StiffeningLaw::kSvk
+                                          : model_.nodal_pressure
+                                                ? StiffeningLaw::kStableNeoHookeanNodal
+                                                : StiffeningLaw::kStableNeoHookean);
     const size_t nt = model_.tet_count();
     js.vertex_volume = vertex_lumped_volumes(model_);
     js.tet_rest_need.assign(nt, 0.0);
@@ -318,6 +320,7 @@ ForceSample sample_of(const JobRecord& r, Vec3d direction) {
   s.elastic_energy = r.elastic_energy;
   s.kinetic_energy = r.kinetic_energy;
   s.punctured = r.puncture.punctured != 0;
+  s.status = static_cast<StepStatus>(r.status);
   return s;
 }
 

@@ -102,7 +102,7 @@ TEST(CmdStudy, ConvergenceWritesBothCsvsAndThePlot) {
   for (const char* column :
        {"vertices", "tets", "dt_s", "steps", "wall_s", "backend", "puncture_deformation_um",
         "puncture_force_un", "peak_force_un", "force_at_2.5um_un", "force_at_10um_un",
-        "rel_diff_at_2.5um", "largest_drop_rel", "step_flags", "stop_reason"})
+        "rel_diff_at_2.5um", "largest_drop_rel", "inverted_from_um", "step_flags", "stop_reason"})
     EXPECT_NE(std::find(summary.header.begin(), summary.header.end(), column), summary.header.end())
         << column;
   ASSERT_EQ(summary.rows.size(), 2u);

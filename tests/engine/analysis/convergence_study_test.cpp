@@ -133,6 +133,24 @@ TEST(ConvergenceStudy, SummaryUsesPunctureOrPeakAsTheDropReference) {
   EXPECT_NEAR(r.largest_drop, 1.0 / 5.0, 1e-12);  // the fall 6 -> 5 at puncture counts too
 }
 
+TEST(ConvergenceStudy, InvertedFromIsTheFirstFlaggedSampleBeforePuncture) {
+  RunResult run;
+  run.samples = {sample(0, 0), sample(10, 4), sample(20, 3), sample(30, 6)};
+  run.peak_force = 6e-6;
+  ConvergenceRun r = summarize_convergence_run(1000, run, std::vector<double>{});
+  EXPECT_FALSE(r.inverted_from.has_value());
+  run.samples[2].status = kStepInvertedElement | kStepCollapsingElement;
+  run.samples[3].status = kStepInvertedElement;
+  r = summarize_convergence_run(1000, run, std::vector<double>{});
+  ASSERT_TRUE(r.inverted_from.has_value());
+  EXPECT_NEAR(*r.inverted_from, 20e-6, 1e-18);
+  // After puncture it is no longer on the loading branch.
+  run.samples[2].status = kStepOk;
+  run.samples[3].punctured = true;
+  r = summarize_convergence_run(1000, run, std::vector<double>{});
+  EXPECT_FALSE(r.inverted_from.has_value());
+}
+
 TEST(ConvergenceStudy, RelativeDifferencesAgainstTheMostVertices) {
   ConvergenceStudy study;
   study.deformations = {10e-6, 20e-6};
