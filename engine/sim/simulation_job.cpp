@@ -355,6 +355,24 @@ std::string describe_failure(const JobRecord& r) {
   return line;
 }
 
+// Where element t of a halted run lies against the needle: its centroid's distance ahead of the
+// tip along the needle axis and off the axis, in the state the run stopped in.
+std::string element_place(const Simulation& sim, size_t t, Vec3d tip) {
+  const Model& m = sim.model();
+  Vec3d c{0, 0, 0};
+  for (int32_t v : m.tets[t]) {
+    const size_t k = static_cast<size_t>(v);
+    c += 0.25 * (sim.mesh().rest_positions[k] + sim.state().u[k]);
+  }
+  const Vec3d axis = sim.job_setup().params.needle_direction;
+  const Vec3d d = c - tip;
+  const double along = dot(d, axis);
+  char line[160];
+  std::snprintf(line, sizeof line, " (its centroid %.3g um ahead of the needle tip, %.3g um off "
+                "the needle axis)", along * 1e6, norm(d - along * axis) * 1e6);
+  return line;
+}
+
 }  // namespace
 
 RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
@@ -482,6 +500,9 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     if (last.halted) {
       result.stopped_early = true;
       result.stop_reason = describe_failure(last);
+      if (!(last.status & (kStepNonFinite | kStepToolBreach)) && last.first_bad >= 0 &&
+          static_cast<size_t>(last.first_bad) < sim.model().tet_count() && sim.sync_state())
+        result.stop_reason += element_place(sim, static_cast<size_t>(last.first_bad), last.tip);
     }
     if ((result.samples.empty() || result.samples.back().time < last.time) &&
         !result.sample_buffer_full &&
