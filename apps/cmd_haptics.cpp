@@ -43,8 +43,9 @@ struct HapticsArgs {
 // The Simulation behind the session's port: the commanded tip goes in between step1 and step2
 // (rate-limited, see below), the needle report comes out as the haptic sample.
 //
-// The published force is the needle's load-cell reading: the axial force low-passed by
-// needle.force_filter (Simulation's report.force), along the axis. The raw contact reaction
+// The published force is the needle's load-cell reading until the puncture: the axial force
+// low-passed by needle.force_filter (Simulation's report.force), along the axis; from the
+// puncture on, the raw released load (haptic_axial_force says why). The raw contact reaction
 // jitters from step to step when the tip is moved by a hand (up to 0.5 N at the hand on the
 // mouse scene), and a force that jitters independently of the hand's motion is an active
 // source: the passivity observer sees it as energy generated (docs/haptics.md). The lateral
@@ -75,9 +76,10 @@ class SimulationPortAdapter final : public HapticSimulationPort {
     const NeedleReport& r = sim_.report();
     const Vec3d axis = sim_.needle_script().direction;
     sample.sim_time = r.time;
-    // The cell's force on the needle: resistance along -axis (report.force is resistance
-    // positive), plus the filtered lateral reaction when asked for.
-    sample.force = -r.force * axis;
+    // The cell's force on the needle: resistance along -axis (haptic_axial_force is resistance
+    // positive; filtered until the puncture, raw after it), plus the filtered lateral reaction
+    // when asked for.
+    sample.force = -haptic_axial_force(r) * axis;
     if (lateral_force_) {
       const Vec3d raw = -r.force_vector;
       const Vec3d lateral = raw - dot(raw, axis) * axis;

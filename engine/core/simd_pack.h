@@ -285,20 +285,4 @@ ZONA_FMA_PAIR(P8d, V8, __m512d, "avx512f", _mm512_fmadd_pd, _mm512_fnmsub_pd)  /
   out.z = a.v[2];
 }
 
-/// min and max lane by lane (the pack forms of fem_element.h's lane_min and lane_max).
-#define ZONA_PACK_MIN_MAX(T)                                                             \
-  [[gnu::always_inline]] inline T lane_min(T a, T b) {                                   \
-    T r;                                                                                 \
-    r.v = a.v < b.v ? a.v : b.v;                                                         \
-    return r;                                                                            \
-  }                                                                                      \
-  [[gnu::always_inline]] inline T lane_max(T a, T b) {                                   \
-    T r;                                                                                 \
-    r.v = a.v < b.v ? b.v : a.v;                                                         \
-    return r;                                                                            \
-  }
-ZONA_PACK_MIN_MAX(P4)
-ZONA_PACK_MIN_MAX(P8f)
-ZONA_PACK_MIN_MAX(P8d)
-
 }  // namespace zona

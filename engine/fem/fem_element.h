@@ -395,57 +395,13 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> snh_cofactor_of_f(const Mat3<T>& h) {
   return c;
 }
 
-/// min(a, b) and max(a, b) lane by lane (simd_pack.h has the pack forms).
-template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T lane_min(T a, T b) {
-  return a < b ? a : b;
-}
-template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T lane_max(T a, T b) {
-  return a < b ? b : a;
-}
-
-// The nodal-pressure element's compression barrier. Nodal pressure constrains the volume of each
-// vertex's star, not of each element, and leaves an element only mu against its own volume
-// change: tetrahedra with a face on the surface under the needle's rim were flattened through
-// J = 0 by the contact pressure while their neighbours took up the volume (12 of the 6k mouse
-// cell's tetrahedra at 29 um; none with the volume term per element, which locks). Below
-// J_b = kNodalBarrierStart each element adds
-//   Psi_b(J) = kappa J_b (J - J_b)^2 / (2 J),   dPsi_b/dJ = kappa J_b (J - J_b)(J + J_b) / (2 J^2)
-// (kappa the material's lambda): 0 with its slope at J_b, curvature kappa there as the element's
-// own volume term would have, and a pressure without bound as J -> 0 (5.25 kappa at J = 0.05,
-// about 1.4 MPa for the mouse cell, against contact pressures of a few hundred kPa). Below
-// J_e = kNodalBarrierEnd it continues as its own second-order Taylor expansion about J_e, so it
-// stays defined (and pushes back harder) for a J that an overlong step carried to 0 or below.
-// An incompressible body's elements never get near J_b where the law is physical, so the barrier
-// leaves the calibrated curve alone; it acts only where the discretisation fails.
-inline constexpr double kNodalBarrierStart = 0.3;
-inline constexpr double kNodalBarrierEnd = 0.05;
-
-/// The barrier's energy density [J/m^3] at J - 1 = jm1, with coefficient kappa [Pa]; its
-/// derivative dPsi_b/dJ [Pa] to *dpsi (added to the element's cof F coefficient).
-template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T nodal_compression_barrier(T jm1, T kappa, T* dpsi) {
-  const T j = jm1 + T(1);
-  const T jc = lane_max(j, T(kNodalBarrierEnd));
-  const T dc = lane_min(jc - T(kNodalBarrierStart), T(0));  // 0 at and above J_b
-  const T e = lane_min(j - T(kNodalBarrierEnd), T(0));      // 0 at and above J_e
-  const T r = T(kNodalBarrierStart) / jc;
-  const T slope = T(0.5) * kappa * dc * r * (T(1) + r);    // dPsi_b/dJ at jc
-  const T curvature = kappa * r * r * r;                    // d2Psi_b/dJ2 at jc (used below J_e)
-  *dpsi = slope + curvature * e;
-  return T(0.5) * kappa * dc * dc * r + (slope + T(0.5) * curvature * e) * e;
-}
-
 /// The SNH stress with the volumetric coefficient and an added pressure given: P = mu (H + H^T -
 /// tr(H) I - cof H) + k (I + tr(H) I - H^T + cof H), k = lambda_e (J - 1) + pressure, written to
 /// *p; the energy density mu (|H|^2 / 2 - I2 - det H) + lambda_e (J - 1)^2 / 2 [J/m^3]
-/// returned (the pressure's energy is its caller's); J - 1 [-] to *j_minus_one. BARRIER: also
-/// nodal_compression_barrier with kappa = barrier (its slope in k, its energy in the result).
-template <bool BARRIER = false, class T>
+/// returned (the pressure's energy is its caller's); J - 1 [-] to *j_minus_one.
+template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_with(const Mat3<T>& h, T mu, T lambda_e,
-                                                    T pressure, Mat3<T>* p, T* j_minus_one,
-                                                    T barrier = T(0)) {
+                                                    T pressure, Mat3<T>* p, T* j_minus_one) {
   const Mat3<T> ch = cofactor(h);
   const T tr = trace(h);
   T hh = 0;
@@ -454,19 +410,13 @@ ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_with(const Mat3<T>& h, T mu, T la
   const T i2 = principal_minor_sum(h);
   const T det_h = determinant(h);
   const T jm1 = tr + i2 + det_h;
-  T k = lambda_e * jm1 + pressure;
-  T barrier_energy = T(0);
-  if constexpr (BARRIER) {
-    T slope;
-    barrier_energy = nodal_compression_barrier(jm1, barrier, &slope);
-    k += slope;
-  }
+  const T k = lambda_e * jm1 + pressure;
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       p->m[r][c] = mu * (h.m[r][c] + h.m[c][r] - ch.m[r][c]) + k * (ch.m[r][c] - h.m[c][r]);
   for (int r = 0; r < 3; ++r) p->m[r][r] += k * (T(1) + tr) - mu * tr;
   *j_minus_one = jm1;
-  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lambda_e * jm1 * jm1 + barrier_energy;
+  return mu * (T(0.5) * hh - i2 - det_h) + T(0.5) * lambda_e * jm1 * jm1;
 }
 
 /// SNH first Piola-Kirchhoff stress P [Pa] at displacement gradient H, written to *p; energy
@@ -485,15 +435,13 @@ ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola(const Mat3<T>& h, T lambda, T mu,
 /// so no element mode relies on the nodal term for stability), and the rest of the volumetric
 /// energy, lambda/2 (Jbar - 1)^2 per unit volume with Jbar averaged at each vertex, enters
 /// through `pressure`, the mean over the element's corners of lambda_v (Jbar_v - 1) [Pa]:
-/// P = mu (F - cof F) + (mu (J - 1) + pressure + dPsi_b/dJ) cof F, written to *p, with the
-/// compression barrier Psi_b of coefficient lambda below J = kNodalBarrierStart
-/// (nodal_compression_barrier). The element part of the energy density [J/m^3] is returned,
-/// J - 1 to *j_minus_one. At a uniform J (Jbar = J) above the barrier this is snh_first_piola
-/// exactly (lambda_s = lambda + mu).
+/// P = mu (F - cof F) + (mu (J - 1) + pressure) cof F, written to *p. The element part of the
+/// energy density [J/m^3] is returned, J - 1 to *j_minus_one. At a uniform J (Jbar = J) this is
+/// snh_first_piola exactly (lambda_s = lambda + mu).
 template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_nodal(const Mat3<T>& h, T mu, T lambda,
-                                                     T pressure, Mat3<T>* p, T* j_minus_one) {
-  return snh_first_piola_with<true>(h, mu, mu, pressure, p, j_minus_one, lambda);
+ZONA_HOST_DEVICE ZONA_INLINE T snh_first_piola_nodal(const Mat3<T>& h, T mu, T pressure,
+                                                     Mat3<T>* p, T* j_minus_one) {
+  return snh_first_piola_with(h, mu, mu, pressure, p, j_minus_one);
 }
 
 /// SNH stress differential dP = (d^2 Psi / dF^2) : dF [Pa] at displacement gradient H, for a
@@ -568,15 +516,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void tet_snh_stiffness(const TetShape<T>& s, T lamb
 // mass it has). It is an estimate for raising masses with a safety factor, not a proof.
 
 /// The laws tet_stiffening() knows.
-/// kStableNeoHookeanNodal: SNH with nodal pressure, whose elements carry the compression barrier
-/// (nodal_compression_barrier): its curvature joins the volumetric rank-one part, its slope the
-/// (J - 1) d cof term.
-enum class StiffeningLaw : int {
-  kLinear = 0,
-  kSvk = 1,
-  kStableNeoHookean = 2,
-  kStableNeoHookeanNodal = 3
-};
+enum class StiffeningLaw : int { kLinear = 0, kSvk = 1, kStableNeoHookean = 2 };
 
 /// Growth factor (>= 1) of the element's largest stiffness eigenvalue at displacement gradient
 /// h against rest, for the law with the material's Lame constants (lambda, mu) [Pa].
@@ -606,19 +546,8 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_stiffening(const TetShape<T>& s, const Mat3<T
     }
     const T j_minus_one = snh_volume_change(h);
     const T abs_j = j_minus_one < T(0) ? -j_minus_one : j_minus_one;
-    T rank_one = lam, cof_term = lam * abs_j;
-    if (law == StiffeningLaw::kStableNeoHookeanNodal) {
-      const T jc = lane_max(j_minus_one + T(1), T(kNodalBarrierEnd));
-      if (jc < T(kNodalBarrierStart)) {
-        T slope;
-        nodal_compression_barrier(j_minus_one, lambda, &slope);
-        const T r = T(kNodalBarrierStart) / jc;
-        rank_one += lambda * r * r * r;
-        cof_term += slope < T(0) ? -slope : slope;
-      }
-    }
-    const T deformed = rank_one * (g_sq > T(0) ? cof_g / g_sq : T(1)) +
-                       mu * (T(1) + T(2) * f_norm) + T(2) * cof_term * f_norm;
+    const T deformed = lam * (g_sq > T(0) ? cof_g / g_sq : T(1)) + mu * (T(1) + T(2) * f_norm) +
+                       T(2) * lam * abs_j * f_norm;
     const T rest = lam + mu * (T(1) + T(2) * T(1.7320508075688772));
     ratio = deformed / rest;
   }

@@ -776,7 +776,7 @@ template <class L, bool kNodal>
         if constexpr (kNodal) {
           P pressure, density;
           nodal_means<L>(s.vertex_pressure.data(), o8 + half, &pressure, &density);
-          const P psi = snh_first_piola_nodal(h, mu, lambda, pressure, &p, &jm1);
+          const P psi = snh_first_piola_nodal(h, mu, pressure, &p, &jm1);
           w = shape.volume * (psi + density);
         } else {
           w = shape.volume * snh_first_piola(h, lambda, mu, &p, &jm1);

@@ -104,6 +104,18 @@ struct NeedleReport {
   StepStatus status = kStepOk;  ///< the integrator's flags of this step
 };
 
+/// The axial force a haptic device renders [N], resistance positive: the load cell's filtered
+/// force (needle.force_filter) while the needle loads the cell, the raw reaction from the
+/// puncture on. The raw reaction jitters while a hand moves the tip against the membrane, and a
+/// force that changes on its own is an active source to the coupling (docs/haptics.md); after the
+/// puncture the load is the prescribed release (force_drop over drop_time, then the shaft's
+/// drag), smooth by construction, and the filter would only delay the drop by its time constant
+/// in simulated time, which a simulation slower than real time stretches in wall time (the 200k
+/// cell at 0.04x real time: 2 ms of filter, 50 ms of wall).
+inline double haptic_axial_force(const NeedleReport& r) {
+  return r.punctured ? r.raw_force : r.force;
+}
+
 /// Surface positions for a render thread, published every SimulationOptions::snapshot_interval
 /// steps through a TripleBuffer (engine/core/triple_buffer.h).
 struct SurfaceSnapshot {

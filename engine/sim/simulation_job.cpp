@@ -202,11 +202,9 @@ Status Simulation::prepare_job() {
   const ConstitutiveModel law = model_.constitutive;
   if (safety > 0 && law != ConstitutiveModel::kLinear) {
     p.mass_interval = 24;
-    p.mass_law = static_cast<int32_t>(law != ConstitutiveModel::kStableNeoHookean
-                                          ? StiffeningLaw::kSvk
-                                          : model_.nodal_pressure
-                                                ? StiffeningLaw::kStableNeoHookeanNodal
-                                                : StiffeningLaw::kStableNeoHookean);
+    p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
+                                          ? StiffeningLaw::kStableNeoHookean
+                                          : StiffeningLaw::kSvk);
     const size_t nt = model_.tet_count();
     js.vertex_volume = vertex_lumped_volumes(model_);
     js.tet_rest_need.assign(nt, 0.0);

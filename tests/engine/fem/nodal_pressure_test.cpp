@@ -1,15 +1,13 @@
 // The stable neo-Hookean law with its volumetric term at the vertices (ModelDesc::nodal_pressure):
 // it is the element law under a uniform volume change, its forces are the gradient of its
 // energy, its energy never exceeds the element law's (Jensen: the mean of the squared volume
-// changes is at least the square of their mean) until its elements' compression barrier acts, the
-// barrier keeps an element from being flattened, and the law is refused where it is not built.
+// changes is at least the square of their mean), and it is refused where it is not built.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <vector>
 
-#include "engine/fem/fem_element.h"
 #include "engine/fem/forces_cpu.h"
 #include "engine/sim/integrator.h"
 #include "tests/engine/physics_test_meshes.h"
@@ -115,108 +113,6 @@ TEST(NodalPressure, EnergyIsBelowTheElementLawsWhereTheVolumeChangeVaries) {
     EXPECT_GT(w_nodal, 0) << "strain " << strain;
     EXPECT_LT(w_nodal, w_element) << "strain " << strain;
   }
-}
-
-TEST(NodalPressure, CompressionBarrierIsZeroAboveItsStartAndUnboundedTowardsZero) {
-  const double kappa = 2.0;
-  const double jb = kNodalBarrierStart, je = kNodalBarrierEnd;
-  auto barrier = [&](double j, double* slope) {
-    return nodal_compression_barrier(j - 1.0, kappa, slope);
-  };
-  double slope = 1;
-  // Nothing at and above the start.
-  for (double j : {jb, jb + 1e-9, 0.5, 1.0, 1.7}) {
-    EXPECT_EQ(barrier(j, &slope), 0.0) << "J " << j;
-    EXPECT_EQ(slope, 0.0) << "J " << j;
-  }
-  // The closed form between the end and the start: kappa J_b (J - J_b)^2 / (2 J).
-  for (double j : {0.06, 0.1, 0.2, 0.29}) {
-    EXPECT_NEAR(barrier(j, &slope), kappa * jb * (j - jb) * (j - jb) / (2 * j), 1e-14) << j;
-    EXPECT_NEAR(slope, kappa * jb * (j - jb) * (j + jb) / (2 * j * j), 1e-13) << j;
-  }
-  // The slope is the energy's derivative everywhere, across the start, across the end and
-  // through J = 0 (where the Taylor continuation keeps it defined and pushing back).
-  for (double j = -0.3; j < 0.6; j += 0.0125) {
-    const double h = 1e-6;
-    double sp, sm;
-    const double fd = (barrier(j + h, &sp) - barrier(j - h, &sm)) / (2 * h);
-    barrier(j, &slope);
-    EXPECT_NEAR(slope, fd, 1e-6 * std::max(1.0, std::abs(slope))) << "J " << j;
-    // Its curvature is continuous too: the slopes on either side differ by O(h).
-    EXPECT_NEAR(sp, sm, 1e-3 * std::max(1.0, std::abs(slope))) << "J " << j;
-  }
-  // It pushes back harder the flatter the element: the slope falls monotonically towards J = 0
-  // and below it, and at J_e it is 5.25 kappa for J_b = 0.3, J_e = 0.05.
-  double previous = 0;
-  for (double j = jb - 0.01; j > -0.5; j -= 0.01) {
-    barrier(j, &slope);
-    EXPECT_LT(slope, previous) << "J " << j;
-    previous = slope;
-  }
-  barrier(je, &slope);
-  EXPECT_NEAR(slope, -kappa * jb * (jb - je) * (jb + je) / (2 * je * je), 1e-12);
-  EXPECT_LT(slope, -5 * kappa);
-}
-
-TEST(NodalPressure, CompressionBarrierAddsToTheElementLawBelowItsStart) {
-  // Under a uniform J the nodal law is the element law above the barrier's start (J 0.93 here)
-  // and the element law plus V Psi_b(J) below it (J 0.196).
-  const Mesh mesh = test_box();
-  const Model element = build(mesh, false), nodal = build(mesh, true);
-  const double volume = kL * 0.75 * kL * 0.75 * kL;
-  const double lambda = element.tet_lame(0).lambda;
-  for (const Mat3d& a : {Mat3d{{{-0.5, 0.0, 0.0}, {0.0, -0.3, 0.0}, {0.0, 0.0, -0.44}}},
-                         Mat3d{{{-0.05, 0.02, 0.0}, {0.0, -0.01, 0.0}, {0.0, 0.0, -0.01}}}}) {
-    std::vector<Vec3d> u(mesh.vertex_count());
-    for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v];
-    const double j = (1 + a.m[0][0]) * (1 + a.m[1][1]) * (1 + a.m[2][2]);
-    double slope = 0;
-    const double psi_b = nodal_compression_barrier(j - 1.0, lambda, &slope);
-    double w_element = 0, w_nodal = 0;
-    forces_at(element, u, &w_element);
-    forces_at(nodal, u, &w_nodal);
-    EXPECT_NEAR(w_nodal - w_element, volume * psi_b, 1e-9 * w_element) << "J " << j;
-    if (j < kNodalBarrierStart) {
-      EXPECT_GT(psi_b, 0.01 * w_element / volume) << "J " << j;
-    }
-  }
-  // Forces are the energy's gradient with elements on both sides of the start and below the
-  // Taylor continuation's end: a strong compression with a wavy field on top.
-  std::vector<Vec3d> u = wavy(mesh, 0.3);
-  for (size_t v = 0; v < u.size(); ++v)
-    u[v] += Vec3d{-0.4 * mesh.rest_positions[v].x, -0.35 * mesh.rest_positions[v].y,
-                  -0.35 * mesh.rest_positions[v].z};
-  int above = 0, between = 0, under = 0;
-  for (size_t t = 0; t < nodal.tet_count(); ++t) {
-    Vec3d x[4];
-    for (int c = 0; c < 4; ++c) {
-      const size_t k = static_cast<size_t>(nodal.tets[t][c]);
-      x[c] = mesh.rest_positions[k] + u[k];
-    }
-    const double j = dot(cross(x[1] - x[0], x[2] - x[0]), x[3] - x[0]) / 6.0 /
-                     nodal.tet_shape[t].volume;
-    (j >= kNodalBarrierStart ? above : j >= kNodalBarrierEnd ? between : under) += 1;
-  }
-  EXPECT_GT(above, 0) << between << " between, " << under << " below J_e";
-  EXPECT_GT(between, 0) << above << " above, " << under << " below J_e";
-  double w = 0;
-  const std::vector<Vec3d> f = forces_at(nodal, u, &w);
-  const double scale = largest(f);
-  const double h = 1e-7 * kL;
-  int checked = 0;
-  for (size_t v = 0; v < u.size(); v += 5)
-    for (int i = 0; i < 3; ++i) {
-      std::vector<Vec3d> up = u, um = u;
-      up[v][i] += h;
-      um[v][i] -= h;
-      double wp = 0, wm = 0;
-      forces_at(nodal, up, &wp);
-      forces_at(nodal, um, &wm);
-      EXPECT_NEAR(-(wp - wm) / (2 * h), f[v][i], 1e-6 * scale) << "vertex " << v << " axis " << i;
-      ++checked;
-    }
-  EXPECT_GT(checked, 40);
-  EXPECT_GT(under + between, 10) << under << " elements below J_e";
 }
 
 TEST(NodalPressure, ResultsDoNotDependOnTheThreadCount) {
