@@ -748,6 +748,15 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
       job_set_pose(p, s);
     }
   }
+  if (s.puncture.punctured) {
+    // The membrane gave way: the load follows the prescribed release, then the shaft's drag,
+    // which grows by shaft_friction per metre inserted, not the tip's travel into the cell. A
+    // haptic renderer extrapolating with the slope from before would keep pushing the hand.
+    s.stiffness = p.shaft_friction;
+    s.stiffness_force = r.force;
+    s.stiffness_travel = r.travel;
+    r.stiffness = s.stiffness;
+  }
   r.puncture = s.puncture;
   if (s.time >= s.next_sample - 0.5 * p.dt || s.halted) {
     s.next_sample += p.sample_interval > 0 ? p.sample_interval : p.dt;

@@ -755,10 +755,13 @@ void Simulation::measure() {
 void Simulation::publish() {
   // Local stiffness for the haptic thread: the slope of force over travel, taken over at least
   // options.stiffness_window of travel (a finite difference of the published samples).
-  if (!stiffness_anchor_set_) {
+  // From the puncture on the load no longer follows the tip's travel into the cell: the slope is
+  // the shaft's drag per metre inserted (job_finish_step does the same).
+  if (!stiffness_anchor_set_ || report_.punctured) {
     stiffness_anchor_set_ = true;
     stiffness_force_ = report_.force;
     stiffness_travel_ = report_.travel;
+    if (report_.punctured) report_.stiffness = scene_.puncture.shaft_friction;
   } else if (std::fabs(report_.travel - stiffness_travel_) >= options_.stiffness_window) {
     report_.stiffness = (report_.force - stiffness_force_) / (report_.travel - stiffness_travel_);
     stiffness_force_ = report_.force;

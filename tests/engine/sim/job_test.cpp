@@ -471,24 +471,27 @@ TEST(JobSimulation, TheHapticForceDropsWithTheReleaseNotWithTheLoadCellFilter) {
   // The mouse scene's release (90 % over 0.2 ms) and load cell (2 ms): the force a haptic device
   // renders is the filtered one while loading and the raw released load from the puncture on,
   // so it has fallen to the released level 0.2 ms after drop_time, while the filtered force is
-  // still most of the way up.
+  // still most of the way up. The local stiffness the renderer extrapolates with is then the
+  // shaft's drag per inserted length, not the membrane's slope from before.
   Scene scene = small_scene();
   scene.puncture.criterion = PunctureCriterion::kForce;
   scene.puncture.threshold = 3e-8;
   scene.puncture.force_drop = 0.9;
   scene.puncture.drop_time = 0.2e-3;
   scene.needle.force_filter = 2e-3;
+  scene.puncture.shaft_friction = 0.002;
   Result<std::unique_ptr<Simulation>> made = Simulation::create(scene);
   ASSERT_TRUE(made.ok()) << made.error().message;
   Simulation& sim = **made;
   ASSERT_TRUE(sim.job_mode());
-  double puncture_time = -1, puncture_force = 0;
+  double puncture_time = -1, puncture_force = 0, loading_stiffness = 0;
   int loading_steps = 0;
   while (!sim.finished()) {
     ASSERT_FALSE(sim.step() & kStepFailed);
     const NeedleReport& r = sim.report();
     if (!r.punctured) {
       EXPECT_EQ(haptic_axial_force(r), r.force);
+      loading_stiffness = std::max(loading_stiffness, r.stiffness);
       ++loading_steps;
       continue;
     }
@@ -497,6 +500,7 @@ TEST(JobSimulation, TheHapticForceDropsWithTheReleaseNotWithTheLoadCellFilter) {
       puncture_force = sim.puncture().force;
     }
     EXPECT_EQ(haptic_axial_force(r), r.raw_force);
+    EXPECT_EQ(r.stiffness, scene.puncture.shaft_friction);
     if (r.time >= puncture_time + scene.puncture.drop_time + 0.2e-3) {
       EXPECT_LT(haptic_axial_force(r), 0.3 * puncture_force);
       EXPECT_GT(r.force, 0.6 * puncture_force);
@@ -504,6 +508,7 @@ TEST(JobSimulation, TheHapticForceDropsWithTheReleaseNotWithTheLoadCellFilter) {
     }
   }
   EXPECT_GT(loading_steps, 100);
+  EXPECT_GT(loading_stiffness, 10 * scene.puncture.shaft_friction);  // the membrane's slope
   ASSERT_GT(puncture_time, 0);
   ASSERT_GT(puncture_force, 3e-8);
 }
