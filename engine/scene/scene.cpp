@@ -438,7 +438,8 @@ void read_contact(Reader& root, Scene& scene) {
 
 void read_holding_pipette(Reader& root, Scene& scene) {
   Reader r = root.object("holding_pipette", {"enabled", "mode", "inner_radius", "outer_radius",
-                                             "suction", "friction", "side", "position"});
+                                             "edge_radius", "suction", "friction", "side",
+                                             "position"});
   if (!r.present()) return;
   HoldingPipetteDef& h = scene.holding_pipette;
   h.enabled = true;
@@ -453,6 +454,15 @@ void read_holding_pipette(Reader& root, Scene& scene) {
     r.fail("outer_radius", "must be >= inner_radius (" +
                                format_quantity(h.inner_radius, dim::kLength) + ") or 0");
     return;
+  }
+  if (r.quantity("edge_radius", dim::kLength, &h.edge_radius, Range::non_negative())) {
+    const double outer = h.outer_radius > h.inner_radius ? h.outer_radius : 1.25 * h.inner_radius;
+    if (!(h.edge_radius < 0.5 * (outer - h.inner_radius))) {
+      r.fail("edge_radius", "must be below half the rim's width (" +
+                                format_quantity(0.5 * (outer - h.inner_radius), dim::kLength) +
+                                ")");
+      return;
+    }
   }
   r.quantity("suction", dim::kPressure, &h.suction, Range::non_negative());
   r.number("friction", &h.friction, Range::non_negative());

@@ -273,6 +273,8 @@ struct HoldingPipetteDef {
   HoldingMode mode = HoldingMode::kSuction;
   double inner_radius = 0.0;  ///< inner (aspiration) radius [m]
   double outer_radius = 0.0;  ///< outer radius of the rim [m]; 0: thin rim at inner_radius
+  /// Rounding radius of the mouth's edges [m] (a fire-polished rim); 0: sharp edges.
+  double edge_radius = 0.0;
   double suction = 2.5e3;     ///< suction pressure [Pa]
   double friction = 0.3;      ///< Coulomb friction coefficient rim-cell [-]
   std::optional<Vec3d> side;  ///< unit vector from the cell centre to the pipette; nullopt:

@@ -210,6 +210,7 @@ json scene_to_json(const Scene& scene) {
     holding["mode"] = h.mode == HoldingMode::kSuction ? "suction" : "fixed";
     holding["inner_radius"] = quantity_json(h.inner_radius, kLength);
     holding["outer_radius"] = quantity_json(h.outer_radius, kLength);
+    holding["edge_radius"] = quantity_json(h.edge_radius, kLength);
     holding["suction"] = quantity_json(h.suction, kPressure);
     holding["friction"] = h.friction;
     if (h.side) holding["side"] = direction_json(*h.side);

@@ -93,11 +93,9 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolSdf needle_sdf(Vec3d tip, Vec3d d, double r, bo
   return out;
 }
 
-/// The holding pipette's wall: the tube s >= 0, a <= rho <= b, where s is the distance past the
-/// mouth plane along `axis` (unit, from the cell into the pipette) and rho the distance from
-/// the axis. mouth, x [m]; a, b [m].
-ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double a, double b,
-                                                Vec3d x) {
+/// The sharp-edged wall of holding_sdf.
+ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf_sharp(Vec3d mouth, Vec3d axis, double a,
+                                                      double b, Vec3d x) {
   const Vec3d w = x - mouth;
   const double s = dot(w, axis);
   const Vec3d rv = w - s * axis;
@@ -132,6 +130,19 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double
     out.distance = -to_outer;
     out.normal = radial;
   }
+  return out;
+}
+
+/// The holding pipette's wall: the tube s >= 0, a <= rho <= b, where s is the distance past the
+/// mouth plane along `axis` (unit, from the cell into the pipette) and rho the distance from
+/// the axis, the mouth's two edges rounded with radius `edge` (0: sharp; below (b - a) / 2: a
+/// fire-polished rim). The rounded wall is the sharp one eroded by `edge` and grown back by it;
+/// its section is convex, so its distance is the eroded wall's minus `edge`, exact inside and
+/// out, with the eroded wall's normal. mouth, x [m]; a, b, edge [m].
+ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double a, double b,
+                                                Vec3d x, double edge = 0) {
+  ToolSdf out = holding_sdf_sharp(mouth + edge * axis, axis, a + edge, b - edge, x);
+  out.distance -= edge;
   return out;
 }
 
@@ -174,6 +185,7 @@ struct JobParams {
   Vec3d rim_mouth{0, 0, 0};        ///< [m]
   Vec3d rim_axis{1, 0, 0};         ///< unit, from the cell into the pipette [-]
   double rim_inner_radius = 0, rim_outer_radius = 0;  ///< [m]
+  double rim_edge_radius = 0;      ///< rounding of the mouth's edges [m]
   double rim_pressure_stiffness = 0;  ///< [Pa/m]
   double rim_friction = 0;            ///< [-]
   /// Normal damper of the rim contact as a fraction of each contact point's critical damping
@@ -341,7 +353,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& 
   }
   if (p.has_rim) {
     const ToolSdf sdf =
-        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x);
+        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x,
+                    p.rim_edge_radius);
     if (sdf.distance < 0) {
       out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in.area,
                                       in.x - p.rim_mouth, pose.step, rim_anchor,

@@ -352,7 +352,7 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
     const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
     const Vec3d x = position(v);
     if (p.has_rim && holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius,
-                                 p.rim_outer_radius, x).distance < 0)
+                                 p.rim_outer_radius, x, p.rim_edge_radius).distance < 0)
       marks[v] = 2;
     if (p.has_needle && !p.needle_on_faces && in_needle(x)) marks[v] = 1;
   }

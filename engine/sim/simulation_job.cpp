@@ -95,6 +95,7 @@ Status Simulation::prepare_job() {
     p.rim_axis = holding_->geometry.axis;
     p.rim_inner_radius = holding_->geometry.inner_radius;
     p.rim_outer_radius = holding_->geometry.outer_radius;
+    p.rim_edge_radius = holding_->geometry.edge_radius;
     p.rim_pressure_stiffness = kappa;
     p.rim_friction = holding_->friction;
     p.rim_damping = scene_.contact.rim_damping;

@@ -11,7 +11,8 @@ namespace zona {
 
 ToolDistance holding_distance(const HoldingGeometry& h, Vec3d x) {
   // One distance function for every path: the job's (engine/sim/job.h), host and device.
-  const ToolSdf sdf = holding_sdf(h.mouth, h.axis, h.inner_radius, h.outer_radius, x);
+  const ToolSdf sdf =
+      holding_sdf(h.mouth, h.axis, h.inner_radius, h.outer_radius, x, h.edge_radius);
   return ToolDistance{sdf.distance, sdf.normal};
 }
 
@@ -31,6 +32,11 @@ Result<HoldingSetup> make_holding(const HoldingPipetteDef& def, const ContactSur
   g.axis = axis;
   g.inner_radius = a;
   g.outer_radius = def.outer_radius > a ? def.outer_radius : 1.25 * a;
+  if (!(def.edge_radius >= 0) || !(def.edge_radius < 0.5 * (g.outer_radius - a)))
+    return make_error("holding_pipette: edge_radius %g m must be >= 0 and below half the rim's "
+                      "width (%g m)",
+                      def.edge_radius, 0.5 * (g.outer_radius - a));
+  g.edge_radius = def.edge_radius;
 
   // The mouth: given, or where the circle of radius a meets the rest surface. The cell's extent
   // along the axis comes from a ray cast from the centre (works for file meshes too).

@@ -23,6 +23,9 @@ struct HoldingGeometry {
   Vec3d mouth{0, 0, 0};    ///< centre of the mouth [m]
   double inner_radius = 0; ///< bore radius [m]
   double outer_radius = 0; ///< outer radius of the rim [m] (> inner_radius)
+  /// Rounding radius of the mouth's inner and outer edges [m] (0: sharp; below half the rim's
+  /// width).
+  double edge_radius = 0;
 };
 
 /// Signed distance of `x` [m] from the tube wall and the wall's outward normal there.

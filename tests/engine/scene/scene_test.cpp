@@ -334,6 +334,9 @@ TEST(Scene, InconsistentSectionsAreRefused) {
   j["holding_pipette"] = {{"inner_radius", "40 um"}};
   expect_error(j, "holding_pipette.inner_radius", "smaller than the cell radius");
   j = minimal();
+  j["holding_pipette"] = {{"inner_radius", "8 um"}, {"outer_radius", "12 um"}, {"edge_radius", "2.5 um"}};
+  expect_error(j, "holding_pipette.edge_radius", "below half the rim's width");
+  j = minimal();
   j["boundary"] = json::array({{{"type", "fixed"}, {"where", {{"below", "-20 um"}}}, {"depth", "1 um"}}});
   expect_error(j, "boundary.0.depth", "unknown key");
   j = minimal();

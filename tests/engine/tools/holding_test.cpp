@@ -45,6 +45,58 @@ TEST(Holding, TubeWallDistance) {
   expect_vec(d.normal, Vec3d{0, -1, 0}, 1e-15);
 }
 
+TEST(Holding, RoundedMouthEdges) {
+  // edge_radius 1 on a rim from 2 to 5: the mouth's flat face (rho 3..4), the bore and the outer
+  // wall keep the sharp wall's distance; around each edge the distance is to a quarter circle
+  // of radius 1 centred 1 inside the wall; the normal is the distance's gradient everywhere.
+  HoldingGeometry sharp;
+  sharp.axis = Vec3d{1, 0, 0};
+  sharp.mouth = Vec3d{10, 0, 0};
+  sharp.inner_radius = 2;
+  sharp.outer_radius = 5;
+  HoldingGeometry round = sharp;
+  round.edge_radius = 1;
+  for (const Vec3d& x : {Vec3d{8, 3.5, 0}, Vec3d{12, 0, 1.5}, Vec3d{15, 2.2, 0}, Vec3d{14, 0, -6},
+                         Vec3d{10.3, 0, 3.5}})
+    EXPECT_NEAR(holding_distance(round, x).distance, holding_distance(sharp, x).distance, 1e-12)
+        << x.x << " " << x.y << " " << x.z;
+  // Around the inner edge (centre s = 1, rho = 3) and the outer one (s = 1, rho = 4), outside
+  // and inside the wall.
+  const struct {
+    double s, rho, cs, crho;
+  } corner[] = {{-1.0, 1.0, 1, 3}, {0.2, 2.1, 1, 3}, {0.5, 2.6, 1, 3}, {-0.5, 5.5, 1, 4},
+                {0.4, 4.7, 1, 4}};
+  for (const auto& c : corner) {
+    const Vec3d x{10 + c.s, 0, c.rho};
+    const double expected = std::hypot(c.s - c.cs, c.rho - c.crho) - 1.0;
+    EXPECT_NEAR(holding_distance(round, x).distance, expected, 1e-12) << c.s << " " << c.rho;
+    EXPECT_GT(holding_distance(round, x).distance, holding_distance(sharp, x).distance);
+  }
+  // The normal is the gradient of the distance (central differences) off the axis and the
+  // wall's medial surfaces.
+  const double h = 1e-6;
+  int checked = 0;
+  for (double s = -1.5; s <= 1.5; s += 0.37)
+    for (double rho = 0.7; rho <= 6.0; rho += 0.41) {
+      const Vec3d x{10 + s, 0.3 * rho, 0.954 * rho};
+      const ToolDistance d = holding_distance(round, x);
+      for (int i = 0; i < 3; ++i) {
+        Vec3d xp = x, xm = x;
+        xp[i] += h;
+        xm[i] -= h;
+        const double g =
+            (holding_distance(round, xp).distance - holding_distance(round, xm).distance) / (2 * h);
+        if (std::abs(g - d.normal[i]) > 1e-5) {
+          // Only where the nearest face changes (the medial line inside the wall).
+          EXPECT_LT(d.distance, 0) << s << " " << rho << " axis " << i;
+          continue;
+        }
+        ++checked;
+      }
+    }
+  EXPECT_GT(checked, 300);
+}
+
 struct Ball {
   Mesh mesh;
   ContactSurface surface;
