@@ -367,8 +367,9 @@ std::string element_place(const Simulation& sim, size_t t, Vec3d tip) {
   const Vec3d d = c - tip;
   const double along = dot(d, axis);
   char line[160];
-  std::snprintf(line, sizeof line, " (its centroid %.3g um ahead of the needle tip, %.3g um off "
-                "the needle axis)", along * 1e6, norm(d - along * axis) * 1e6);
+  std::snprintf(line, sizeof line, " (its centroid %.3g um %s the needle tip, %.3g um off the "
+                "needle axis)", std::fabs(along) * 1e6, along >= 0 ? "ahead of" : "behind",
+                norm(d - along * axis) * 1e6);
   return line;
 }
 
