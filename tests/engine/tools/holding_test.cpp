@@ -18,12 +18,18 @@ void expect_vec(Vec3d a, Vec3d b, double tol) {
   EXPECT_NEAR(a.z, b.z, tol);
 }
 
-TEST(Holding, TubeWallDistance) {
+// A tube along +x with its mouth at x = 10, bore 2, rim out to 5.
+HoldingGeometry test_tube() {
   HoldingGeometry h;
   h.axis = Vec3d{1, 0, 0};
   h.mouth = Vec3d{10, 0, 0};
   h.inner_radius = 2;
   h.outer_radius = 5;
+  return h;
+}
+
+TEST(Holding, TubeWallDistance) {
+  const HoldingGeometry h = test_tube();
   // In front of the rim face: distance to the mouth plane, normal back towards the cell.
   ToolDistance d = holding_distance(h, Vec3d{8, 3, 0});
   EXPECT_DOUBLE_EQ(d.distance, 2.0);
@@ -49,11 +55,7 @@ TEST(Holding, RoundedMouthEdges) {
   // edge_radius 1 on a rim from 2 to 5: the mouth's flat face (rho 3..4), the bore and the outer
   // wall keep the sharp wall's distance; around each edge the distance is to a quarter circle
   // of radius 1 centred 1 inside the wall; the normal is the distance's gradient everywhere.
-  HoldingGeometry sharp;
-  sharp.axis = Vec3d{1, 0, 0};
-  sharp.mouth = Vec3d{10, 0, 0};
-  sharp.inner_radius = 2;
-  sharp.outer_radius = 5;
+  const HoldingGeometry sharp = test_tube();
   HoldingGeometry round = sharp;
   round.edge_radius = 1;
   for (const Vec3d& x : {Vec3d{8, 3.5, 0}, Vec3d{12, 0, 1.5}, Vec3d{15, 2.2, 0}, Vec3d{14, 0, -6},
