@@ -248,9 +248,39 @@ __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetSh
   return s.volume * (psi + 0.25f * density);
 }
 
+/// Sums v[0..N-1] over each run of consecutive lanes of the warp holding the same `key` and
+/// returns true on the run's first lane, which then holds the run's total. The tetrahedra are
+/// sorted by (first vertex, second vertex) and their corners by vertex index, so corner 0 of
+/// neighbouring threads is often the same vertex (runs of about six), corner 1 sometimes (about
+/// two): one atomic per run instead of one per corner. Equal keys need not be contiguous
+/// (corner 1 of a later run may repeat an earlier one): each lane sums up to the end of its own
+/// run only, and every run's head adds its run. Every lane of the warp must call it.
+template <class V, int N>
+__device__ __forceinline__ bool warp_run_sum(int key, V (&v)[N]) {
+  constexpr unsigned kAll = 0xffffffffu;
+  const int lane = threadIdx.x & 31;
+  const int previous = __shfl_up_sync(kAll, key, 1);
+  const bool head = lane == 0 || previous != key;
+  // The run of this lane ends before the next head.
+  const unsigned heads = __ballot_sync(kAll, head);
+  const unsigned later = lane == 31 ? 0u : heads & (~0u << (lane + 1));
+  const int end = later ? __ffs(later) - 1 : 32;
+  // After the step with offset d, a lane holds the sum over [lane, min(lane + 2d, end)).
+  for (int d = 1; d < 32; d <<= 1) {
+    V o[N];
+    for (int i = 0; i < N; ++i) o[i] = __shfl_down_sync(kAll, v[i], d);
+    if (lane + d < end)
+      for (int i = 0; i < N; ++i) v[i] += o[i];
+  }
+  return head;
+}
+
 /// Nodal pressure, the step's first pass (TetParams::vertex_q set): V_e / 4 (J_e - 1)
 /// [length_unit^3] of every tetrahedron added to its corners' sums, which the previous step's
-/// vertex kernel zeroed (float atomics: the sums' order, and so their last bits, vary).
+/// vertex kernel zeroed: corners 0 and 1 summed over their warp's runs first (warp_run_sum, as
+/// the element pass; one scalar atomic per corner made this pass, with a tenth of the element
+/// pass's arithmetic, slower than it: 226 against 212 us at 1M vertices, H200). Float atomics:
+/// the sums' order, and so their last bits, vary; the fixed-point sums do not.
 /// Internal linkage: this header is compiled into two translation units.
 static __global__ void __launch_bounds__(kBlock)
     volume_change_kernel(TetParams tp, const double* __restrict__ u64, int substep,
@@ -259,31 +289,40 @@ static __global__ void __launch_bounds__(kBlock)
   allow_next_kernel();
   if (halted(st, substep)) return;
   const int t = blockIdx.x * kBlock + threadIdx.x;
-  if (t >= tp.tet_count) return;
-  const int4 id = tp.vertices[t];
-  float lambda, mu;
-  const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
-  Vec3f du[3];
-  load_relative_displacements(u64, id, du);
-  const float q =
-      0.25f * s.volume * snh_volume_change(tet_displacement_gradient_from_edges(s, du));
+  const bool active = t < tp.tet_count;
+  float q = 0;
+  int v[4] = {-1, -2, -3, -4};  // distinct keys for inactive lanes: they join no run
+  if (active) {
+    const int4 id = tp.vertices[t];
+    float lambda, mu;
+    const TetShape<float> s = load_shape(tp, t, &lambda, &mu);
+    Vec3f du[3];
+    load_relative_displacements(u64, id, du);
+    q = 0.25f * s.volume * snh_volume_change(tet_displacement_gradient_from_edges(s, du));
+    v[0] = id.x;
+    v[1] = id.y;
+    v[2] = id.z;
+    v[3] = id.w;
+  }
   if (tp.vertex_q_fixed) {
     // Integer sums: the same bits in any order. A non-finite q is the element's own non-finite
     // state, which its forces report; it adds nothing here.
-    const unsigned long long qf = fabsf(q) < kFixedLimit
-                                      ? static_cast<unsigned long long>(
-                                            __double2ll_rn(double(q) * kFixedScale))
-                                      : 0ull;
-    atomicAdd(tp.vertex_q_fixed + id.x, qf);
-    atomicAdd(tp.vertex_q_fixed + id.y, qf);
-    atomicAdd(tp.vertex_q_fixed + id.z, qf);
-    atomicAdd(tp.vertex_q_fixed + id.w, qf);
+    const unsigned long long qf =
+        fabsf(q) < kFixedLimit
+            ? static_cast<unsigned long long>(__double2ll_rn(double(q) * kFixedScale))
+            : 0ull;
+    for (int c = 0; c < 4; ++c) {
+      unsigned long long sum[1] = {qf};
+      const bool lead = c < 2 ? warp_run_sum(v[c], sum) : true;
+      if (active && lead) atomicAdd(tp.vertex_q_fixed + v[c], sum[0]);
+    }
     return;
   }
-  atomicAdd(tp.vertex_q + id.x, q);
-  atomicAdd(tp.vertex_q + id.y, q);
-  atomicAdd(tp.vertex_q + id.z, q);
-  atomicAdd(tp.vertex_q + id.w, q);
+  for (int c = 0; c < 4; ++c) {
+    float sum[1] = {q};
+    const bool lead = c < 2 ? warp_run_sum(v[c], sum) : true;
+    if (active && lead) atomicAdd(tp.vertex_q + v[c], sum[0]);
+  }
 }
 
 /// Evaluates device tetrahedron t at displacements u (float64): corner forces [force_unit] and
@@ -351,33 +390,6 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
     }
   }
   return energy;
-}
-
-/// Sums v[0..2] over each run of consecutive lanes of the warp holding the same `key` and
-/// returns true on the run's first lane, which then holds the run's total. The tetrahedra are
-/// sorted by (first vertex, second vertex) and their corners by vertex index, so corner 0 of
-/// neighbouring threads is often the same vertex (runs of about six), corner 1 sometimes (about
-/// two): one atomic per run instead of one per corner. Equal keys need not be contiguous
-/// (corner 1 of a later run may repeat an earlier one): each lane sums up to the end of its own
-/// run only, and every run's head adds its run. Every lane of the warp must call it.
-template <class V>
-__device__ __forceinline__ bool warp_run_sum(int key, V v[3]) {
-  constexpr unsigned kAll = 0xffffffffu;
-  const int lane = threadIdx.x & 31;
-  const int previous = __shfl_up_sync(kAll, key, 1);
-  const bool head = lane == 0 || previous != key;
-  // The run of this lane ends before the next head.
-  const unsigned heads = __ballot_sync(kAll, head);
-  const unsigned later = lane == 31 ? 0u : heads & (~0u << (lane + 1));
-  const int end = later ? __ffs(later) - 1 : 32;
-  // After the step with offset d, a lane holds the sum over [lane, min(lane + 2d, end)).
-  for (int d = 1; d < 32; d <<= 1) {
-    V o[3];
-    for (int i = 0; i < 3; ++i) o[i] = __shfl_down_sync(kAll, v[i], d);
-    if (lane + d < end)
-      for (int i = 0; i < 3; ++i) v[i] += o[i];
-  }
-  return head;
 }
 
 /// Adds a corner force to vertex v: one float4 vector atomic (sm_90), or three scalar ones.
