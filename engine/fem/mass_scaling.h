@@ -32,15 +32,16 @@ struct SelectiveScalingReport {
 /// the critical step, dt = dt_safety * dt_critical and the update coefficients. The model's
 /// mass_scaling becomes the total mass ratio. A model already faster than the target is left
 /// as it is. Errors: target_dt <= 0, dt_safety outside (0, 1]. Call right after build_model.
+/// `threads`: the element measures in ranges side by side (the same result for any count).
 Result<SelectiveScalingReport> apply_selective_mass_scaling(Model& model, double target_dt,
-                                                            double dt_safety);
+                                                            double dt_safety, int threads = 1);
 
 /// The total mass [kg] apply_selective_mass_scaling would give at target_dt (the model is not
 /// changed): each vertex max(m, (target_dt / dt_safety)^2 q) with q its elements' largest
 /// stiffness measure times its lumped volume. `need` caches q per vertex between calls (filled
 /// when empty).
 double selective_scaling_total_mass(const Model& model, double target_dt, double dt_safety,
-                                    std::vector<double>* need);
+                                    std::vector<double>* need, int threads = 1);
 
 /// Each vertex's lumped volume [m^3]: a quarter of every tetrahedron around it, (vertex_count).
 std::vector<double> vertex_lumped_volumes(const Model& model);

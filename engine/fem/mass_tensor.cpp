@@ -2,17 +2,20 @@
 #include "engine/fem/mass_tensor.h"
 
 #include <algorithm>
-#include <thread>
+
+#include "engine/core/parallel.h"
 
 namespace zona {
 
-void compute_tet_shapes(const Mesh& mesh, std::vector<TetShape<double>>& shapes) {
+void compute_tet_shapes(const Mesh& mesh, std::vector<TetShape<double>>& shapes, int threads) {
   shapes.resize(mesh.tet_count());
   const Vec3d* x = mesh.rest_positions.data();
-  for (size_t t = 0; t < mesh.tet_count(); ++t) {
-    const Tet& e = mesh.tets[t];
-    shapes[t] = tet_shape_from_rest(x[e[0]], x[e[1]], x[e[2]], x[e[3]]);
-  }
+  parallel_ranges(mesh.tet_count(), threads, 4096, [&](size_t, size_t begin, size_t end) {
+    for (size_t t = begin; t < end; ++t) {
+      const Tet& e = mesh.tets[t];
+      shapes[t] = tet_shape_from_rest(x[e[0]], x[e[1]], x[e[2]], x[e[3]]);
+    }
+  });
 }
 
 void compute_mass_tensors(const std::vector<TetShape<double>>& shapes,
@@ -34,18 +37,8 @@ void compute_mass_tensors(const std::vector<TetShape<double>>& shapes,
         linear_mass_tensor(shapes[t], l.lambda, l.mu, out);
     }
   };
-  const size_t threads = std::clamp<size_t>(static_cast<size_t>(std::max(thread_count, 1)), 1,
-                                            std::max<size_t>(nt / 256, 1));
-  if (threads == 1) {
-    work(0, nt);
-    return;
-  }
-  std::vector<std::thread> pool;
-  pool.reserve(threads - 1);
-  for (size_t i = 1; i < threads; ++i)
-    pool.emplace_back(work, nt * i / threads, nt * (i + 1) / threads);
-  work(0, nt / threads);
-  for (std::thread& t : pool) t.join();
+  parallel_ranges(nt, thread_count, 256,
+                  [&](size_t, size_t begin, size_t end) { work(begin, end); });
 }
 
 }  // namespace zona

@@ -13,8 +13,9 @@
 namespace zona {
 
 /// Computes the rest geometry of every tetrahedron into `shapes` (resized to tet_count):
-/// four shape gradients [1/m] and the rest volume [m^3], 13 doubles each.
-void compute_tet_shapes(const Mesh& mesh, std::vector<TetShape<double>>& shapes);
+/// four shape gradients [1/m] and the rest volume [m^3], 13 doubles each. `threads`: ranges of
+/// tetrahedra evaluated side by side (the same numbers for any count).
+void compute_tet_shapes(const Mesh& mesh, std::vector<TetShape<double>>& shapes, int threads = 1);
 
 /// Stored mass tensors, one block of `stride` doubles per tetrahedron.
 struct MassTensors {

@@ -8,6 +8,7 @@
 #include <limits>
 #include <type_traits>
 
+#include "engine/core/parallel.h"
 #include "engine/fem/forces_cpu.h"
 #include "engine/fem/mass_scaling.h"
 
@@ -131,7 +132,8 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
           model.tet_material[t] = static_cast<int32_t>(i + 1);
 
   // Rest geometry.
-  compute_tet_shapes(mesh, model.tet_shape);
+  const int threads = desc.precompute_threads;
+  compute_tet_shapes(mesh, model.tet_shape, threads);
   for (size_t t = 0; t < nt; ++t)
     if (!(model.tet_shape[t].volume > 0) || !std::isfinite(model.tet_shape[t].volume))
       return make_error("model: tetrahedron %zu has rest volume %g m^3 (must be > 0; run "
@@ -186,36 +188,55 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   // step (by ~1 % at nu = 0.49): a small margin for deformed elements, whose tangent is no
   // longer the rest one (dt_safety covers the rest, as for SVK's stiffening).
   const bool snh = desc.constitutive == ConstitutiveModel::kStableNeoHookean;
+  // Per range of tetrahedra (parallel_ranges), combined in range order: min and max do not
+  // depend on the split.
+  struct StepBounds {
+    double dt_bound = std::numeric_limits<double>::infinity();
+    double dt_altitude = std::numeric_limits<double>::infinity();
+    double min_altitude = std::numeric_limits<double>::infinity();
+    double max_wave_speed = 0;
+  };
+  std::vector<StepBounds> bounds(parallel_range_count(nt, threads, 4096));
+  parallel_ranges(nt, threads, 4096, [&](size_t range, size_t begin, size_t end) {
+    StepBounds b;
+    for (size_t t = begin; t < end; ++t) {
+      const Tet& e = mesh.tets[t];
+      const TetShape<double>& shape = model.tet_shape[t];
+      const Lame& material_lame = model.tet_lame(t);
+      const Lame lame =
+          snh ? Lame{snh_lambda(material_lame.lambda, material_lame.mu), material_lame.mu}
+              : material_lame;
+      Vec3d p[4];
+      double rho = std::numeric_limits<double>::infinity();
+      for (int c = 0; c < 4; ++c) {
+        p[c] = mesh.rest_positions[e[c]];
+        rho = std::min(rho, mass[e[c]] / lumped_volume[e[c]]);
+      }
+      Mat3d ggt = Mat3d::zero();
+      for (int j = 0; j < 4; ++j) ggt = ggt + outer(shape.grad[j], shape.grad[j]);
+      double eig[3];
+      Mat3d vectors;
+      symmetric_eigen3(ggt, eig, &vectors);
+      const double lambda_max = std::max({eig[0], eig[1], eig[2]});
+      b.dt_bound = std::min(
+          b.dt_bound, std::sqrt(rho / (lame.lambda * trace(ggt) + 2 * lame.mu * lambda_max)));
+      const double h = 3.0 * shape.volume / max_face_area(p);
+      const double cd = dilatational_wave_speed(lame, rho);
+      b.min_altitude = std::min(b.min_altitude, h);
+      b.max_wave_speed = std::max(b.max_wave_speed, cd);
+      b.dt_altitude = std::min(b.dt_altitude, h / cd);
+    }
+    bounds[range] = b;
+  });
   double dt_bound0 = std::numeric_limits<double>::infinity();
   double dt_altitude0 = std::numeric_limits<double>::infinity();
   model.min_altitude = std::numeric_limits<double>::infinity();
   model.max_wave_speed = 0;
-  for (size_t t = 0; t < nt; ++t) {
-    const Tet& e = mesh.tets[t];
-    const TetShape<double>& shape = model.tet_shape[t];
-    const Lame& material_lame = model.tet_lame(t);
-    const Lame lame =
-        snh ? Lame{snh_lambda(material_lame.lambda, material_lame.mu), material_lame.mu}
-            : material_lame;
-    Vec3d p[4];
-    double rho = std::numeric_limits<double>::infinity();
-    for (int c = 0; c < 4; ++c) {
-      p[c] = mesh.rest_positions[e[c]];
-      rho = std::min(rho, mass[e[c]] / lumped_volume[e[c]]);
-    }
-    Mat3d ggt = Mat3d::zero();
-    for (int j = 0; j < 4; ++j) ggt = ggt + outer(shape.grad[j], shape.grad[j]);
-    double eig[3];
-    Mat3d vectors;
-    symmetric_eigen3(ggt, eig, &vectors);
-    const double lambda_max = std::max({eig[0], eig[1], eig[2]});
-    dt_bound0 =
-        std::min(dt_bound0, std::sqrt(rho / (lame.lambda * trace(ggt) + 2 * lame.mu * lambda_max)));
-    const double h = 3.0 * shape.volume / max_face_area(p);
-    const double cd = dilatational_wave_speed(lame, rho);
-    model.min_altitude = std::min(model.min_altitude, h);
-    model.max_wave_speed = std::max(model.max_wave_speed, cd);
-    dt_altitude0 = std::min(dt_altitude0, h / cd);
+  for (const StepBounds& b : bounds) {
+    dt_bound0 = std::min(dt_bound0, b.dt_bound);
+    dt_altitude0 = std::min(dt_altitude0, b.dt_altitude);
+    model.min_altitude = std::min(model.min_altitude, b.min_altitude);
+    model.max_wave_speed = std::max(model.max_wave_speed, b.max_wave_speed);
   }
 
   // Mass scaling: the requested factor, raised if a target step asks for more. A power-iteration
@@ -270,18 +291,20 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   const size_t batches = (nt + 7) / 8;
   auto fill_batches = [&](auto* data, size_t stride) {
     using T = std::remove_pointer_t<decltype(data)>;
-    for (size_t b = 0; b < batches; ++b)
-      for (size_t l = 0; l < 8; ++l) {
-        const size_t t = std::min(8 * b + l, nt - 1);
-        T* out = data + b * stride + l;
-        const TetShape<double>& shape = model.tet_shape[t];
-        for (int j = 1; j < 4; ++j)
-          for (int i = 0; i < 3; ++i)
-            out[8 * (3 * (j - 1) + i)] = static_cast<T>(shape.grad[j][i]);
-        out[8 * 9] = static_cast<T>(shape.volume);
-        out[8 * 10] = static_cast<T>(model.tet_lame(t).lambda);
-        out[8 * 11] = static_cast<T>(model.tet_lame(t).mu);
-      }
+    parallel_ranges(batches, threads, 512, [&](size_t, size_t begin, size_t end) {
+      for (size_t b = begin; b < end; ++b)
+        for (size_t l = 0; l < 8; ++l) {
+          const size_t t = std::min(8 * b + l, nt - 1);
+          T* out = data + b * stride + l;
+          const TetShape<double>& shape = model.tet_shape[t];
+          for (int j = 1; j < 4; ++j)
+            for (int i = 0; i < 3; ++i)
+              out[8 * (3 * (j - 1) + i)] = static_cast<T>(shape.grad[j][i]);
+          out[8 * 9] = static_cast<T>(shape.volume);
+          out[8 * 10] = static_cast<T>(model.tet_lame(t).lambda);
+          out[8 * 11] = static_cast<T>(model.tet_lame(t).mu);
+        }
+    });
   };
   model.cpu_tet_batches.assign(batches * kCpuTetBatchStride, 0.0);
   fill_batches(model.cpu_tet_batches.data(), size_t{kCpuTetBatchStride});
@@ -300,7 +323,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   if (desc.formulation == Formulation::kTensorStored) {
     const auto tensor_start = std::chrono::steady_clock::now();
     compute_mass_tensors(model.tet_shape, model.tet_material, model.material_lame,
-                         model.constitutive, model.tensors, desc.precompute_threads);
+                         model.constitutive, model.tensors, threads);
     model.tensor_precompute_seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - tensor_start).count();
   }

@@ -83,7 +83,8 @@ struct ModelDesc {
   /// Experiments only: accept dt above dt_critical (every step then reports
   /// kStepDtAboveCritical). Used to show the blow-up; never set it in a simulation.
   bool unsafe_allow_dt_above_critical = false;
-  /// Threads used by the precompute (1: serial). Does not change the result.
+  /// Threads of build_model's per-element work (shapes, the critical step, the CPU batches, stored
+  /// tensors; 1: serial). Does not change the result.
   int precompute_threads = 1;
   /// Stable neo-Hookean only: the volumetric term averaged at the vertices (nodal pressure,
   /// after Bonet and Burton 1998; fem_element.h snh_first_piola_nodal) instead of taken per

@@ -10,6 +10,7 @@
 #include <limits>
 #include <set>
 
+#include "engine/core/parallel.h"
 #include "engine/fem/mass_scaling.h"
 #include "engine/scene/scene_mesh.h"
 
@@ -77,6 +78,7 @@ Result<ModelDesc> model_desc_from_scene(const Scene& scene, const Mesh& mesh,
           scene.name.c_str());
   }
   desc.nodal_pressure = scene.nodal_pressure;
+  desc.precompute_threads = setup_thread_count(options.threads);
   desc.inversion = desc.constitutive == ConstitutiveModel::kSvk ? options.inversion
                                                                  : InversionHandling::kReport;
 
@@ -308,6 +310,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     model_ = std::move(*model);
   }
   stage_done("model");
+  const int setup_threads = setup_thread_count(options.threads);
   if (!particles_ && scene.integrator.target_dt &&
       scene.integrator.mass_scaling_mode == MassScalingMode::kSelective) {
     double target = *scene.integrator.target_dt;
@@ -325,7 +328,8 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
       std::vector<double> need;
       auto period = [&](double dt) {
         const double w = holder_swing_omega(
-            model_.materials, bore, selective_scaling_total_mass(model_, dt, safety, &need));
+            model_.materials, bore, selective_scaling_total_mass(model_, dt, safety, &need,
+                                                                setup_threads));
         return w > 0 ? 2.0 * std::numbers::pi / w : 0.0;
       };
       const double at_target = period(target);
@@ -353,7 +357,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
       }
     }
     Result<SelectiveScalingReport> r =
-        apply_selective_mass_scaling(model_, target, scene.integrator.dt_safety);
+        apply_selective_mass_scaling(model_, target, scene.integrator.dt_safety, setup_threads);
     if (!r.ok()) return make_error("%s: %s", name.c_str(), r.error().message.c_str());
     char line[200];
     std::snprintf(line, sizeof line,

@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <numeric>
 
 #include "engine/sim/integrator.h"
 #include "engine/mesh/mesh_generate.h"
@@ -39,6 +41,40 @@ TEST(MassScaling, TotalMassPredictionMatchesTheScaling) {
   Result<SelectiveScalingReport> r = apply_selective_mass_scaling(*m, 2e-6, desc.dt_safety);
   ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_NEAR(predicted, r->mass_after, 1e-9 * r->mass_after);
+}
+
+TEST(MassScaling, ModelAndScalingAreTheSameForAnyThreadCount) {
+  // build_model's per-element work and the scaling's element measures run in ranges side by
+  // side (engine/core/parallel.h): every number equals the serial one's, bit for bit.
+  const Mesh mesh = graded_ball();
+  ASSERT_GT(mesh.tet_count(), 2 * 4096u);  // two ranges at least
+  ModelDesc desc;
+  desc.constitutive = ConstitutiveModel::kStableNeoHookean;
+  desc.nodal_pressure = true;
+  std::vector<Model> models;
+  for (int threads : {1, 4}) {
+    desc.precompute_threads = threads;
+    Result<Model> m = build_model(mesh, desc);
+    ASSERT_TRUE(m.ok()) << m.error().message;
+    std::vector<double> need;
+    const double predicted = selective_scaling_total_mass(*m, 2e-6, desc.dt_safety, &need, threads);
+    ASSERT_TRUE(apply_selective_mass_scaling(*m, 2e-6, desc.dt_safety, threads).ok());
+    const double total = std::accumulate(m->vertex_mass.begin(), m->vertex_mass.end(), 0.0);
+    EXPECT_NEAR(predicted, total, 1e-9 * total);
+    models.push_back(std::move(*m));
+  }
+  const Model& a = models[0];
+  const Model& b = models[1];
+  EXPECT_EQ(a.dt, b.dt);
+  EXPECT_EQ(a.dt_altitude_estimate, b.dt_altitude_estimate);
+  EXPECT_EQ(a.min_altitude, b.min_altitude);
+  EXPECT_EQ(a.max_wave_speed, b.max_wave_speed);
+  EXPECT_EQ(a.vertex_mass, b.vertex_mass);
+  EXPECT_EQ(a.cpu_tet_batches, b.cpu_tet_batches);
+  ASSERT_EQ(a.tet_shape.size(), b.tet_shape.size());
+  EXPECT_EQ(std::memcmp(a.tet_shape.data(), b.tet_shape.data(),
+                        a.tet_shape.size() * sizeof(a.tet_shape[0])),
+            0);
 }
 
 TEST(MassScaling, SelectiveScalingReachesTheTargetWithLessMass) {
