@@ -49,7 +49,7 @@ Status CudaBackend::upload(const Model& model, const State& state) {
         "(atomic or fixed)");
   kind_ = choose_kind(model, form);
 
-  Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder});
+  Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder, 0});
   if (!built) return built.error();
   const DeviceLayout& L = *built;
   nv_ = L.vertex_count();

@@ -3,7 +3,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <numeric>
+
+#include "engine/core/parallel.h"
 
 namespace zona {
 namespace {
@@ -39,6 +42,7 @@ double nearest_power_of_two(double x) {
 }
 
 Result<DeviceLayout> build_device_layout(const Model& model, const DeviceLayoutOptions& options) {
+  const int threads = setup_thread_count(options.threads);
   const size_t nv = model.vertex_count();
   const size_t nt = model.tet_count();
   if (nv == 0 || nt == 0) return make_error("cuda layout: the model has no tetrahedra");
@@ -78,9 +82,13 @@ Result<DeviceLayout> build_device_layout(const Model& model, const DeviceLayoutO
         hi[i] = std::max(hi[i], p[i]);
       }
     std::vector<uint64_t> code(nv);
-    for (size_t v = 0; v < nv; ++v) code[v] = morton_code(model.rest_positions[v], lo, hi);
-    std::sort(out.vertex_new_to_old.begin(), out.vertex_new_to_old.end(),
-              [&](int32_t a, int32_t b) { return code[a] != code[b] ? code[a] < code[b] : a < b; });
+    parallel_ranges(nv, threads, 16384, [&](size_t, size_t begin, size_t end) {
+      for (size_t v = begin; v < end; ++v) code[v] = morton_code(model.rest_positions[v], lo, hi);
+    });
+    parallel_sort(out.vertex_new_to_old.begin(), out.vertex_new_to_old.end(), threads, 16384,
+                  [&](int32_t a, int32_t b) {
+                    return code[a] != code[b] ? code[a] < code[b] : a < b;
+                  });
   }
   out.vertex_old_to_new.resize(nv);
   for (size_t i = 0; i < nv; ++i) out.vertex_old_to_new[out.vertex_new_to_old[i]] = int32_t(i);
@@ -93,19 +101,22 @@ Result<DeviceLayout> build_device_layout(const Model& model, const DeviceLayoutO
   // material (3 bits) | first vertex (28 bits) | second vertex (31 bits); ties by model index.
   std::vector<std::array<int32_t, 4>> corner_order(nt);  // model corner of each device corner
   std::vector<std::pair<uint64_t, int32_t>> key(nt);
-  for (size_t t = 0; t < nt; ++t) {
-    std::array<int32_t, 4>& order = corner_order[t];
-    order = {0, 1, 2, 3};
-    if (options.reorder)
-      std::sort(order.begin(), order.end(), [&](int32_t a, int32_t b) {
-        return out.vertex_old_to_new[model.tets[t][a]] < out.vertex_old_to_new[model.tets[t][b]];
-      });
-    const uint64_t v0 = options.reorder ? out.vertex_old_to_new[model.tets[t][order[0]]] : 0;
-    const uint64_t v1 = options.reorder ? out.vertex_old_to_new[model.tets[t][order[1]]] : 0;
-    key[t] = {static_cast<uint64_t>(model.tet_material[t]) << 59 | v0 << 31 | v1,
-              static_cast<int32_t>(t)};
-  }
-  std::sort(key.begin(), key.end());
+  parallel_ranges(nt, threads, 16384, [&](size_t, size_t begin, size_t end) {
+    for (size_t t = begin; t < end; ++t) {
+      std::array<int32_t, 4>& order = corner_order[t];
+      order = {0, 1, 2, 3};
+      if (options.reorder)
+        std::sort(order.begin(), order.end(), [&](int32_t a, int32_t b) {
+          return out.vertex_old_to_new[model.tets[t][a]] < out.vertex_old_to_new[model.tets[t][b]];
+        });
+      const uint64_t v0 = options.reorder ? out.vertex_old_to_new[model.tets[t][order[0]]] : 0;
+      const uint64_t v1 = options.reorder ? out.vertex_old_to_new[model.tets[t][order[1]]] : 0;
+      key[t] = {static_cast<uint64_t>(model.tet_material[t]) << 59 | v0 << 31 | v1,
+                static_cast<int32_t>(t)};
+    }
+  });
+  // The model index in each key: no two keys are equal.
+  parallel_sort(key.begin(), key.end(), threads, 16384, std::less<>());
   out.tet_new_to_old.resize(nt);
   for (size_t i = 0; i < nt; ++i) out.tet_new_to_old[i] = key[i].second;
 
@@ -124,18 +135,20 @@ Result<DeviceLayout> build_device_layout(const Model& model, const DeviceLayoutO
   out.tet_shape_a.resize(nt);
   out.tet_shape_b.resize(nt);
   out.tet_shape_c.resize(nt);
-  for (size_t i = 0; i < nt; ++i) {
-    const size_t t = static_cast<size_t>(out.tet_new_to_old[i]);
-    const std::array<int32_t, 4>& order = corner_order[t];
-    for (int c = 0; c < 4; ++c)
-      out.tet_vertices[i][c] = out.vertex_old_to_new[model.tets[t][order[c]]];
-    const TetShape<double>& s = model.tet_shape[t];
-    // Gradient k of device corner j: the model corner it came from.
-    auto g = [&](int j, int k) { return static_cast<float>(s.grad[order[j]][k] * lu); };
-    out.tet_shape_a[i] = {g(1, 0), g(1, 1), g(1, 2), g(2, 0)};
-    out.tet_shape_b[i] = {g(2, 1), g(2, 2), g(3, 0), g(3, 1)};
-    out.tet_shape_c[i] = {g(3, 2), static_cast<float>(s.volume / (lu * lu * lu))};
-  }
+  parallel_ranges(nt, threads, 16384, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      const size_t t = static_cast<size_t>(out.tet_new_to_old[i]);
+      const std::array<int32_t, 4>& order = corner_order[t];
+      for (int c = 0; c < 4; ++c)
+        out.tet_vertices[i][c] = out.vertex_old_to_new[model.tets[t][order[c]]];
+      const TetShape<double>& s = model.tet_shape[t];
+      // Gradient k of device corner j: the model corner it came from.
+      auto g = [&](int j, int k) { return static_cast<float>(s.grad[order[j]][k] * lu); };
+      out.tet_shape_a[i] = {g(1, 0), g(1, 1), g(1, 2), g(2, 0)};
+      out.tet_shape_b[i] = {g(2, 1), g(2, 2), g(3, 0), g(3, 1)};
+      out.tet_shape_c[i] = {g(3, 2), static_cast<float>(s.volume / (lu * lu * lu))};
+    }
+  });
 
   // Vertices: update coefficients and masses in device order.
   out.vertex_update.resize(nv);

@@ -24,6 +24,9 @@ struct DeviceLayoutOptions {
   /// the caches and warp aggregation finds runs. Off keeps the model's numbering and corner
   /// order (the tetrahedra are still grouped by material).
   bool reorder = true;
+  /// Threads for the build (engine/core/parallel.h; 0: the hardware's count). The layout is the
+  /// same for any count.
+  int threads = 1;
 };
 
 /// Per-vertex update coefficients, in the device's order: u+ = u + b (u - u-) + c f, with f in

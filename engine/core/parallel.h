@@ -42,4 +42,29 @@ size_t parallel_ranges(size_t n, int threads, size_t min_per_range, const F& wor
   return ranges;
 }
 
+/// Sorts [first, last) by `comp`: ranges sorted side by side, then merged pairwise, the pairs
+/// of each level side by side. With a strict total order on the elements (no two equivalent),
+/// the result is the one sorted sequence, whatever the thread count.
+template <class It, class Compare>
+void parallel_sort(It first, It last, int threads, size_t min_per_range, Compare comp) {
+  const size_t n = static_cast<size_t>(last - first);
+  const size_t ranges = parallel_range_count(n, threads, min_per_range);
+  parallel_ranges(n, threads, min_per_range, [&](size_t, size_t begin, size_t end) {
+    std::sort(first + static_cast<std::ptrdiff_t>(begin), first + static_cast<std::ptrdiff_t>(end),
+              comp);
+  });
+  auto bound = [&](size_t r) { return first + static_cast<std::ptrdiff_t>(n * r / ranges); };
+  for (size_t width = 1; width < ranges; width *= 2) {
+    const size_t pairs = (ranges + 2 * width - 1) / (2 * width);
+    parallel_ranges(pairs, threads, 1, [&](size_t, size_t begin, size_t end) {
+      for (size_t p = begin; p < end; ++p) {
+        const size_t i = 2 * width * p;
+        if (i + width < ranges)
+          std::inplace_merge(bound(i), bound(i + width), bound(std::min(i + 2 * width, ranges)),
+                             comp);
+      }
+    });
+  }
+}
+
 }  // namespace zona

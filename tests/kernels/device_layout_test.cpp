@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <numeric>
 #include <random>
 
@@ -76,6 +77,25 @@ TEST(DeviceLayout, RenumberingIsAPermutationAndKeepsTheElements) {
     EXPECT_TRUE(std::is_sorted(l->tet_vertices[i].begin(), l->tet_vertices[i].end()));
   }
   for (int32_t s : seen) EXPECT_EQ(s, 1);
+}
+
+TEST(DeviceLayout, IsTheSameForAnyThreadCount) {
+  // 35,937 vertices and 196,608 tetrahedra: several ranges of every parallel part.
+  const Model model = model_of(shuffled_box(32));
+  Result<DeviceLayout> one = build_device_layout(model, DeviceLayoutOptions{true, 1});
+  Result<DeviceLayout> four = build_device_layout(model, DeviceLayoutOptions{true, 4});
+  ASSERT_TRUE(one.ok() && four.ok());
+  EXPECT_EQ(one->vertex_new_to_old, four->vertex_new_to_old);
+  EXPECT_EQ(one->tet_new_to_old, four->tet_new_to_old);
+  EXPECT_EQ(one->tet_vertices, four->tet_vertices);
+  ASSERT_EQ(one->tet_shape_a.size(), four->tet_shape_a.size());
+  EXPECT_EQ(std::memcmp(one->tet_shape_a.data(), four->tet_shape_a.data(),
+                        one->tet_shape_a.size() * sizeof(one->tet_shape_a[0])),
+            0);
+  EXPECT_EQ(std::memcmp(one->tet_shape_c.data(), four->tet_shape_c.data(),
+                        one->tet_shape_c.size() * sizeof(one->tet_shape_c[0])),
+            0);
+  EXPECT_EQ(one->gather_entries, four->gather_entries);
 }
 
 TEST(DeviceLayout, MortonOrderBringsNeighboursTogether) {
