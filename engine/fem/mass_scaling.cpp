@@ -10,10 +10,7 @@
 #include "engine/fem/fem_element.h"
 
 namespace zona {
-namespace {
 
-// Element stiffness measure of the eigenvalue bound: lambda sum_j |g_j|^2 + 2 mu
-// lambda_max(sum_j g_j g_j^T) [Pa/m^2]; the element is stable for dt <= sqrt(rho_e / S_e).
 double element_stiffness_measure(const TetShape<double>& shape, const Lame& lame) {
   Mat3d ggt = Mat3d::zero();
   for (int j = 0; j < 4; ++j) ggt = ggt + outer(shape.grad[j], shape.grad[j]);
@@ -22,6 +19,8 @@ double element_stiffness_measure(const TetShape<double>& shape, const Lame& lame
   symmetric_eigen3(ggt, eig, &vectors);
   return lame.lambda * trace(ggt) + 2.0 * lame.mu * std::max({eig[0], eig[1], eig[2]});
 }
+
+namespace {
 
 // element_stiffness_measure of every tetrahedron, in ranges side by side (parallel.h).
 std::vector<double> element_stiffness_measures(const Model& model, int threads) {

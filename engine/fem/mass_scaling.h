@@ -17,6 +17,11 @@
 
 namespace zona {
 
+/// Element stiffness measure of the eigenvalue bound: lambda sum_j |g_j|^2 + 2 mu
+/// lambda_max(sum_j g_j g_j^T) [Pa/m^2]; the element is stable for dt <= sqrt(rho_e / S_e), rho_e
+/// its corners' smallest mass per lumped volume (build_model's critical step, the scaling here).
+double element_stiffness_measure(const TetShape<double>& shape, const Lame& lame);
+
 /// What selective scaling did.
 struct SelectiveScalingReport {
   double mass_before = 0;      ///< total mass before [kg]

@@ -212,14 +212,8 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
         p[c] = mesh.rest_positions[e[c]];
         rho = std::min(rho, mass[e[c]] / lumped_volume[e[c]]);
       }
-      Mat3d ggt = Mat3d::zero();
-      for (int j = 0; j < 4; ++j) ggt = ggt + outer(shape.grad[j], shape.grad[j]);
-      double eig[3];
-      Mat3d vectors;
-      symmetric_eigen3(ggt, eig, &vectors);
-      const double lambda_max = std::max({eig[0], eig[1], eig[2]});
-      b.dt_bound = std::min(
-          b.dt_bound, std::sqrt(rho / (lame.lambda * trace(ggt) + 2 * lame.mu * lambda_max)));
+      b.dt_bound =
+          std::min(b.dt_bound, std::sqrt(rho / element_stiffness_measure(shape, lame)));
       const double h = 3.0 * shape.volume / max_face_area(p);
       const double cd = dilatational_wave_speed(lame, rho);
       b.min_altitude = std::min(b.min_altitude, h);
