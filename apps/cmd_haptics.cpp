@@ -12,6 +12,7 @@
 
 #include "apps/commands.h"
 #include "engine/haptics/haptics_loop.h"
+#include "engine/haptics/haptics_sim_port.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/recorder.h"
 #include "engine/sim/simulation.h"
@@ -38,82 +39,6 @@ struct HapticsArgs {
   bool lateral_force = false;     // also render the (low-passed) lateral contact force
   bool allow_remote_bridge = false;  // --device network may bind a non-loopback address
   double stiffness_window = 0.5e-6;  // travel over which the local stiffness is taken [m]
-};
-
-// The Simulation behind the session's port: the commanded tip goes in between step1 and step2
-// (rate-limited, see below), the needle report comes out as the haptic sample.
-//
-// The published force is the needle's load-cell reading until the puncture: the axial force
-// low-passed by needle.force_filter (Simulation's report.force), along the axis; from the
-// puncture on, the raw released load (haptic_axial_force says why). The raw contact reaction
-// jitters from step to step when the tip is moved by a hand (up to 0.5 N at the hand on the
-// mouse scene), and a force that jitters independently of the hand's motion is an active
-// source: the passivity observer sees it as energy generated (docs/haptics.md). The lateral
-// part is rendered only on request, through the same filter: it is numerical noise on the
-// axisymmetric injection, and across the axis there is no local stiffness to render it with.
-class SimulationPortAdapter final : public HapticSimulationPort {
- public:
-  SimulationPortAdapter(Simulation& sim, double max_tip_speed, bool lateral_force)
-      : sim_(sim), max_tip_speed_(max_tip_speed), lateral_force_(lateral_force),
-        tip_(sim.needle_script().start) {}
-
-  bool step(const ToolCommand* command, HapticSample& sample) override {
-    if (sim_.finished()) return false;
-    sim_.step1();
-    if (command) {
-      // The explicit solver advances dt of simulated time per step, far less than the wall
-      // time between haptic ticks; the tip follows the command at most at max_tip_speed (the
-      // coupling spring renders the lag rather than the solver taking a jump it cannot
-      // resolve).
-      const Vec3d delta = command->tool - tip_;
-      const double len = norm(delta);
-      const double max_step = max_tip_speed_ * sim_.model().dt;
-      tip_ = len > max_step ? tip_ + (max_step / len) * delta : command->tool;
-      sim_.set_needle_tip(tip_);
-    }
-    const StepStatus status = sim_.step2();
-    if (status & kStepFailed) return false;  // never sent: the device keeps the last healthy one
-    const NeedleReport& r = sim_.report();
-    const Vec3d axis = sim_.needle_script().direction;
-    sample.sim_time = r.time;
-    // The cell's force on the needle: resistance along -axis (haptic_axial_force is resistance
-    // positive; filtered until the puncture, raw after it), plus the filtered lateral reaction
-    // when asked for.
-    sample.force = -haptic_axial_force(r) * axis;
-    if (lateral_force_) {
-      const Vec3d raw = -r.force_vector;
-      const Vec3d lateral = raw - dot(raw, axis) * axis;
-      const double tau = sim_.scene().needle.force_filter;
-      const double h = r.time - lateral_time_;
-      // The same first-order low-pass as the axial force (exact for a held input).
-      const double w = tau > 0 && lateral_started_ ? 1.0 - std::exp(-h / tau) : 1.0;
-      lateral_ = lateral_ + w * (lateral - lateral_);
-      lateral_started_ = true;
-      lateral_time_ = r.time;
-      sample.force += lateral_;
-    }
-    sample.stiffness = r.stiffness;
-    sample.axis = axis;
-    sample.tool = r.tip;
-    sample.punctured = r.punctured;
-    if (r.punctured && puncture_wall_ns_ < 0) puncture_wall_ns_ = haptic_clock_ns();
-    ++steps_;
-    return true;
-  }
-
-  int64_t steps() const { return steps_; }
-  int64_t puncture_wall_ns() const { return puncture_wall_ns_; }
-
- private:
-  Simulation& sim_;
-  double max_tip_speed_;
-  bool lateral_force_;
-  Vec3d tip_;
-  Vec3d lateral_{0, 0, 0};  // low-passed lateral force [N]
-  double lateral_time_ = 0;
-  bool lateral_started_ = false;
-  int64_t steps_ = 0;
-  int64_t puncture_wall_ns_ = -1;
 };
 
 Result<std::unique_ptr<HapticDevice>> make_device(const HapticsArgs& a, const Scene& scene,
@@ -237,7 +162,7 @@ void run_haptics(const HapticsArgs& a) {
   lo.try_realtime = !a.no_realtime;
   lo.keep_log = !a.log.empty();
   HapticLoop loop(**device, renderer, channel, lo);
-  SimulationPortAdapter port(**sim, max_tip_speed, a.lateral_force);
+  SimulationHapticPort port(**sim, max_tip_speed, a.lateral_force);
   const HapticLoopStats s = run_haptic_session(port, loop, channel);
 
   if (!a.log.empty()) {
@@ -246,17 +171,9 @@ void run_haptics(const HapticsArgs& a) {
   }
   const NeedleReport& r = (*sim)->report();
   // A simulation that failed its health check (blow-up, non-finite, the needle through the
-  // surface) stopped there: the loop kept rendering its last healthy sample. Say so.
-  const bool sim_failed = (r.status & kStepFailed) != 0;
-  if (sim_failed) {
-    std::string why;
-    for (const std::string& name : step_flag_names(r.status & kStepFailed))
-      why += (why.empty() ? "" : ", ") + name;
-    std::fprintf(stderr,
-                 "zona haptics: the simulation stopped at t %.6g s (step %lld): %s; the device "
-                 "was sent its last healthy sample from then on\n",
-                 r.time, static_cast<long long>(port.steps()), why.c_str());
-  }
+  // surface) ended the session: the force was ramped to zero first. The measurements and the
+  // log are still written; the exit code says it failed.
+  const bool sim_failed = s.simulation_failed;
   const double puncture_s =
       port.puncture_wall_ns() < 0
           ? -1.0
@@ -292,6 +209,7 @@ void run_haptics(const HapticsArgs& a) {
     j["llewellyn_margin_Ns_per_m"] = llewellyn_margin(*gains, (*device)->info().impedance, period);
     j["sim_steps"] = port.steps();
     j["sim_failed"] = sim_failed;
+    if (sim_failed) j["sim_failure"] = port.failure();
     j["sim_samples_received"] = s.samples_received;
     j["sim_time_s"] = r.time;
     j["needle_travel_m"] = r.travel;
@@ -321,6 +239,9 @@ void run_haptics(const HapticsArgs& a) {
     if (felt_delay_ms >= 0) std::printf(", drop felt %.1f ms after the simulation", felt_delay_ms);
     std::printf("\n");
   }
+  if (sim_failed)
+    fail(scene.name + ": " + port.failure() +
+         "; the device force was ramped to zero and the session stopped");
 }
 
 }  // namespace

@@ -92,6 +92,8 @@ void HapticLoop::run() {
     // 2. Device -> renderer -> device.
     if (estop_.load(std::memory_order_relaxed) && !renderer_.safety().stopped())
       renderer_.safety().emergency_stop();
+    const bool failed = sim_failed_.load(std::memory_order_relaxed);
+    if (failed && !renderer_.safety().shutting_down()) renderer_.safety().shut_down();
     const DeviceState state = device_.update(t);
     const HapticOutput out = renderer_.tick(state.position, state.velocity, t);
     device_.command(out.force, t);
@@ -126,6 +128,11 @@ void HapticLoop::run() {
       k += skip;
     }
     ++k;
+    // A failed simulation ends the session once the ramp has brought the force to zero.
+    if (failed && norm(out.force) == 0.0) {
+      stats_.simulation_failed = true;
+      break;
+    }
   }
   const double elapsed = static_cast<double>(haptic_clock_ns() - epoch_ns_) * 1e-9;
   stats_.rate_hz = elapsed > 0 ? static_cast<double>(stats_.ticks) / elapsed : 0;
@@ -177,8 +184,12 @@ HapticLoopStats run_haptic_session(HapticSimulationPort& simulation, HapticLoop&
     ToolCommand command;
     channel.commands.read(command);
     HapticSample sample;
-    if (!simulation.step(command.sequence > 0 ? &command : nullptr, sample)) {
-      // Finished or failed: stop publishing; the haptic thread fades the force out (stall).
+    const HapticPortStatus status =
+        simulation.step(command.sequence > 0 ? &command : nullptr, sample);
+    if (status != HapticPortStatus::kStepped) {
+      // Finished: stop publishing; the haptic thread fades the force out (stall) and runs on.
+      // Failed: it ramps the force to zero and ends the session.
+      if (status == HapticPortStatus::kFailed) loop.simulation_failed();
       while (!done.load(std::memory_order_acquire))
         std::this_thread::sleep_for(std::chrono::milliseconds(1));
       break;

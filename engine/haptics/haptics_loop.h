@@ -44,6 +44,8 @@ struct HapticLoopStats {
   int64_t samples_received = 0;   ///< fresh simulation samples taken
   bool realtime = false;          ///< SCHED_FIFO was granted
   bool log_full = false;          ///< the log's capacity ran out (rows after it were dropped)
+  /// The simulation failed: the force was ramped to zero and the loop ended before `duration`.
+  bool simulation_failed = false;
   Vec3d passivity_axis_energy{0, 0, 0};  ///< observed energy per device axis at the end [J]
   double passivity_dissipated = 0;  ///< energy the passivity controller dissipated [J]
   double passivity_clipped = 0;     ///< energy its bound kept from the hand [J]
@@ -65,15 +67,22 @@ struct HapticLoopOptions {
   bool keep_log = true;           ///< store one HapticLogRow per tick (sized up front)
 };
 
-/// The simulation side of a session, adapted by the caller (the CLI wraps a Simulation): one
-/// call advances it by one step with the newest commanded tool pose and returns the sample to
-/// publish. Called from the simulation thread only.
+/// What one step of a HapticSimulationPort did.
+enum class HapticPortStatus {
+  kStepped,   ///< stepped: publish the sample
+  kFinished,  ///< reached its end: nothing more to publish; the loop runs on (stall fade)
+  kFailed,    ///< failed its health check: the session ramps the force to zero and stops
+};
+
+/// The simulation side of a session, adapted by the caller (engine/haptics/haptics_sim_port.h
+/// wraps a Simulation): one call advances it by one step with the newest commanded tool pose
+/// and returns the sample to publish. Called from the simulation thread only.
 class HapticSimulationPort {
  public:
   virtual ~HapticSimulationPort() = default;
-  /// One step. `command` is null until the haptic thread has commanded a pose. Returns false
-  /// when the simulation cannot go on (finished, failed); `sample` is then not published.
-  virtual bool step(const ToolCommand* command, HapticSample& sample) = 0;
+  /// One step. `command` is null until the haptic thread has commanded a pose. `sample` is
+  /// published only when kStepped is returned.
+  virtual HapticPortStatus step(const ToolCommand* command, HapticSample& sample) = 0;
 };
 
 /// The haptic thread's loop. run() blocks the calling thread for `duration`; stop() (from any
@@ -88,6 +97,9 @@ class HapticLoop {
   void stop() { stop_.store(true, std::memory_order_relaxed); }
   /// Latches the emergency stop: zero force from the next tick on (the loop keeps running).
   void emergency_stop() { estop_.store(true, std::memory_order_relaxed); }
+  /// The simulation failed (from any thread): the force ramps to zero over the renderer's
+  /// fade_time, and run() returns once a zero force has been sent (stats().simulation_failed).
+  void simulation_failed() { sim_failed_.store(true, std::memory_order_relaxed); }
 
   /// Steady-clock time [ns] that the loop's clock counts from (set when run() starts).
   int64_t epoch_ns() const { return epoch_ns_; }
@@ -101,6 +113,7 @@ class HapticLoop {
   HapticLoopOptions options_;
   std::atomic<bool> stop_{false};
   std::atomic<bool> estop_{false};
+  std::atomic<bool> sim_failed_{false};
   int64_t epoch_ns_ = 0;
   HapticLoopStats stats_;
   std::vector<HapticLogRow> log_;

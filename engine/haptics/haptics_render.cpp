@@ -67,7 +67,7 @@ Vec3d HapticSafety::apply(Vec3d force, double sample_age, double period, double 
   const bool stalled = sample_age < 0 || sample_age > stall_timeout;
   if (stalled) ++stalled_ticks_;
   const double step = fade_time > 0 ? period / fade_time : 1.0;
-  gain_ = std::clamp(gain_ + (stalled ? -step : step), 0.0, 1.0);
+  gain_ = std::clamp(gain_ + (stalled || shutting_down_ ? -step : step), 0.0, 1.0);
   force = gain_ * force;
   // Clamp the magnitude to the device limit, keeping the direction.
   const double magnitude = norm(force);

@@ -92,6 +92,10 @@ class HapticSafety {
   /// Releases the emergency stop; the force then fades back in.
   void release() { stopped_ = false; gain_ = 0; }
   bool stopped() const { return stopped_; }
+  /// Latches a shut-down: from the next apply() on the gain only falls, by period / fade_time
+  /// a tick, to zero, and stays there (a failed simulation: no jolt, and nothing fades back).
+  void shut_down() { shutting_down_ = true; }
+  bool shutting_down() const { return shutting_down_; }
   /// Current fade gain in [0, 1].
   double gain() const { return gain_; }
   int64_t nan_ticks() const { return nan_ticks_; }
@@ -102,6 +106,7 @@ class HapticSafety {
   Vec3d last_good_{0, 0, 0};
   double gain_ = 0;  // starts faded out: the force fades in with the first fresh samples
   bool stopped_ = false;
+  bool shutting_down_ = false;
   int64_t nan_ticks_ = 0, clamped_ticks_ = 0, stalled_ticks_ = 0;
 };
 

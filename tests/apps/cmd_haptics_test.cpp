@@ -179,6 +179,33 @@ TEST(CmdHaptics, ReplaysRecordedSession) {
   EXPECT_NEAR(row[1], rec.front()[1] + 0.02 * row[0], 1e-6);
 }
 
+TEST(CmdHaptics, FailedSimulationStopsTheSessionWithZeroForce) {
+  // A hand driving the tip at 1 m/s (10^4 times the insertion speed) blows the cell up within
+  // a few steps: the session ramps the device force to zero, stops long before its 30 s, and
+  // exits non-zero with the step and the reason; the log and the JSON are still written.
+  TempDir dir;
+  const fs::path scene = write_scene(dir);
+  const fs::path log = dir.path / "failed.csv";
+  const CliRun r = run_zona("haptics " + scene.string() +
+                                " --device scripted --duration 30 --hand-speed 1 --no-realtime "
+                                "--set haptics.max_tip_speed=1m/s --json --log " +
+                                log.string(),
+                            dir.path);
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_EQ(count_lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("the simulation failed at step"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("ramped to zero"), std::string::npos) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  EXPECT_TRUE(j["sim_failed"].get<bool>());
+  EXPECT_LT(j["ticks"].get<int64_t>(), 30000);
+  std::string header;
+  const auto rows = read_rows(log, header);
+  ASSERT_FALSE(rows.empty());
+  EXPECT_EQ(rows.back()[4], 0.0);
+  EXPECT_EQ(rows.back()[5], 0.0);
+  EXPECT_EQ(rows.back()[6], 0.0);
+}
+
 TEST(CmdHaptics, EmulatedHandRunIsPassive) {
   TempDir dir;
   const fs::path scene = write_scene(dir);

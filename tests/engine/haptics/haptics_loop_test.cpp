@@ -120,16 +120,18 @@ class MembranePort final : public HapticSimulationPort {
   MembranePort(double puncture_depth = 45e-6, int step_ms = 5) : step_ms_(step_ms) {
     membrane_.puncture_depth = puncture_depth;
   }
-  bool step(const ToolCommand* command, HapticSample& sample) override {
+  HapticPortStatus step(const ToolCommand* command, HapticSample& sample) override {
     // A slow simulation: about 200 steps per second of wall time (step_ms = 5).
     std::this_thread::sleep_for(std::chrono::milliseconds(step_ms_));
     const Vec3d tool = command ? command->tool : Vec3d{-5e-6, 0, 0};
     sample = membrane_.at(tool);
     sample.sim_time = static_cast<double>(++steps_) * 1e-4;
-    return steps_ < stop_after_;
+    if (steps_ < stop_after_) return HapticPortStatus::kStepped;
+    return fail_at_stop_ ? HapticPortStatus::kFailed : HapticPortStatus::kFinished;
   }
   int64_t steps_ = 0;
   int64_t stop_after_ = 1 << 30;
+  bool fail_at_stop_ = false;  // the last step fails instead of finishing
 
  private:
   int step_ms_;
@@ -235,6 +237,46 @@ TEST(HapticsLoop, StalledSimulationFadesForceOut) {
   EXPECT_GT(s.stalled_ticks, 0) << why;
   EXPECT_EQ(norm(loop.log().back().force), 0.0) << why;  // faded to zero by the end
   EXPECT_GT(s.max_force, 0.0) << why;                    // it was felt before the stall
+}
+
+
+TEST(HapticsLoop, FailedSimulationRampsTheForceToZeroAndEndsTheSession) {
+  // The simulation fails after a few steps: the loop ramps the force down over fade_time
+  // (no jolt) and returns long before its duration, with zero force sent last. The stall fade
+  // is pushed out of reach so that it is the failure that ends the force.
+  HapticRenderConfig c = mouse_config(HapticInterpolation::kStiffness);
+  c.stall_timeout = 10.0;
+  c.fade_time = 0.02;
+  HapticRenderer r(c);
+  EmulatedHandDef hand = operator_hand();
+  hand.home = {0.004, 0, 0};  // already pressing into the membrane
+  hand.speed = 0;
+  auto device = make_emulated_device(device_profile("touch").value(), hand);
+  HapticChannel channel;
+  HapticLoopOptions options;
+  options.duration = 5.0;
+  options.try_realtime = false;
+  HapticLoop loop(*device, r, channel, options);
+  MembranePort port;
+  port.stop_after_ = 8;
+  port.fail_at_stop_ = true;
+  const HapticLoopStats s = run_haptic_session(port, loop, channel);
+  const std::string why = "ticks " + std::to_string(s.ticks) + ", missed deadlines " +
+                          std::to_string(s.missed_deadlines) + ", samples " +
+                          std::to_string(s.samples_received);
+  EXPECT_TRUE(s.simulation_failed) << why;
+  ASSERT_FALSE(loop.log().empty());
+  EXPECT_EQ(norm(loop.log().back().force), 0.0) << why;
+  EXPECT_GT(s.max_force, 0.0) << why;  // it was felt before the failure
+  // Ended by the failure, not by the duration (5000 ticks); the stall fade is out of reach.
+  EXPECT_LT(s.ticks + s.missed_deadlines, 4000) << why;
+  // A ramp, not a cut: the last non-zero force sent is a small part of what was felt (the
+  // 20-tick ramp's last step is 1/20 of the held force).
+  size_t last = 0;
+  for (size_t i = 0; i < loop.log().size(); ++i)
+    if (norm(loop.log()[i].force) > 0) last = i;
+  ASSERT_GT(last, 0u) << why;
+  EXPECT_LT(norm(loop.log()[last].force), 0.2 * s.max_force) << why;
 }
 
 }  // namespace
