@@ -121,6 +121,8 @@ void run_haptics(const HapticsArgs& a) {
 
   auto kind = parse_backend_kind(a.backend);
   if (!kind) return fail("--backend: " + kind.error().message);
+  // A hand-driven session is dynamics: measured, never held to the quasi-static check.
+  scene.experiment = Experiment::kDynamic;
   // The hand moves the needle: the simulation runs as long as the session, not to the end of
   // the scene's scripted insertion.
   if (!(scene.integrator.duration > 0)) scene.integrator.duration = 3600.0;

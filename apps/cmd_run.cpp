@@ -127,7 +127,9 @@ Result<PlotSeries> read_curve(const std::string& spec, uint32_t rgb) {
   std::ifstream in(path);
   if (!in) return make_error("--compare: cannot open %s", path.c_str());
   std::string line;
-  std::getline(in, line);
+  // The header: the first line that is not a '#' comment (zona's schema line).
+  while (std::getline(in, line) && !line.empty() && line[0] == '#') {
+  }
   std::vector<std::string> columns;
   for (size_t start = 0; start <= line.size();) {
     const size_t comma = std::min(line.find(',', start), line.size());
@@ -307,6 +309,11 @@ void run_command(const RunArgs& args) {
       if (Status s = csv->append(sample); !s) csv_error = s.error().message;
   };
   options.stop = &g_stop_requested;
+  // The quasi-static check's warning, when it happens (on its own line past the progress line).
+  options.warning = [&](const std::string& line) {
+    if (!args.quiet && isatty(STDERR_FILENO) == 1) std::fprintf(stderr, "\n");
+    std::fprintf(stderr, "zona run: warning: %s\n", line.c_str());
+  };
 
   RunResult run;
   {
@@ -357,6 +364,18 @@ void run_command(const RunArgs& args) {
   std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
               frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
   if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
+  if (run.quasi_limits.enforce && !run.quasi_static()) {
+    char line[400];
+    std::snprintf(line, sizeof line,
+                  "the run was not quasi-static (%lld steps failed the check from %.3g um of "
+                  "deformation; worst imbalance %.3g, limit %.3g): its curve is not the cell's "
+                  "equilibrium and no puncture was taken from those states (summary.json: "
+                  "quasi_static)",
+                  static_cast<long long>(run.quasi.failed_steps),
+                  run.quasi.first_failed_deformation * 1e6, run.quasi.worst_imbalance,
+                  run.quasi_limits.max_imbalance);
+    return fail(line);
+  }
   // A signal: the run ended at the step it arrived (or, arriving after the last step's check,
   // at its end); the exit status is the shell's 128 + signal either way.
   if (const int sig = g_stop_signal; sig != 0) {

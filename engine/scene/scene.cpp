@@ -511,6 +511,21 @@ void read_haptics(Reader& root, Scene& scene) {
   }
 }
 
+void read_experiment(Reader& root, Scene& scene) {
+  root.choice("experiment",
+              {Choice<Experiment>{"quasi_static", Experiment::kQuasiStatic},
+               Choice<Experiment>{"dynamic", Experiment::kDynamic}},
+              &scene.experiment);
+  Reader r = root.object("quasi_static",
+                         {"max_imbalance", "max_kinetic_share", "force_floor", "note"});
+  if (!r.present()) return;
+  QuasiStaticDef& q = scene.quasi_static;
+  r.number("max_imbalance", &q.max_imbalance, Range::positive());
+  r.number("max_kinetic_share", &q.max_kinetic_share,
+           Range{0.0, 1.0, true, false, "a share of the energy, in (0, 1]"});
+  r.auto_or_quantity("force_floor", dim::kForce, &q.force_floor, Range::positive());
+}
+
 void read_output(Reader& root, Scene& scene) {
   Reader r = root.object("output", {"frames", "frame_interval", "sample_interval"});
   if (!r.present()) return;
@@ -834,7 +849,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
               {"version", "name", "description", "mesh", "model", "volumetric", "materials",
                "integrator",
                "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
-               "output", "particles"});
+               "output", "particles", "experiment", "quasi_static"});
   int64_t version = 1;
   root.integer("version", &version, 1, 1);
   root.string("name", &scene.name);
@@ -857,6 +872,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   read_contact(root, scene);
   read_haptics(root, scene);
   read_output(root, scene);
+  read_experiment(root, scene);
   check_scene(ctx, scene);
   if (ctx.failed()) return *ctx.error;
   return scene;

@@ -324,6 +324,26 @@ struct OutputDef {
   double sample_interval = 1e-5; ///< time between force.csv rows [s]; 0: every step
 };
 
+/// What the experiment measures (the scene's "experiment").
+enum class Experiment {
+  /// The equilibrium curve of a slow injection: every run is checked for being quasi-static
+  /// (engine/sim/quasi_static.h); a state that is not gives no puncture and the run an error.
+  kQuasiStatic,
+  /// Dynamics as such (a haptic session, an impact): measured and reported, never enforced.
+  kDynamic,
+};
+
+/// Thresholds of the quasi-static check ("quasi_static"; docs/outputs.md says why these).
+struct QuasiStaticDef {
+  double max_imbalance = 0.2;      ///< largest |needle + holder| / needle force [-]
+  /// Largest kinetic / (kinetic + elastic) energy [-]; 1 (the default): recorded, not judged
+  /// (docs/outputs.md says why).
+  double max_kinetic_share = 1.0;
+  /// Needle force from which the check judges [N]; unset ("auto"): 3 E_max r_tip^2, about the
+  /// Hertz force of the tip pressed 1.4 radii into the stiffest material (docs/outputs.md).
+  std::optional<double> force_floor;
+};
+
 /// One experiment, in SI. Default-constructed: a 56 um generated ball with no tools.
 struct Scene {
   std::string name;         ///< short name (defaults to the file's stem)
@@ -344,6 +364,8 @@ struct Scene {
   ContactDef contact;
   HapticsDef haptics;
   OutputDef output;
+  Experiment experiment = Experiment::kQuasiStatic;
+  QuasiStaticDef quasi_static;
 };
 
 /// Largest scene file read [bytes]: scenes are a few kilobytes (meshes live in their own files);

@@ -250,6 +250,12 @@ json scene_to_json(const Scene& scene) {
   }
   output["sample_interval"] = quantity_json(o.sample_interval, kTime);
   j["output"] = output;
+  j["experiment"] = scene.experiment == Experiment::kDynamic ? "dynamic" : "quasi_static";
+  const QuasiStaticDef& q = scene.quasi_static;
+  j["quasi_static"] = {
+      {"max_imbalance", q.max_imbalance},
+      {"max_kinetic_share", q.max_kinetic_share},
+      {"force_floor", q.force_floor ? quantity_json(*q.force_floor, kForce) : json("auto")}};
   return j;
 }
 

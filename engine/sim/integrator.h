@@ -35,6 +35,10 @@ enum StepStatusBits : uint32_t {
   /// JobParams::needle_breach_depth before puncture: the surface let the tool through. The
   /// state was advanced and is finite; the job halts.
   kStepToolBreach = 1u << 6,
+  /// A quasi-static experiment's state failed the quasi-static check (engine/sim/quasi_static.h:
+  /// the holder does not carry the needle's load, or the cell's energy is motion): no puncture
+  /// is taken from it, and the run ends with an error. The state is healthy; the run goes on.
+  kStepNotQuasiStatic = 1u << 7,
 };
 
 /// OR of StepStatusBits.

@@ -34,6 +34,7 @@
 
 #include "engine/core/base.h"
 #include "engine/core/vec.h"
+#include "engine/sim/quasi_static.h"
 
 namespace zona {
 
@@ -213,6 +214,8 @@ struct JobParams {
   double force_filter_weight = 1; ///< 1 - exp(-dt / force_filter): the filter's step weight [-]
   double sample_interval = 0;     ///< a sample every this much simulated time [s]; 0: every step
   double stiffness_window = 20e-9;  ///< travel over which the local stiffness is taken [m]
+  // Whether the run is quasi-static (engine/sim/quasi_static.h), judged in the record stage.
+  QuasiStaticLimits quasi;
   // Health.
   double energy_blowup_factor = 10;  ///< kinetic + elastic above this x the budget is a blow-up
   double energy_floor = 0;           ///< energies below this are noise [J]
@@ -522,6 +525,7 @@ struct JobRecord {
   int32_t halted = 0;           ///< the state failed its check: no later step was advanced
   int64_t first_bad = -1;       ///< first non-finite vertex or inverted element, -1 if none
   JobPuncture puncture;
+  QuasiStaticState quasi;       ///< this step's quasi-static measures and the run's worst
 };
 
 /// The mutable scalars of a job (device memory on the GPU).
@@ -533,6 +537,8 @@ struct JobState {
   Vec3d external_tip_value{0, 0, 0};  ///< the handed-in tip [m]
   Vec3d external_tip_now{0, 0, 0};    ///< the tip following it (external_tip_max_speed) [m]
   double filtered_force = 0;  ///< [N]
+  /// The holder's axial force on the cell through the needle's force filter [N].
+  double filtered_holding = 0;
   int32_t filter_started = 0;
   double next_sample = 0;     ///< [s]
   double energy_budget = 0;   ///< [J]
@@ -549,6 +555,7 @@ struct JobState {
   /// as a load [m/s^2] (job_drift_update).
   Vec3d drift_accel{0, 0, 0};
   JobPuncture puncture;
+  QuasiStaticState quasi;
 };
 
 /// Scripted tip at time t [s]: start + speed t d, stopped at max_travel [m].
@@ -672,7 +679,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
                                                  const JobSums& sums, const JobStepTotals& tot,
                                                  JobRecord* out) {
   // StepStatusBits (engine/sim/integrator.h).
-  const uint32_t kNonFinite = 1u, kBlowUp = 2u, kToolBreach = 1u << 6;
+  const uint32_t kNonFinite = 1u, kBlowUp = 2u, kToolBreach = 1u << 6, kNotQuasiStatic = 1u << 7;
   JobRecord& r = *out;
   r.status = tot.status;
   r.first_bad = tot.first_bad;
@@ -711,12 +718,16 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
     r.status |= kToolBreach;
   if (r.status & (kNonFinite | kBlowUp | kToolBreach)) s.halted = 1;
   r.halted = s.halted;
-  // Force filter (exact for a constant input over the step).
+  // Force filter (exact for a constant input over the step), on the needle's force and on the
+  // holder's, which the quasi-static check compares.
+  const double holding_axial = dot(r.holding_force, p.needle_direction);
   if (p.force_filter > 0 && s.filter_started) {
     const double a = p.force_filter_weight;
     s.filtered_force += a * (r.raw_force - s.filtered_force);
+    s.filtered_holding += a * (holding_axial - s.filtered_holding);
   } else {
     s.filtered_force = r.raw_force;
+    s.filtered_holding = holding_axial;
   }
   s.filter_started = 1;
   r.force = s.filtered_force;
@@ -741,8 +752,14 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
     }
   }
   r.stiffness = s.stiffness;
-  // Puncture: only from a healthy state, once.
-  if (!s.halted && p.has_needle && !s.puncture.punctured) {
+  // Quasi-static check while the needle loads the cell: a state whose load the holder does not
+  // carry (inertia, damping) is never taken as a puncture.
+  const bool not_static = quasi_static_step(
+      p.quasi, s.quasi, p.has_needle && !s.puncture.punctured && !s.halted, r.force,
+      s.filtered_holding, tot.kinetic_energy, tot.elastic_energy, s.step, s.time, r.deformation);
+  if (not_static) r.status |= kNotQuasiStatic;
+  // Puncture: only from a healthy, quasi-static state, once.
+  if (!s.halted && !not_static && p.has_needle && !s.puncture.punctured) {
     const bool met = (p.criterion == kJobCriterionForce && r.force >= p.threshold) ||
                      (p.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.threshold);
     if (met) {
@@ -771,6 +788,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
     r.stiffness = s.stiffness;
   }
   r.puncture = s.puncture;
+  r.quasi = s.quasi;
   if (s.time >= s.next_sample - 0.5 * p.dt || s.halted) {
     s.next_sample += p.sample_interval > 0 ? p.sample_interval : p.dt;
     if (s.next_sample < s.time) s.next_sample = s.time + p.sample_interval;

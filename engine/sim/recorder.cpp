@@ -68,7 +68,8 @@ std::vector<std::string> step_flag_names(StepStatus status) {
       {kStepCollapsingElement, "collapsing elements"},
       {kStepClampedElement, "clamped elements"},
       {kStepDtAboveCritical, "dt above critical"},
-      {kStepToolBreach, "needle through the surface"}};
+      {kStepToolBreach, "needle through the surface"},
+      {kStepNotQuasiStatic, "not quasi-static"}};
   std::vector<std::string> names;
   for (const auto& [bit, name] : kNames)
     if (status & bit) names.emplace_back(name);
@@ -79,14 +80,15 @@ const std::vector<std::string>& force_csv_columns() {
   static const std::vector<std::string> columns = {
       "time_s",     "needle_travel_m", "deformation_m",    "force_N",
       "force_x_N",  "force_y_N",       "force_z_N",        "holding_force_N",
-      "contacts",   "elastic_energy_J", "kinetic_energy_J", "punctured", "raw_force_N"};
+      "contacts",   "elastic_energy_J", "kinetic_energy_J", "punctured", "raw_force_N",
+      "imbalance",  "kinetic_share"};
   return columns;
 }
 
 namespace {
 
-// The longest row: 11 doubles of at most 24 characters ("-1.2345678901234567e-308"), two
-// ints, 12 commas and the newline come to 289; the rest is margin.
+// The longest row: 13 doubles of at most 24 characters ("-1.2345678901234567e-308"), two
+// ints, 14 commas and the newline come to 339; the rest is margin.
 constexpr size_t kMaxRowBytes = 512;
 constexpr size_t kRowBufferBytes = size_t{1} << 16;
 
@@ -111,7 +113,8 @@ Result<ForceCsvWriter> ForceCsvWriter::open(const std::string& path, double flus
   std::setvbuf(w.file_.get(), nullptr, _IONBF, 0);
   w.buffer_.resize(kRowBufferBytes);
   const std::vector<std::string>& columns = force_csv_columns();
-  std::string header;
+  std::string header = "# zona force.csv schema " + std::to_string(kOutputSchemaVersion) +
+                       " (docs/outputs.md)\n";
   for (size_t i = 0; i < columns.size(); ++i)
     header += columns[i] + (i + 1 < columns.size() ? "," : "\n");
   if (std::fwrite(header.data(), 1, header.size(), w.file_.get()) != header.size())
@@ -130,10 +133,10 @@ Status ForceCsvWriter::append(const ForceSample& s) {
     if (Status st = flush(); !st) return st;
   const int n = std::snprintf(
       buffer_.data() + used_, kMaxRowBytes,
-      "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g\n", s.time,
-      s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y, s.force_vector.z,
-      s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy, s.punctured ? 1 : 0,
-      s.raw_force);
+      "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g,%.9g,%.9g\n",
+      s.time, s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y,
+      s.force_vector.z, s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy,
+      s.punctured ? 1 : 0, s.raw_force, s.imbalance, s.kinetic_share);
   ZONA_ASSERT(n > 0 && static_cast<size_t>(n) < kMaxRowBytes);
   used_ += static_cast<size_t>(n);
   // The first row goes out at once (a reader sees the run has started), then by wall time.
@@ -208,6 +211,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   const Scene& scene = sim.scene();
   const Model& model = sim.model();
   json j;
+  j["schema_version"] = kOutputSchemaVersion;
   j["scene"] = scene.name;
   j["source"] = scene.source;
   j["model"] = model_name(scene.model);
@@ -231,6 +235,38 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   }
   j["puncture"] = p;
   j["peak_force_N"] = run.peak_force;
+  // The quasi-static check (engine/sim/quasi_static.h, docs/outputs.md).
+  {
+    const QuasiStaticLimits& lim = run.quasi_limits;
+    const QuasiStaticState& q = run.quasi;
+    const bool needle = scene.needle.enabled;
+    json c = {{"experiment", scene.experiment == Experiment::kDynamic ? "dynamic" : "quasi_static"},
+              {"enforced", lim.enforce != 0},
+              {"imbalance_measured", needle && lim.has_holder != 0},
+              {"kinetic_share_judged", needle && lim.max_kinetic_share < 1},
+              {"max_imbalance", lim.max_imbalance},
+              {"max_kinetic_share", lim.max_kinetic_share},
+              {"force_floor_N", lim.force_floor},
+              {"failed_steps", q.failed_steps},
+              {"worst_imbalance", q.worst_imbalance},
+              {"worst_imbalance_time_s", q.worst_imbalance_time},
+              {"worst_imbalance_deformation_m", q.worst_imbalance_deformation},
+              {"worst_kinetic_share", q.worst_kinetic_share},
+              {"worst_kinetic_share_time_s", q.worst_kinetic_time},
+              {"worst_kinetic_share_deformation_m", q.worst_kinetic_deformation}};
+    if (q.failed_steps > 0)
+      c["first_failed"] = {{"step", q.first_failed_step},
+                           {"time_s", q.first_failed_time},
+                           {"deformation_m", q.first_failed_deformation},
+                           {"force_N", q.first_failed_force},
+                           {"imbalance", q.first_failed_imbalance},
+                           {"kinetic_share", q.first_failed_kinetic_share}};
+    // Without a needle, or with nothing to judge by (no holder's force, no kinetic-share
+    // limit): null, not a verdict.
+    j["quasi_static"] =
+        needle && quasi_static_measured(lim) ? json(run.quasi_static()) : json(nullptr);
+    j["quasi_static_check"] = c;
+  }
   j["peak_deformation_m"] = run.peak_deformation;
   j["training"] = {{"mean_insertion_speed_m_per_s", metrics.mean_insertion_speed},
                    {"deformation_at_puncture_percent_of_diameter", metrics.deformation_percent},

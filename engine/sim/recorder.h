@@ -17,6 +17,11 @@
 
 namespace zona {
 
+/// Version of the output schema: force.csv's columns (its first line, "# zona force.csv schema
+/// N") and summary.json's keys ("schema_version"), as docs/outputs.md lists them. Raised when a
+/// column or key changes meaning or goes; new columns and keys come at the end and raise it too.
+inline constexpr int kOutputSchemaVersion = 2;
+
 /// Training metrics of one insertion (seed 002's measures).
 struct TrainingMetrics {
   /// Mean needle speed from the start to puncture (or the end of the run) [m/s].

@@ -126,6 +126,14 @@ Result<ModelDesc> model_desc_from_scene(const Scene& scene, const Mesh& mesh,
         const double v = volume_of(m);
         if (!(v > 0)) return make_error("%s: materials: a 'mass' covers no volume", scene.name.c_str());
         out.density = m->total_mass / v;
+        // A mass is of one cell size: said with its density, so that a resized cell that keeps
+        // it (a lighter or heavier material) does not go unnoticed.
+        char line[240];
+        std::snprintf(line, sizeof line,
+                      "materials: a mass of %.5g kg over %.5g m^3 of mesh is a density of %.4g "
+                      "kg/m^3 (give \"density\" to keep it when the cell's size changes)",
+                      m->total_mass, v, out.density);
+        notes->push_back(line);
         break;
       }
       case MassSpec::kVertexMass:
@@ -437,6 +445,23 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
                         indent_vertices_.empty() &&
                         (has_needle_ || (holding_ && holding_->mode == HoldingMode::kSuction));
   stage_done("tools");
+  // The quasi-static check (engine/sim/quasi_static.h): the imbalance needs the holder's force,
+  // which the rim contact and the suction measure; a cell held by fixed vertices has only the
+  // kinetic share. The floor: 3 E_max r_tip^2, about the Hertz force of the tip pressed 1.4
+  // radii into the stiffest material (docs/outputs.md says why).
+  {
+    const QuasiStaticDef& qd = scene.quasi_static;
+    QuasiStaticLimits& q = quasi_limits_;
+    double young_max = 0;
+    for (const Material& m : model_.materials) young_max = std::max(young_max, m.young);
+    q.enforce = scene.experiment == Experiment::kQuasiStatic && has_needle_ ? 1 : 0;
+    q.has_holder = rim_contacts_ != nullptr ? 1 : 0;
+    q.max_imbalance = qd.max_imbalance;
+    q.max_kinetic_share = qd.max_kinetic_share;
+    q.force_floor = qd.force_floor ? *qd.force_floor
+                                   : 3.0 * young_max * scene.needle.tip_radius * scene.needle.tip_radius;
+    q.energy_floor = model_.energy_floor;
+  }
   if (job_path)
     if (Status s = prepare_job(); !s) return s;
   stage_done("job");
@@ -505,14 +530,15 @@ StepStatus Simulation::step2() {
     return status;
   }
   measure();                             // 6. reactions, needle force, deformation
-  report_.status = status;
-  last_status_ = status;
+  const StepStatus measured = status | (quasi_blocks_puncture_ ? kStepNotQuasiStatic : kStepOk);
+  report_.status = measured;
+  last_status_ = measured;
   publish();                             // 7. report, local stiffness, snapshot
-  return status;
+  return measured;
 }
 
 void Simulation::test_puncture() {
-  if (!has_needle_ || puncture_->punctured()) return;
+  if (!has_needle_ || puncture_->punctured() || quasi_blocks_puncture_) return;
   const PunctureInputs in{report_.force, report_.max_strain, report_.elastic_energy};
   if (!puncture_->criterion_met(in)) return;
   PunctureRecord r;
@@ -773,6 +799,20 @@ void Simulation::measure() {
   report_.holding_force = holding;
   report_.elastic_energy = state_.diag.elastic_energy;
   report_.kinetic_energy = state_.diag.kinetic_energy;
+  // The quasi-static check on the measured state, through the needle force's filter (as the
+  // job's record stage does).
+  if (has_needle_) {
+    const double axial = dot(holding, d);
+    const double tau = scene_.needle.force_filter;
+    filtered_holding_ = tau > 0 && holding_filter_started_
+                            ? filtered_holding_ + (1.0 - std::exp(-model_.dt / tau)) * (axial - filtered_holding_)
+                            : axial;
+    holding_filter_started_ = true;
+    quasi_blocks_puncture_ = quasi_static_step(
+        quasi_limits_, report_.quasi, !puncture_->punctured(), report_.force, filtered_holding_,
+        report_.kinetic_energy, report_.elastic_energy, state_.step_count, time,
+        report_.deformation);
+  }
   // Particle model: the enclosed volume against its rest value (seed 001 eq. 6's constraint).
   if (particles_) {
     volume_change_rel_ = particle_volume(*particles_, state_.u) / particles_->rest_volume - 1.0;
@@ -888,12 +928,15 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
     s.kinetic_energy = r.kinetic_energy;
     s.punctured = r.punctured;
     s.status = r.status;
+    s.imbalance = r.quasi.imbalance;
+    s.kinetic_share = r.quasi.kinetic_share;
     result.samples.push_back(s);
     if (options.on_sample) options.on_sample(s);
   };
 
   record(sim.report());
   maybe_frame(false);
+  bool warned = false;  // the quasi-static warning is said once
   double next_sample = interval;
   double next_progress = options.progress_interval;
   while (!sim.finished()) {
@@ -905,6 +948,10 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
     result.status |= status;
     ++result.steps;
     const NeedleReport& r = sim.report();
+    if (!warned && r.quasi.failed_steps > 0 && sim.quasi_limits().enforce) {
+      warned = true;
+      if (options.warning) options.warning(quasi_static_warning(r.quasi, sim.quasi_limits()));
+    }
     if (r.force > result.peak_force) result.peak_force = r.force;
     if (r.deformation > result.peak_deformation) result.peak_deformation = r.deformation;
     if (status & kStepFailed || ((status & kStepDtAboveCritical) &&
@@ -933,6 +980,8 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
   if (result.samples.empty() || result.samples.back().time < sim.report().time) record(sim.report());
   maybe_frame(true);
   result.puncture = sim.puncture();
+  result.quasi = sim.report().quasi;
+  result.quasi_limits = sim.quasi_limits();
   result.simulated_time = sim.state().time;
   result.wall_seconds = wall();
   if (options.progress) options.progress(RunProgress{sim.report().time, end, result.wall_seconds, &sim.report()});

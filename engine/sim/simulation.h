@@ -33,6 +33,7 @@
 #include "engine/tools/needle.h"
 #include "engine/particles/particle_model.h"
 #include "engine/tools/puncture.h"
+#include "engine/sim/quasi_static.h"
 #include "engine/scene/scene.h"
 #include "engine/fem/state.h"
 #include "engine/core/triple_buffer.h"
@@ -102,6 +103,9 @@ struct NeedleReport {
   double kinetic_energy = 0;    ///< [J]
   bool punctured = false;
   StepStatus status = kStepOk;  ///< the integrator's flags of this step
+  /// The quasi-static check: this step's imbalance and kinetic share, the run's worst and its
+  /// first failed step (engine/sim/quasi_static.h).
+  QuasiStaticState quasi;
 };
 
 /// The axial force a haptic device renders [N], resistance positive: the load cell's filtered
@@ -200,6 +204,8 @@ class Simulation {
   /// Makes state() current: on the job path waits for the steps in flight and downloads the
   /// state from where it lives (a frame, a test); otherwise nothing to do. Not on the step path.
   Status sync_state();
+  /// The quasi-static check's limits (engine/sim/quasi_static.h), the same on both step paths.
+  const QuasiStaticLimits& quasi_limits() const { return quasi_limits_; }
   /// The particle model (scene model "particles"), else null.
   const ParticleModel* particle_model() const { return particles_.get(); }
   /// Particle model: relative change of the enclosed volume at the last step, (V - V0) / V0 [-].
@@ -286,6 +292,10 @@ class Simulation {
   bool stiffness_anchor_set_ = false;
   bool filter_started_ = false;
   double filter_time_ = 0;
+  QuasiStaticLimits quasi_limits_;
+  double filtered_holding_ = 0;      // the holder's axial force through the needle's filter [N]
+  bool holding_filter_started_ = false;
+  bool quasi_blocks_puncture_ = false;  // the last measured state failed an enforced check
   StepStatus last_status_ = kStepOk;
 
   // Job path.
@@ -311,6 +321,11 @@ struct ForceSample {
   double kinetic_energy = 0;  ///< [J]
   bool punctured = false;
   StepStatus status = kStepOk;  ///< the integrator's flags of the sampled step
+  /// |needle + holder| / needle axial force at the sampled step, 0 while not judged (before
+  /// the needle force reaches the check's floor, after puncture) [-].
+  double imbalance = 0;
+  /// Kinetic / (kinetic + elastic) energy at the sampled step, 0 while not judged [-].
+  double kinetic_share = 0;
 };
 
 /// Progress of a run, passed to RunOptions::progress.
@@ -335,6 +350,9 @@ struct RunOptions {
   /// Called from the simulation thread with each sample as it is recorded, in order (streaming
   /// force.csv; may be empty). Samples dropped by a full buffer are not passed.
   std::function<void(const ForceSample&)> on_sample;
+  /// Called once, from the simulation thread, when the run is first seen to fail the
+  /// quasi-static check (one line, quasi_static_warning; may be empty).
+  std::function<void(const std::string&)> warning;
   /// Read once per step (may be null): when true, the run ends before the next step and the
   /// result says interrupted. Set it from a signal handler or another thread.
   const std::atomic<bool>* stop = nullptr;
@@ -356,6 +374,12 @@ struct RunResult {
   /// Vertex masses raised by the dynamic mass scaling (penalty step; 0 elsewhere).
   int64_t mass_raises = 0;
   bool interrupted = false;           ///< RunOptions::stop ended the run before its end
+  /// The quasi-static check over the run (the last report's): worst values, first failure.
+  QuasiStaticState quasi;
+  /// The limits it was judged by; quasi_limits.enforce: the experiment is quasi-static.
+  QuasiStaticLimits quasi_limits;
+  /// The run was quasi-static: no step failed the check.
+  bool quasi_static() const { return quasi.failed_steps == 0; }
 };
 
 /// Runs a built simulation to its end (or stop_after_puncture) and records the curve.

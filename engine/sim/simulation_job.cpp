@@ -105,6 +105,7 @@ Status Simulation::prepare_job() {
       ramp_time = std::min(ramp_time, 0.5 * scene_.needle.standoff / script_.speed);
     p.suction_ramp_time = ramp_time;
   }
+  p.quasi = quasi_limits_;
   p.stiffness_damping_rate = scene_.integrator.stiffness_damping / model_.dt;
   p.sample_interval = std::max(scene_.output.sample_interval, 0.0);
   p.stiffness_window = options_.stiffness_window;
@@ -267,6 +268,7 @@ void Simulation::report_from_record(const JobRecord& r) {
   o.kinetic_energy = r.kinetic_energy;
   o.punctured = r.puncture.punctured != 0;
   o.status = r.status;
+  o.quasi = r.quasi;
   last_status_ = r.status;
   job_halted_ = r.halted != 0;
   tip_ = r.tip;
@@ -320,6 +322,8 @@ ForceSample sample_of(const JobRecord& r, Vec3d direction) {
   s.kinetic_energy = r.kinetic_energy;
   s.punctured = r.puncture.punctured != 0;
   s.status = static_cast<StepStatus>(r.status);
+  s.imbalance = r.quasi.imbalance;
+  s.kinetic_share = r.quasi.kinetic_share;
   return s;
 }
 
@@ -407,6 +411,14 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     if (options.on_sample) options.on_sample(s);
   };
   if (job.steps_advanced() == 0) keep(ForceSample{});
+  // The quasi-static warning, said once when a record first shows a failed check (records
+  // carry the run's count, so a failure between samples shows in the next one).
+  bool warned = false;
+  auto warn_once = [&](const JobRecord& r) {
+    if (warned || r.quasi.failed_steps == 0 || !sim.quasi_limits().enforce) return;
+    warned = true;
+    if (options.warning) options.warning(quasi_static_warning(r.quasi, sim.quasi_limits()));
+  };
   std::vector<JobRecord> batch;
   batch.reserve(sim.job_setup().sample_capacity);
   auto drain = [&]() {
@@ -418,6 +430,7 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
         break;
       }
       keep(sample_of(r, direction));
+      warn_once(r);
       result.peak_force = std::max(result.peak_force, r.force);
       result.peak_deformation = std::max(result.peak_deformation, r.deformation);
       result.status |= r.status;
@@ -492,6 +505,8 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
   JobRecord last;
   if (job.latest(&last)) {
     sim.report_from_record(last);
+    warn_once(last);
+    result.quasi = last.quasi;
     result.steps = last.step;
     result.simulated_time = last.time;
     result.status |= last.status;
@@ -513,6 +528,7 @@ RunResult run_job_simulation(Simulation& sim, const RunOptions& options) {
     frame_now(frame_count - 1);
   }
   result.puncture = sim.puncture();
+  result.quasi_limits = sim.quasi_limits();
   result.wall_seconds = wall();
   if (options.progress)
     options.progress(RunProgress{sim.report().time, end, result.wall_seconds, &sim.report()});

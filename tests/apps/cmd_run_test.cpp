@@ -50,7 +50,9 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   EXPECT_NE(r.err.find("zona run: t "), std::string::npos) << r.err;  // progress line
   // force.csv: the documented leading columns and one row per sample.
   std::ifstream csv(out / "force.csv");
-  std::string header, line;
+  std::string schema, header, line;
+  std::getline(csv, schema);
+  EXPECT_EQ(schema.rfind("# zona force.csv schema ", 0), 0u) << schema;
   std::getline(csv, header);
   EXPECT_EQ(header.rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << header;
   int rows = 0;
@@ -76,6 +78,53 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   EXPECT_TRUE(fs::exists(out / "frames_000003.vtu"));
   EXPECT_TRUE(fs::exists(out / "scene.json"));
   EXPECT_TRUE(fs::exists(out / "force_deformation.png"));
+}
+
+TEST(CmdRun, AFastNeedleOnAMassScaledCellIsNotAResult) {
+  // The mouse cell on its suction holder, 1500 vertices, puncturing at 2 uN. At 0.1 mm/s it is
+  // quasi-static and punctures; at 1 mm/s the mass-scaled cell's inertia carries the load (the
+  // holder does not): the run warns when it happens, records no puncture, writes its outputs and
+  // exits non-zero.
+  TempDir dir;
+  const std::string base = "run mouse_oocyte --no-frames --quiet --set mesh.generate.vertices=1500 "
+                           "--set needle.max_travel=20um --set puncture.threshold=2uN ";
+  const fs::path slow = dir.path / "slow", fast = dir.path / "fast";
+  const CliRun a = run_zona(base + "--out " + slow.string(), dir.path);
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  EXPECT_NE(a.out.find("puncture: t "), std::string::npos) << a.out;
+  std::ifstream sj(slow / "summary.json");
+  const nlohmann::json s = nlohmann::json::parse(sj);
+  EXPECT_EQ(s["quasi_static"], true);
+  EXPECT_LT(s["quasi_static_check"]["worst_imbalance"].get<double>(), 0.2);
+
+  const CliRun b = run_zona(base + "--set needle.speed=1mm/s --out " + fast.string(), dir.path);
+  EXPECT_EQ(b.exit_code, 1) << b.err;
+  EXPECT_NE(b.out.find("puncture: none"), std::string::npos) << b.out;
+  EXPECT_NE(b.err.find("zona run: warning: not quasi-static from step"), std::string::npos) << b.err;
+  EXPECT_NE(b.err.find("zona: error: the run was not quasi-static"), std::string::npos) << b.err;
+  std::ifstream fj(fast / "summary.json");
+  const nlohmann::json f = nlohmann::json::parse(fj);
+  EXPECT_EQ(f["quasi_static"], false);
+  EXPECT_FALSE(f["puncture"]["punctured"].get<bool>());
+  EXPECT_GT(f["quasi_static_check"]["worst_imbalance"].get<double>(), 0.5);
+  // The needle did push past the threshold force: only the check kept it from a puncture.
+  EXPECT_GT(f["peak_force_N"].get<double>(), 2e-6);
+}
+
+TEST(CmdRun, BenchBallRunsThroughItsIndentation) {
+  // The benchmark ball (an undamped 10 mm/s indentation) runs to its end without a blow-up.
+  TempDir dir;
+  const fs::path out = dir.path / "ball";
+  const CliRun r = run_zona("run bench_ball --no-frames --quiet --set mesh.generate.vertices=1000 "
+                            "--out " + out.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::ifstream js(out / "summary.json");
+  const nlohmann::json j = nlohmann::json::parse(js);
+  EXPECT_FALSE(j["numerics"]["stopped_early"].get<bool>());
+  EXPECT_NEAR(j["numerics"]["simulated_time_s"].get<double>(), 1e-3, 1e-6);
+  EXPECT_GT(j["peak_force_N"].get<double>(), 0.0);  // the patch pressed into the ball
+  EXPECT_TRUE(j["quasi_static"].is_null());          // no needle: nothing to judge
 }
 
 TEST(CmdRun, SetOverridesAndModelChoice) {
@@ -146,10 +195,10 @@ TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
     size_t lines = 0;
     while (std::chrono::steady_clock::now() < deadline && !zona::test::has_exited(p)) {
       lines = lines_of(out / "force.csv").size();
-      if (lines >= 3) break;
+      if (lines >= 4) break;
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
     }
-    ASSERT_GE(lines, 3u) << name << ": force.csv did not grow while the run went";
+    ASSERT_GE(lines, 4u) << name << ": force.csv did not grow while the run went";
     ASSERT_EQ(::kill(p.pid, sig), 0);
     const CliRun r = zona::test::wait_zona(p, 60);
     EXPECT_EQ(r.exit_code, code) << r.err;
@@ -160,15 +209,17 @@ TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
     // force.csv: the header and whole rows, at least as many as were seen before the signal.
     const std::vector<std::string> csv = lines_of(out / "force.csv");
     ASSERT_GE(csv.size(), lines);
-    EXPECT_EQ(csv[0].rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << csv[0];
-    for (size_t i = 1; i < csv.size(); ++i)
-      EXPECT_EQ(std::count(csv[i].begin(), csv[i].end(), ','), 12) << i << ": " << csv[i];
+    ASSERT_GE(csv.size(), 2u);
+    EXPECT_EQ(csv[0].rfind("# zona force.csv schema ", 0), 0u) << csv[0];
+    EXPECT_EQ(csv[1].rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << csv[1];
+    for (size_t i = 2; i < csv.size(); ++i)
+      EXPECT_EQ(std::count(csv[i].begin(), csv[i].end(), ','), 14) << i << ": " << csv[i];
     // summary.json: whole, interrupted, its numbers up to the stop.
     std::ifstream js(out / "summary.json");
     const nlohmann::json j = nlohmann::json::parse(js, nullptr, /*allow_exceptions=*/false);
     ASSERT_FALSE(j.is_discarded());
     EXPECT_TRUE(j["interrupted"].get<bool>());
-    EXPECT_EQ(j["numerics"]["samples"].get<size_t>(), csv.size() - 1);
+    EXPECT_EQ(j["numerics"]["samples"].get<size_t>(), csv.size() - 2);  // schema and header
     EXPECT_LT(j["numerics"]["simulated_time_s"].get<double>(), 10.0);
     EXPECT_FALSE(fs::exists(out / "summary.json.tmp"));
     EXPECT_TRUE(fs::exists(out / "scene.json"));

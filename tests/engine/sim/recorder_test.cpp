@@ -65,7 +65,10 @@ TEST(Recorder, ForceCsvHasTheDocumentedColumns) {
   const RunResult r = ramp(5, 0.0, 4);
   ASSERT_TRUE(write_force_csv(path.string(), r.samples).ok());
   std::ifstream in(path);
-  std::string header;
+  std::string schema, header;
+  std::getline(in, schema);
+  EXPECT_EQ(schema, "# zona force.csv schema " + std::to_string(kOutputSchemaVersion) +
+                        " (docs/outputs.md)");
   std::getline(in, header);
   EXPECT_EQ(header.rfind("time_s,needle_travel_m,deformation_m,force_N,", 0), 0u) << header;
   std::stringstream ss(header);
@@ -104,10 +107,10 @@ TEST(Recorder, ForceCsvWriterStreamsRowsWhileTheRunGoes) {
     // Flush interval 0: every row is on disk when append returns.
     Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 0.0);
     ASSERT_TRUE(w.ok()) << w.error().message;
-    EXPECT_EQ(lines_on_disk(path).size(), 1u);  // the header, at open
+    EXPECT_EQ(lines_on_disk(path).size(), 2u);  // the schema line and the header, at open
     for (size_t i = 0; i < 3; ++i) {
       ASSERT_TRUE(w->append(r.samples[i]).ok());
-      EXPECT_EQ(lines_on_disk(path).size(), 2 + i);
+      EXPECT_EQ(lines_on_disk(path).size(), 3 + i);
     }
     ASSERT_TRUE(w->close().ok());
     EXPECT_FALSE(w->append(r.samples[3]).ok());  // closed
@@ -117,9 +120,9 @@ TEST(Recorder, ForceCsvWriterStreamsRowsWhileTheRunGoes) {
     Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
     ASSERT_TRUE(w.ok());
     for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
-    EXPECT_EQ(lines_on_disk(path).size(), 2u);
+    EXPECT_EQ(lines_on_disk(path).size(), 3u);
     ASSERT_TRUE(w->flush().ok());
-    EXPECT_EQ(lines_on_disk(path).size(), 6u);
+    EXPECT_EQ(lines_on_disk(path).size(), 7u);
     ASSERT_TRUE(w->close().ok());
   }
   // The streamed file is byte for byte the one write_force_csv writes.
@@ -131,19 +134,21 @@ TEST(Recorder, ForceCsvWriterStreamsRowsWhileTheRunGoes) {
 }
 
 TEST(Recorder, ForceCsvWriterKeepsRowsWhole) {
-  // More rows than the buffer holds: every line on disk is a whole row of 13 columns.
+  // More rows than the buffer holds: every line on disk is a whole row of 15 columns.
   const fs::path path = fs::temp_directory_path() / "zona_recorder_whole.csv";
   const RunResult r = ramp(2000, 1e-8, 7);
   Result<ForceCsvWriter> w = ForceCsvWriter::open(path.string(), 1e9);
   ASSERT_TRUE(w.ok());
   for (const ForceSample& s : r.samples) ASSERT_TRUE(w->append(s).ok());
   const std::vector<std::string> before_close = lines_on_disk(path);
-  EXPECT_GT(before_close.size(), 2u);     // buffer-full flushes happened
-  EXPECT_LT(before_close.size(), 2001u);  // and some rows are still buffered
-  for (size_t i = 1; i < before_close.size(); ++i)
-    EXPECT_EQ(std::count(before_close[i].begin(), before_close[i].end(), ','), 12) << i;
+  EXPECT_GT(before_close.size(), 3u);     // buffer-full flushes happened
+  EXPECT_LT(before_close.size(), 2002u);  // and some rows are still buffered
+  for (size_t i = 2; i < before_close.size(); ++i)
+    EXPECT_EQ(std::count(before_close[i].begin(), before_close[i].end(), ','),
+              static_cast<std::ptrdiff_t>(force_csv_columns().size() - 1))
+        << i;
   ASSERT_TRUE(w->close().ok());
-  EXPECT_EQ(lines_on_disk(path).size(), 2001u);
+  EXPECT_EQ(lines_on_disk(path).size(), 2002u);
   fs::remove(path);
 }
 

@@ -274,6 +274,35 @@ TEST(Simulation, KinematicContactBlowUpStopsWithStiffnessDampingOn) {
   EXPECT_FALSE(fine->stopped_early) << fine->stop_reason;
 }
 
+TEST(Simulation, TheCellsDensityFollowsItsSizeNotItsMass) {
+  // The mouse scenes give a density: a 100 um cell is as dense as the 56 um one (a scene that
+  // gave Table I's mass would have made it 175 kg/m^3), and its mass grows with its volume.
+  auto build = [](const std::vector<std::string>& sets) {
+    Result<Scene> scene =
+        load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json", sets);
+    EXPECT_TRUE(scene.ok()) << scene.error().message;
+    SimulationOptions so;
+    so.threads = 1;
+    Result<std::unique_ptr<Simulation>> sim = Simulation::create(*scene, so);
+    EXPECT_TRUE(sim.ok()) << sim.error().message;
+    return std::move(*sim);
+  };
+  const auto small = build({"mesh.generate.vertices=800"});
+  const auto large = build({"mesh.generate.vertices=800", "mesh.generate.diameter=100um"});
+  EXPECT_DOUBLE_EQ(small->model().materials.front().density, 1000.0);
+  EXPECT_DOUBLE_EQ(large->model().materials.front().density, 1000.0);
+  // A total mass instead: it is spread over the mesh, and the density it implies is said.
+  const auto by_mass = build({"mesh.generate.vertices=800", "materials.default.density=null",
+                              "materials.default.mass=9.1952e-5 mg",
+                              "mesh.generate.diameter=100um"});
+  const double rho = by_mass->model().materials.front().density;
+  EXPECT_NEAR(rho, 1000.0 * std::pow(56.0 / 100.0, 3), 0.05 * 175.0);
+  bool said = false;
+  for (const std::string& note : by_mass->notes())
+    said = said || note.find("is a density of") != std::string::npos;
+  EXPECT_TRUE(said);
+}
+
 TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
   json j = small_cell_scene();
   j["puncture"] = {{"criterion", "force"}, {"threshold", "0.2 uN"}, {"force_drop", 0.8},
