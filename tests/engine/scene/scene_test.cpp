@@ -128,12 +128,12 @@ TEST(Scene, MouseOocyteHasSeed000TableOne) {
   EXPECT_GE(m->young, 0.9 * 17.9e3);
   EXPECT_LE(m->young, 17.9e3);
   EXPECT_EQ(m->poisson, 0.49);
-  EXPECT_EQ(m->mass_spec, MassSpec::kTotalMass);
-  expect_rel(m->total_mass, 9.1952e-11);  // 9.1952e-5 mg in kg
-  // Table I's mass over the ball's volume (Table I: 91952 um^3) is water's density.
+  // The scene gives the density (a resized cell keeps it): Table I's mass (9.1952e-5 mg) over
+  // the ball's volume (Table I: 91952 um^3) is water's density.
+  EXPECT_EQ(m->mass_spec, MassSpec::kDensity);
   const double volume = 4.0 / 3.0 * std::numbers::pi * std::pow(g.diameter / 2, 3);
   expect_rel(volume, 91952e-18, 1e-4);
-  expect_rel(m->total_mass / volume, 1000.0, 1e-4);
+  expect_rel(m->density * volume, 9.1952e-11, 1e-4);  // 9.1952e-5 mg in kg
   EXPECT_TRUE(s.needle.enabled);
   expect_rel(s.needle.speed, 1e-4);
   expect_vec(s.needle.direction, {1.0, 0.0, 0.0});
