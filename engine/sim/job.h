@@ -35,117 +35,10 @@
 #include "engine/core/base.h"
 #include "engine/core/vec.h"
 #include "engine/sim/quasi_static.h"
+#include "engine/tools/penalty.h"
+#include "engine/tools/tool_sdf.h"
 
 namespace zona {
-
-/// Signed distance of a point from a tool surface and the tool's outward normal there.
-struct ToolSdf {
-  double distance = 0;    ///< [m], negative inside the tool
-  Vec3d normal{0, 0, 0};  ///< unit normal pointing out of the tool (into the cell) [-]
-};
-
-/// The needle: a cylinder of radius r along -d behind its tip, ended by a hemisphere whose apex
-/// is `tip` (`flat` = false) or by a flat disk at `tip` (`flat` = true). x, tip [m], d unit.
-ZONA_HOST_DEVICE ZONA_INLINE ToolSdf needle_sdf(Vec3d tip, Vec3d d, double r, bool flat, Vec3d x) {
-  ToolSdf out;
-  // Axial coordinate s (ahead of the reference point positive) and the radial unit vector.
-  const Vec3d ref = flat ? tip : tip - r * d;
-  const Vec3d w = x - ref;
-  const double s = dot(w, d);
-  const Vec3d radial_vec = w - s * d;
-  const double rho = norm(radial_vec);
-  Vec3d radial = rho > 0 ? radial_vec / rho : Vec3d{0, 0, 0};
-  if (!(rho > 0)) {
-    // On the axis: any direction perpendicular to d.
-    const Vec3d a = (d.x < 0.9 && d.x > -0.9) ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
-    const Vec3d c = cross(d, a);
-    radial = c / norm(c);
-  }
-  if (!flat) {
-    if (s > 0) {
-      const double len = norm(w);
-      out.distance = len - r;
-      out.normal = len > 0 ? w / len : d;
-    } else {
-      out.distance = rho - r;
-      out.normal = radial;
-    }
-    return out;
-  }
-  if (s > 0) {
-    if (rho <= r) {
-      out.distance = s;
-      out.normal = d;
-    } else {
-      const Vec3d e = s * d + (rho - r) * radial;
-      out.distance = norm(e);
-      out.normal = e / out.distance;
-    }
-  } else if (rho >= r) {
-    out.distance = rho - r;
-    out.normal = radial;
-  } else if (-s < r - rho) {
-    out.distance = s;  // closer to the end face
-    out.normal = d;
-  } else {
-    out.distance = rho - r;
-    out.normal = radial;
-  }
-  return out;
-}
-
-/// The sharp-edged wall of holding_sdf.
-ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf_sharp(Vec3d mouth, Vec3d axis, double a,
-                                                      double b, Vec3d x) {
-  const Vec3d w = x - mouth;
-  const double s = dot(w, axis);
-  const Vec3d rv = w - s * axis;
-  const double rho = norm(rv);
-  Vec3d radial = rho > 0 ? rv / rho : Vec3d{0, 0, 0};
-  if (!(rho > 0)) {
-    const Vec3d t = (axis.x < 0.9 && axis.x > -0.9) ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
-    const Vec3d c = cross(axis, t);
-    radial = c / norm(c);
-  }
-  ToolSdf out;
-  const bool inside = s > 0 && rho > a && rho < b;
-  if (!inside) {
-    // Closest point of the strip in the (s, rho) half-plane, mapped back to 3D.
-    const double qs = s > 0 ? s : 0.0;
-    const double qr = rho < a ? a : (rho > b ? b : rho);
-    const double ds = s - qs, dr = rho - qr;
-    out.distance = sqrt(ds * ds + dr * dr);
-    out.normal = out.distance > 0 ? (ds / out.distance) * axis + (dr / out.distance) * radial
-                                  : -1.0 * axis;
-    return out;
-  }
-  // Inside the wall: leave through the nearest face.
-  const double to_mouth = s, to_bore = rho - a, to_outer = b - rho;
-  if (to_mouth <= to_bore && to_mouth <= to_outer) {
-    out.distance = -to_mouth;
-    out.normal = -1.0 * axis;
-  } else if (to_bore <= to_outer) {
-    out.distance = -to_bore;
-    out.normal = -1.0 * radial;
-  } else {
-    out.distance = -to_outer;
-    out.normal = radial;
-  }
-  return out;
-}
-
-/// The holding pipette's wall: the tube s >= 0, a <= rho <= b, where s is the distance past the
-/// mouth plane along `axis` (unit, from the cell into the pipette) and rho the distance from
-/// the axis, the mouth's two edges rounded with radius `edge` (0: sharp; below (b - a) / 2: a
-/// fire-polished rim). The rounded wall is the sharp one eroded by `edge` and grown back by it;
-/// its section is convex, so its distance is the eroded wall's minus `edge`, exact inside and
-/// out, with the eroded wall's normal. mouth, x [m]; a, b, edge [m].
-ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf(Vec3d mouth, Vec3d axis, double a, double b,
-                                                Vec3d x, double edge = 0) {
-  ToolSdf out = holding_sdf_sharp(mouth + edge * axis, axis, a + edge, b - edge, x);
-  out.distance -= edge;
-  return out;
-}
 
 /// A surface point this far inside the needle, in tip radii, means the surface let the tool
 /// through (JobParams::needle_breach_depth). The penalty holds the loaded surface at a few
@@ -253,17 +146,6 @@ struct ToolVertexInput {
   double mass = 0;         ///< the vertex's (scaled) mass [kg]; read by the rim's damper only
 };
 
-/// Where a contact point stuck to its tool, for the friction's stick spring: its position
-/// relative to the tool's reference point (the needle's tip, the rim's mouth) that the spring
-/// pulls it back to [m], and the step of its last contact + 2 (`mark`). An anchor is live only
-/// if the point touched the tool in the previous step (mark == step + 1); a point that left the
-/// tool starts afresh where it touches again. Zero bytes are a void anchor (device memory is
-/// cleared, not constructed).
-struct StickAnchor {
-  Vec3d at{0, 0, 0};
-  int64_t mark = 0;
-};
-
 /// The tool pose and scalars of one step (JobState's, read by every tool vertex).
 struct ToolPose {
   int64_t step = 0;             ///< n, the step that starts at t_n (the anchors' clock)
@@ -281,43 +163,6 @@ struct ToolVertexForce {
   int32_t needle_contact = 0, rim_contact = 0;
   double needle_depth = 0;  ///< how deep the vertex is inside the needle [m] (0 outside)
 };
-
-/// Penalty contact of one point against a tool: normal pressure kappa * penetration over the
-/// point's area, along sdf.normal, and Coulomb friction as a stick spring: the point's
-/// tangential offset from its anchor times the same stiffness (kappa * area), capped at mu times
-/// the normal force; at the cap the anchor follows the point (it slides). `rel` is the point's
-/// position relative to the tool's reference point [m]; the anchor is read and updated. A
-/// sticking point carries its tangential load at rest, whatever the step, the speed or the
-/// (scaled) mass: a viscous stick force (stop the slip velocity in one step, m v_t / dt) let
-/// it creep at a rate set by the mass scaling (docs/injection.md).
-///
-/// `damper` [kg/s] adds a normal dashpot against `velocity`, the point's velocity relative to
-/// the tool [m/s]: it resists the approach and the rebound, and the normal force never turns
-/// into a pull (a point leaving the tool faster than its spring relaxes is let go). At rest it
-/// carries nothing, so a static answer does not depend on it.
-ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, double kappa,
-                                                       double mu, double area, Vec3d rel,
-                                                       int64_t step, StickAnchor* anchor,
-                                                       double damper = 0,
-                                                       Vec3d velocity = Vec3d{0, 0, 0}) {
-  const double k = kappa * area;
-  double fn = k * (-sdf.distance);  // > 0 inside
-  if (damper > 0) {
-    fn -= damper * dot(velocity, sdf.normal);
-    if (fn < 0) fn = 0;
-  }
-  if (anchor->mark != step + 1) anchor->at = rel;  // a fresh contact sticks where it touched
-  anchor->mark = step + 2;
-  const Vec3d d = rel - anchor->at;
-  Vec3d ft = -k * (d - dot(d, sdf.normal) * sdf.normal);
-  const double ft_len = norm(ft);
-  const double cap = mu * fn;
-  if (ft_len > cap) {
-    ft = (ft_len > 0 ? cap / ft_len : 0.0) * ft;
-    anchor->at = rel + (1.0 / k) * ft;  // slid: the spring stays at the Coulomb limit
-  }
-  return fn * sdf.normal + ft;
-}
 
 /// The rim damper's coefficient for a vertex of rest area `area` [m^2] and mass `mass` [kg]:
 /// `rim_damping` times the critical damping 2 sqrt(k m) of its contact spring k = kappa area,

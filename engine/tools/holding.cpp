@@ -5,12 +5,12 @@
 #include <cmath>
 
 #include "engine/tools/contact.h"
-#include "engine/sim/job.h"
+#include "engine/tools/tool_sdf.h"
 
 namespace zona {
 
 ToolDistance holding_distance(const HoldingGeometry& h, Vec3d x) {
-  // One distance function for every path: the job's (engine/sim/job.h), host and device.
+  // One distance function for every path: engine/tools/tool_sdf.h, host and device.
   const ToolSdf sdf =
       holding_sdf(h.mouth, h.axis, h.inner_radius, h.outer_radius, x, h.edge_radius);
   return ToolDistance{sdf.distance, sdf.normal};

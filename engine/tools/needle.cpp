@@ -1,7 +1,7 @@
 // Needle geometry (signed distance of the tip and shaft) and its scripted motion.
 #include "engine/tools/needle.h"
 
-#include "engine/sim/job.h"
+#include "engine/tools/tool_sdf.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,7 +11,7 @@
 namespace zona {
 
 ToolDistance needle_distance(const NeedleGeometry& needle, Vec3d tip, Vec3d x) {
-  // One distance function for every path: the job's (engine/sim/job.h), host and device.
+  // One distance function for every path: engine/tools/tool_sdf.h, host and device.
   const ToolSdf sdf = needle_sdf(tip, needle.direction, needle.tip_radius,
                                  needle.shape == NeedleShape::kFlat, x);
   return ToolDistance{sdf.distance, sdf.normal};

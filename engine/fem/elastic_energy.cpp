@@ -1,0 +1,185 @@
+// The elastic energy term over the model (elastic_energy.h): element loops over elastic_term.h.
+#include "engine/fem/elastic_energy.h"
+
+#include <algorithm>
+
+namespace zona {
+
+Result<ElasticEnergy> ElasticEnergy::create(const Model& model) {
+  if (model.constitutive == ConstitutiveModel::kSvk &&
+      model.inversion == InversionHandling::kClampStretch)
+    return make_error(
+        "the clamped St Venant-Kirchhoff law has no energy of its own: use inversion 'report' "
+        "or the stable neo-Hookean law");
+  return ElasticEnergy(model);
+}
+
+ElasticEnergy::ElasticEnergy(const Model& model) : model_(&model) {
+  if (model.nodal_pressure) {
+    pressure_.assign(model.vertex_count(), 0.0);
+    scratch_.assign(model.vertex_count(), 0.0);
+  }
+}
+
+void ElasticEnergy::corners(std::span<const Vec3d> x, size_t t, Vec3d out[4]) const {
+  for (int c = 0; c < 4; ++c) out[c] = x[static_cast<size_t>(model_->tets[t][c])];
+}
+
+ElementLaw<double> ElasticEnergy::law(size_t t) const {
+  const Lame& lame = model_->tet_lame(t);
+  ElementLaw<double> law;
+  law.model = model_->constitutive;
+  law.lambda = lame.lambda;
+  law.mu = lame.mu;
+  law.nodal = model_->nodal_pressure && model_->constitutive == ConstitutiveModel::kStableNeoHookean;
+  if (law.nodal) {
+    double p = 0;
+    for (int c = 0; c < 4; ++c) p += pressure_[static_cast<size_t>(model_->tets[t][c])];
+    law.pressure = 0.25 * p;
+  }
+  return law;
+}
+
+double ElasticEnergy::vertex_pressures(std::span<const Vec3d> u) {
+  const Model& m = *model_;
+  // Pass 1: sum_e V_e / 4 (J_e - 1) at each corner.
+  std::fill(scratch_.begin(), scratch_.end(), 0.0);
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4];
+    corners(u, t, ue);
+    const double q = 0.25 * m.tet_shape[t].volume *
+                     snh_volume_change(tet_displacement_gradient(m.tet_shape[t], ue));
+    for (int c = 0; c < 4; ++c) scratch_[static_cast<size_t>(m.tets[t][c])] += q;
+  }
+  // Pass 2: Jbar_v - 1, the pressure lambda_v (Jbar_v - 1) and the energy V_v lambda_v / 2
+  // (Jbar_v - 1)^2.
+  double energy = 0;
+  for (size_t v = 0; v < m.vertex_count(); ++v) {
+    const double inv_volume = m.vertex_inverse_volume[v];
+    const double jm1 = scratch_[v] * inv_volume;
+    pressure_[v] = m.vertex_lambda[v] * jm1;
+    if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
+  }
+  return energy;
+}
+
+double ElasticEnergy::energy(std::span<const Vec3d> u) {
+  const Model& m = *model_;
+  ZONA_ASSERT(u.size() == m.vertex_count());
+  double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4];
+    corners(u, t, ue);
+    ElementLaw<double> l = law(t);
+    l.pressure = 0;  // the pressure's energy is the vertices'
+    Mat3d p;
+    double jm1;
+    w += m.tet_shape[t].volume *
+         element_stress(l, tet_displacement_gradient(m.tet_shape[t], ue), &p, &jm1);
+  }
+  return w;
+}
+
+double ElasticEnergy::add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
+  const Model& m = *model_;
+  ZONA_ASSERT(u.size() == m.vertex_count() && g.size() == m.vertex_count());
+  double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4], ge[4];
+    corners(u, t, ue);
+    w += tet_energy_gradient(m.tet_shape[t], law(t), ue, ge);
+    for (int c = 0; c < 4; ++c) g[static_cast<size_t>(m.tets[t][c])] += ge[c];
+  }
+  return w;
+}
+
+void ElasticEnergy::add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
+                                        std::span<Vec3d> y) {
+  const Model& m = *model_;
+  ZONA_ASSERT(u.size() == m.vertex_count() && v.size() == u.size() && y.size() == u.size());
+  if (m.nodal_pressure) vertex_pressures(u);
+  // The element part (the vertices' pressures held).
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4], ve[4], ye[4];
+    corners(u, t, ue);
+    corners(v, t, ve);
+    tet_hessian_product(m.tet_shape[t], law(t), ue, ve, ye);
+    for (int c = 0; c < 4; ++c) y[static_cast<size_t>(m.tets[t][c])] += ye[c];
+  }
+  if (!m.nodal_pressure) return;
+  // The vertices' rank-one terms sum_v (lambda_v / V_v) g_v (g_v . v), in the force's two
+  // passes: s_v = g_v . v = sum_e V_e / 4 dJ_e[v] per vertex, then each element's corners get
+  // V_e dJ_e/du times the corner mean of (lambda_v / V_v) s_v.
+  std::fill(scratch_.begin(), scratch_.end(), 0.0);
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4], ve[4], dj[4];
+    corners(u, t, ue);
+    corners(v, t, ve);
+    tet_volume_gradient(m.tet_shape[t], ue, dj);
+    double djv = 0;
+    for (int c = 0; c < 4; ++c) djv += dot(dj[c], ve[c]);
+    for (int c = 0; c < 4; ++c)
+      scratch_[static_cast<size_t>(m.tets[t][c])] += 0.25 * m.tet_shape[t].volume * djv;
+  }
+  for (size_t k = 0; k < m.vertex_count(); ++k)
+    scratch_[k] *= m.vertex_lambda[k] * m.vertex_inverse_volume[k];
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4], dj[4];
+    corners(u, t, ue);
+    tet_volume_gradient(m.tet_shape[t], ue, dj);
+    double mean = 0;
+    for (int c = 0; c < 4; ++c) mean += scratch_[static_cast<size_t>(m.tets[t][c])];
+    const double w = 0.25 * m.tet_shape[t].volume * mean;
+    for (int c = 0; c < 4; ++c) y[static_cast<size_t>(m.tets[t][c])] += w * dj[c];
+  }
+}
+
+void ElasticEnergy::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) {
+  const Model& m = *model_;
+  ZONA_ASSERT(u.size() == m.vertex_count() && d.size() == u.size());
+  if (m.nodal_pressure) vertex_pressures(u);
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4];
+    Mat3d de[4];
+    corners(u, t, ue);
+    tet_hessian_diagonal(m.tet_shape[t], law(t), ue, de);
+    for (int c = 0; c < 4; ++c) {
+      Mat3d& block = d[static_cast<size_t>(m.tets[t][c])];
+      block = block + de[c];
+    }
+  }
+  if (!m.nodal_pressure) return;
+  // The rank-one terms' diagonal blocks: for each vertex v and each vertex w of its elements,
+  // (lambda_v / V_v) g_v[w] g_v[w]^T with g_v[w] = sum over v's elements holding w of
+  // V_e / 4 dJ_e/du_w. Gathered per v over its elements' corners (a short list).
+  constexpr int kMaxNeighbors = 256;
+  int32_t who[kMaxNeighbors];
+  Vec3d part[kMaxNeighbors];
+  for (size_t v = 0; v < m.vertex_count(); ++v) {
+    int count = 0;
+    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
+      const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
+      Vec3d ue[4], dj[4];
+      corners(u, t, ue);
+      tet_volume_gradient(m.tet_shape[t], ue, dj);
+      for (int c = 0; c < 4; ++c) {
+        const int32_t w = m.tets[t][c];
+        int slot = 0;
+        while (slot < count && who[slot] != w) ++slot;
+        if (slot == count) {
+          ZONA_ASSERT(count < kMaxNeighbors);
+          who[count] = w;
+          part[count++] = Vec3d{0, 0, 0};
+        }
+        part[slot] += (0.25 * m.tet_shape[t].volume) * dj[c];
+      }
+    }
+    const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
+    for (int i = 0; i < count; ++i) {
+      Mat3d& block = d[static_cast<size_t>(who[i])];
+      block = block + c * outer(part[i], part[i]);
+    }
+  }
+}
+
+}  // namespace zona

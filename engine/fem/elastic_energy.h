@@ -1,0 +1,51 @@
+// The elastic energy of the whole model as an energy term (host, float64): value, gradient,
+// Hessian-vector product and the Hessian's diagonal blocks, from elastic_term.h's element
+// functions, with nodal pressure's vertex sums done in the force's two-pass shape. The explicit
+// step's element passes (forces_cpu.cpp, kernels/) evaluate the same laws; tests hold the
+// gradient here to their forces and the Hessian to finite differences of the gradient.
+#pragma once
+
+#include <span>
+#include <vector>
+
+#include "engine/core/base.h"
+#include "engine/core/vec.h"
+#include "engine/fem/elastic_term.h"
+#include "engine/fem/model.h"
+
+namespace zona {
+
+/// The elastic energy term over a model. Holds the per-vertex scratch of nodal pressure (no
+/// allocation after construction); every displacement array is (vertex_count), every vertex
+/// counted, fixed ones included (a solver masks them).
+class ElasticEnergy {
+ public:
+  /// Checks the model's law: the clamped SVK (InversionHandling::kClampStretch) has no energy
+  /// of its own and is refused.
+  static Result<ElasticEnergy> create(const Model& model);
+
+  /// W(u) [J], u [m].
+  double energy(std::span<const Vec3d> u);
+  /// Adds dW/du at u to g [N] (the negated elastic forces); returns W(u) [J].
+  double add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g);
+  /// Adds (d^2 W / du^2) v to y [N], v [m].
+  void add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
+                           std::span<Vec3d> y);
+  /// Adds the Hessian's 3 x 3 diagonal blocks to d [N/m].
+  void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d);
+
+ private:
+  explicit ElasticEnergy(const Model& model);
+  // Nodal pressure: each vertex's lambda_v (Jbar_v - 1) [Pa] into pressure_, and returns the
+  // vertices' volumetric energy sum_v V_v lambda_v / 2 (Jbar_v - 1)^2 [J].
+  double vertex_pressures(std::span<const Vec3d> u);
+  // The law of element t, with the corner mean of pressure_ under nodal pressure.
+  ElementLaw<double> law(size_t t) const;
+  void corners(std::span<const Vec3d> x, size_t t, Vec3d out[4]) const;
+
+  const Model* model_;
+  std::vector<double> pressure_;  // [Pa], (vertex_count)
+  std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
+};
+
+}  // namespace zona

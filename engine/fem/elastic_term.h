@@ -1,0 +1,149 @@
+// The elastic energy as an energy term, element by element: value, stress (the gradient),
+// Hessian-vector product and the Hessian's diagonal blocks, for every law the model has
+// (linear, SVK, stable neo-Hookean with its volumetric term per element or at the vertices).
+//
+// These are the element functions a static solver needs beside the explicit step's: the stress
+// comes from the same fem_element.h functions the element passes call (one copy of each law),
+// and the second derivative is the stress differential dP = (d^2 Psi / dF^2) : dF, so a
+// Hessian-vector product never forms a 12 x 12 matrix. ZONA_HOST_DEVICE: the CPU loops here
+// (engine/fem/elastic_energy.cpp) and a CUDA kernel can call them alike.
+//
+// Nodal pressure (Model::nodal_pressure) splits the energy in two: the element part with
+// lambda_s = mu and the corner mean of the vertices' pressures, and the vertices' volumetric
+// energy sum_v V_v lambda_v / 2 (Jbar_v - 1)^2 with Jbar_v - 1 = (1 / V_v) sum_e V_e / 4 (J_e - 1).
+// Its Hessian is the element part with the pressure held (pressure x d^2 J_e) plus, per vertex,
+// the rank-one (lambda_v / V_v) g_v g_v^T with g_v = sum_e V_e / 4 dJ_e / du: positive
+// semi-definite, kept exact. The element functions give the element part and dJ_e; the
+// vertex sums are the host's (two passes, as the force's).
+#pragma once
+
+#include <cstdint>
+
+#include "engine/core/base.h"
+#include "engine/core/vec.h"
+#include "engine/fem/fem_element.h"
+
+namespace zona {
+
+/// The law of one element as the energy term evaluates it. `pressure` is used only with
+/// `nodal`: the corner mean of the vertices' lambda_v (Jbar_v - 1) [Pa].
+template <class T>
+struct ElementLaw {
+  ConstitutiveModel model = ConstitutiveModel::kStableNeoHookean;
+  T lambda = 0, mu = 0;  ///< the material's Lame constants [Pa]
+  bool nodal = false;    ///< stable neo-Hookean with the volumetric term at the vertices
+  T pressure = 0;        ///< [Pa]
+};
+
+/// First Piola-Kirchhoff stress P [Pa] of the law at displacement gradient h, to *p; the element
+/// part of the energy density [J/m^3] returned (with nodal pressure: without the vertices'
+/// volumetric energy); J - 1 [-] to *j_minus_one (0 for the linear law).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T element_stress(const ElementLaw<T>& law, const Mat3<T>& h,
+                                              Mat3<T>* p, T* j_minus_one) {
+  switch (law.model) {
+    case ConstitutiveModel::kLinear:
+      *j_minus_one = T(0);
+      return linear_first_piola(h, law.lambda, law.mu, p);
+    case ConstitutiveModel::kSvk:
+      *j_minus_one = snh_volume_change(h);
+      return svk_first_piola(h, law.lambda, law.mu, p);
+    default:
+      if (law.nodal) return snh_first_piola_nodal(h, law.mu, law.pressure, p, j_minus_one);
+      return snh_first_piola(h, law.lambda, law.mu, p, j_minus_one);
+  }
+}
+
+/// Stress differential dP = (d^2 Psi / dF^2) : dF [Pa] of the law at displacement gradient h
+/// for a change dF [-] (with nodal pressure: of the element part, the pressure held).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLaw<T>& law,
+                                                                 const Mat3<T>& h,
+                                                                 const Mat3<T>& df) {
+  T unused;
+  switch (law.model) {
+    case ConstitutiveModel::kLinear:
+      return isotropic_stress(small_strain(df), law.lambda, law.mu, &unused);
+    case ConstitutiveModel::kSvk: {
+      // P = F S(E): dP = dF S + F dS, dS = C : dE, dE = sym(F^T dF).
+      Mat3<T> f = h;
+      for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
+      const Mat3<T> s = isotropic_stress(green_strain(h), law.lambda, law.mu, &unused);
+      const Mat3<T> ftdf = transpose(f) * df;
+      Mat3<T> de;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) de.m[r][c] = T(0.5) * (ftdf.m[r][c] + ftdf.m[c][r]);
+      return df * s + f * isotropic_stress(de, law.lambda, law.mu, &unused);
+    }
+    default: {
+      if (!law.nodal) return snh_stress_differential(h, law.lambda, law.mu, df);
+      // The element part: snh_stress_differential with lambda_s = mu, plus the held pressure's
+      // pressure x d cof(F)[dF].
+      Mat3<T> f = h;
+      for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
+      const Mat3<T> cof = snh_cofactor_of_f(h);
+      const Mat3<T> dcof = cofactor_differential(f, df);
+      const T jm1 = snh_volume_change(h);
+      const T dj = frobenius_dot(cof, df);
+      const T k = law.mu * jm1 + law.pressure;
+      Mat3<T> dp;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          dp.m[r][c] = law.mu * (df.m[r][c] - dcof.m[r][c] + dj * cof.m[r][c]) + k * dcof.m[r][c];
+      return dp;
+    }
+  }
+}
+
+/// The element's energy [J] (element part) and its gradient dW/du at the corners [N] (the
+/// negated elastic forces of the explicit step), at corner displacements u [m].
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T tet_energy_gradient(const TetShape<T>& s, const ElementLaw<T>& law,
+                                                   const Vec3<T> u[4], Vec3<T> g[4]) {
+  Mat3<T> p;
+  T jm1;
+  const T psi = element_stress(law, tet_displacement_gradient(s, u), &p, &jm1);
+  Vec3<T> f[4];
+  tet_forces_from_stress(s, p, f);
+  for (int c = 0; c < 4; ++c) g[c] = -f[c];
+  return s.volume * psi;
+}
+
+/// Hessian-vector product of the element: y_b = V dP grad_b with dF = sum_a v_a grad_a^T, at
+/// corner displacements u [m], for corner directions v [m]; y [N] (written, not added).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void tet_hessian_product(const TetShape<T>& s,
+                                                      const ElementLaw<T>& law,
+                                                      const Vec3<T> u[4], const Vec3<T> v[4],
+                                                      Vec3<T> y[4]) {
+  const Mat3<T> h = tet_displacement_gradient(s, u);
+  const Mat3<T> dp = element_stress_differential(law, h, tet_displacement_gradient(s, v));
+  for (int b = 0; b < 4; ++b) y[b] = s.volume * (dp * s.grad[b]);
+}
+
+/// The element Hessian's four diagonal 3 x 3 blocks d[a] = d^2 W / du_a^2 [N/m] at u [m]
+/// (written): column i of block a is V dP grad_a at dF = e_i grad_a^T.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void tet_hessian_diagonal(const TetShape<T>& s,
+                                                       const ElementLaw<T>& law,
+                                                       const Vec3<T> u[4], Mat3<T> d[4]) {
+  const Mat3<T> h = tet_displacement_gradient(s, u);
+  for (int a = 0; a < 4; ++a)
+    for (int i = 0; i < 3; ++i) {
+      Mat3<T> df = Mat3<T>::zero();
+      for (int c = 0; c < 3; ++c) df.m[i][c] = s.grad[a][c];
+      const Vec3<T> col = s.volume * (element_stress_differential(law, h, df) * s.grad[a]);
+      for (int r = 0; r < 3; ++r) d[a].m[r][i] = col[r];
+    }
+}
+
+/// dJ_e / du_a = cof(F) grad_a [-/m] at u [m], the four corners (written): the nodal
+/// pressure's vertex gradients g_v are sums of V_e / 4 times these.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void tet_volume_gradient(const TetShape<T>& s, const Vec3<T> u[4],
+                                                      Vec3<T> dj[4]) {
+  const Mat3<T> cof = snh_cofactor_of_f(tet_displacement_gradient(s, u));
+  for (int a = 0; a < 4; ++a) dj[a] = cof * s.grad[a];
+}
+
+}  // namespace zona
