@@ -80,7 +80,7 @@ double ElasticEnergy::energy(std::span<const Vec3d> u) {
   return w;
 }
 
-double ElasticEnergy::add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
+double ElasticEnergy::add_gradient_energy(std::span<const Vec3d> u, std::span<Vec3d> g) {
   const Model& m = *model_;
   ZONA_ASSERT(u.size() == m.vertex_count() && g.size() == m.vertex_count());
   double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "engine/core/base.h"
+#include "engine/core/energy_term.h"
 #include "engine/core/vec.h"
 #include "engine/fem/elastic_term.h"
 #include "engine/fem/model.h"
@@ -18,21 +19,26 @@ namespace zona {
 /// The elastic energy term over a model. Holds the per-vertex scratch of nodal pressure (no
 /// allocation after construction); every displacement array is (vertex_count), every vertex
 /// counted, fixed ones included (a solver masks them).
-class ElasticEnergy {
+class ElasticEnergy final : public EnergyTerm {
  public:
   /// Checks the model's law: the clamped SVK (InversionHandling::kClampStretch) has no energy
   /// of its own and is refused.
   static Result<ElasticEnergy> create(const Model& model);
 
+  const char* name() const override { return "elastic"; }
   /// W(u) [J], u [m].
-  double energy(std::span<const Vec3d> u);
-  /// Adds dW/du at u to g [N] (the negated elastic forces); returns W(u) [J].
-  double add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g);
+  double energy(std::span<const Vec3d> u) override;
+  /// Adds dW/du at u to g [N] (the negated elastic forces).
+  void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override {
+    add_gradient_energy(u, g);
+  }
+  /// add_gradient, returning W(u) [J] from the same pass.
+  double add_gradient_energy(std::span<const Vec3d> u, std::span<Vec3d> g);
   /// Adds (d^2 W / du^2) v to y [N], v [m].
   void add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
-                           std::span<Vec3d> y);
+                           std::span<Vec3d> y) override;
   /// Adds the Hessian's 3 x 3 diagonal blocks to d [N/m].
-  void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d);
+  void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
 
  private:
   explicit ElasticEnergy(const Model& model);

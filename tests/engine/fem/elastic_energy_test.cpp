@@ -83,7 +83,7 @@ TEST_P(ElasticEnergyTest, GradientIsTheExplicitStepsElasticForce) {
   ASSERT_TRUE(term.ok());
   const std::vector<Vec3d> u = wavy(mesh_, 0.15, 0.3);
   std::vector<Vec3d> g(u.size(), Vec3d{0, 0, 0});
-  const double w = term->add_gradient(u, g);
+  const double w = term->add_gradient_energy(u, g);
   State s = make_state(model, 2);
   set_displacement(s, u);
   compute_elastic_forces(model, s);

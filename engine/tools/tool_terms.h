@@ -1,0 +1,110 @@
+// The tools' energy terms (engine/core/energy_term.h) on the cell's surface points: a tool's
+// penalty contact with its friction (the needle's, the holding rim's), and the suction as a dead
+// load. The per-point laws are engine/tools/penalty.h's, the ones the explicit step calls.
+//
+// Friction is an incremental potential: within a step its normal, its Coulomb cap and its
+// anchors are held (lag(), from the last accepted state), so the term is a function of u alone
+// and a line search may evaluate it anywhere; commit() moves the anchors of the points that
+// slid, once the step is accepted. Evaluated at the lagged state itself, its gradient is the
+// explicit step's friction force.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "engine/core/energy_term.h"
+#include "engine/tools/penalty.h"
+#include "engine/tools/tool_sdf.h"
+
+namespace zona {
+
+/// A tool's surface as a distance field at one pose: the needle (tip, direction, radius, flat
+/// tip) or the holding pipette's wall (mouth, axis, inner / outer / edge radii). Lengths [m].
+struct ToolField {
+  enum class Kind { kNeedle, kRim } kind = Kind::kNeedle;
+  Vec3d origin{0, 0, 0};  ///< the needle's tip or the rim's mouth: friction's reference point
+  Vec3d axis{1, 0, 0};    ///< the needle's direction or the rim's axis (unit)
+  double radius = 0;      ///< needle radius, or the rim's inner radius
+  double outer_radius = 0, edge_radius = 0;  ///< the rim's
+  bool flat = false;                         ///< the needle's flat tip
+
+  /// Distance, normal and (optionally) Hessian at x.
+  ToolSdf eval(Vec3d x, Mat3d* hessian = nullptr) const {
+    if (kind == Kind::kNeedle) return needle_sdf(origin, axis, radius, flat, x, hessian);
+    return holding_sdf(origin, axis, radius, outer_radius, x, edge_radius, hessian);
+  }
+};
+
+/// Penalty contact of a tool on surface points, with Coulomb friction as an incremental
+/// potential. Per point: energy k phi^2 / 2 inside the tool (k = kappa x area) plus, where the
+/// lagged state was in contact, the friction potential about its anchor.
+class PenaltyContactTerm final : public EnergyTerm {
+ public:
+  /// `rest`: rest positions [m], (vertex_count); `vertex`, `area`: the points' model indices and
+  /// rest areas [m^2]; kappa [Pa/m]; mu [-]. The spans must outlive the term.
+  PenaltyContactTerm(const char* name, ToolField field, std::span<const Vec3d> rest,
+                     std::span<const int32_t> vertex, std::span<const double> area, double kappa,
+                     double mu);
+
+  const char* name() const override { return name_; }
+  double energy(std::span<const Vec3d> u) override;
+  void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override;
+  void add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
+                           std::span<Vec3d> y) override;
+  void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
+
+  /// The tool's pose for the coming step.
+  void set_field(const ToolField& field) { field_ = field; }
+  const ToolField& field() const { return field_; }
+  /// Holds the friction's normal, cap and anchor of each point from the accepted state u for
+  /// the coming step `step` (a point out of contact there gets none).
+  void lag(std::span<const Vec3d> u, int64_t step);
+  /// After the step is accepted at u: the anchors of the points that slid follow them.
+  void commit(std::span<const Vec3d> u);
+  /// Points in contact in the lagged state.
+  int64_t lagged_contacts() const;
+
+ private:
+  struct Lagged {
+    Vec3d normal{0, 0, 0};
+    double cap = 0;  // mu x normal force [N]; 0: no friction this step
+    Vec3d anchor{0, 0, 0};
+  };
+  // Point i's position, its distance field and the penalty stiffness.
+  Vec3d position(std::span<const Vec3d> u, size_t i) const;
+  double stiffness(size_t i) const { return kappa_ * area_[i]; }
+  // The point's Hessian block (normal and friction).
+  Mat3d point_hessian(std::span<const Vec3d> u, size_t i) const;
+
+  const char* name_;
+  ToolField field_;
+  std::span<const Vec3d> rest_;
+  std::span<const int32_t> vertex_;
+  std::span<const double> area_;
+  double kappa_, mu_;
+  int64_t step_ = 0;
+  std::vector<Lagged> lagged_;      // (point count)
+  std::vector<StickAnchor> anchor_;  // committed anchors, (point count)
+};
+
+/// The suction on the aspirated patch as a dead load: E = -ramp sum_v f_v . u_v, f the full
+/// suction load [N] per point, ramp in [0, 1].
+class SuctionTerm final : public EnergyTerm {
+ public:
+  SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load);
+  const char* name() const override { return "suction"; }
+  double energy(std::span<const Vec3d> u) override;
+  void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override;
+  void add_hessian_product(std::span<const Vec3d>, std::span<const Vec3d>,
+                           std::span<Vec3d>) override {}
+  void add_hessian_diagonal(std::span<const Vec3d>, std::span<Mat3d>) override {}
+  void set_ramp(double ramp) { ramp_ = ramp; }
+
+ private:
+  std::span<const int32_t> vertex_;
+  std::span<const Vec3d> load_;
+  double ramp_ = 1;
+};
+
+}  // namespace zona
