@@ -1,22 +1,27 @@
 // The injection step as one list of stages that either backend runs where the state lives
-// (DESIGN.md section 2, docs/architecture.md):
+// (engine/sim/step_stage.h names them; docs/architecture.md, "One step"):
 //
-//   1. tools      tool forces on the surface vertices: the needle and the holding pipette's rim
-//                 as penalty contact on the tools' signed distance fields, Coulomb friction,
-//                 suction on the aspirated patch, the released tip load after puncture, the
-//                 rim contact's damper
-//   2. loads      stiffness-proportional damping from the change of the elastic forces, and
-//                 the drift damping's load (job_drift_update)
-//   3. internal   elastic forces (the backend's element pass)
-//   4. integrate  centred difference with the loads of 1 and 2
-//   5. measure    needle force vector, holding force, contacts, deformation at the entry point,
-//                 energies, the work the tools put in (reductions)
-//   6. record     force filter, health verdict (blow-up, the needle through the surface),
-//                 puncture test, the next tool pose, the step record (and a sample every
-//                 output interval)
+//   masses     dynamic mass scaling (every mass_interval steps)
+//   loads      stiffness-proportional damping from the change of the elastic forces, and the
+//              drift damping's load (job_drift_update)
+//   tools      the tool terms' forces on the surface: the needle and the holding pipette's rim
+//              as penalty contact on the tools' distance fields with Coulomb friction
+//              (engine/tools/penalty.h), suction on the aspirated patch, the released tip load
+//              after puncture, the rim contact's damper; the friction anchors are committed in
+//              place (every explicit step is accepted)
+//   elastic    elastic forces (the backend's element pass)
+//   integrate  centred difference with the loads of tools and loads
+//   measure    needle force vector, holding force, contacts, deformation at the entry point,
+//              energies, the work the tools put in (reductions)
+//   record     the step's measures, health verdict (blow-up, the needle through the surface),
+//              force filter, local stiffness, quasi-static check
+//   commit     release after puncture, the next tool pose
+//   puncture   the puncture test on a healthy, quasi-static state; the sample
+//
+// (record, commit and puncture are job_finish_step, one call per step.)
 //
 // Every per-vertex and per-step function here is ZONA_HOST_DEVICE: the CPU runner
-// (engine/job.cpp) loops over them on its threads, the CUDA runner (kernels/job_kernels.cuh)
+// (engine/sim/job_runner.cpp) loops over them on its threads, the CUDA runner (kernels/job_kernels.cuh)
 // calls the same functions from its kernels, so the two backends cannot drift apart. On the
 // GPU only the fixed-size JobRecord crosses to the host (mapped pinned memory, no stream
 // synchronisation); vertex arrays cross only for a written frame.
@@ -514,21 +519,17 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_drift_update(const JobParams& p, JobState&
   s.drift_accel = (-p.drift_damping) * (v - s.drift_mean);
 }
 
-/// Stage 6: the record of the step that took s from t_n to t_{n+1}: force filter, blow-up
-/// verdict (a non-finite value, or kinetic + elastic energy above energy_blowup_factor times the
-/// initial energy plus the work of the tools: damping only removes energy; or, before puncture, a
-/// contact point deeper than needle_breach_depth inside the needle), the puncture test on
-/// a healthy state only, the local stiffness, and the pose of the next step. Returns true when a
-/// sample is due (every sample_interval of simulated time).
-ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& s,
-                                                 const JobSums& sums, const JobStepTotals& tot,
-                                                 JobRecord* out) {
-  // StepStatusBits (engine/sim/integrator.h).
-  const uint32_t kNonFinite = 1u, kBlowUp = 2u, kToolBreach = 1u << 6, kNotQuasiStatic = 1u << 7;
-  JobRecord& r = *out;
+/// StepStatusBits (engine/sim/integrator.h) the record stage sets.
+inline constexpr uint32_t kJobNonFinite = 1u, kJobBlowUp = 2u, kJobToolBreach = 1u << 6,
+                          kJobNotQuasiStatic = 1u << 7;
+
+/// Record, measures: the step count and time advance to t_{n+1}; the step's sums and totals
+/// into the record; the drift damping's next load.
+ZONA_HOST_DEVICE ZONA_INLINE void job_record_measures(const JobParams& p, JobState& s,
+                                                      const JobSums& sums,
+                                                      const JobStepTotals& tot, JobRecord& r) {
   r.status = tot.status;
   r.first_bad = tot.first_bad;
-  const Vec3d tip_before = s.pose.tip;
   s.step += 1;
   s.time = static_cast<double>(s.step) * p.dt;
   r.step = s.step;
@@ -543,28 +544,40 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   r.elastic_energy = tot.elastic_energy;
   r.kinetic_energy = tot.kinetic_energy;
   job_drift_update(p, s, tot);
-  // Health: the state must be finite and its energy explained by the work put in.
+}
+
+/// Record, health: the state must be finite and its energy explained by the work put in
+/// (kinetic + elastic above energy_blowup_factor times the initial energy plus the tools' work
+/// is a blow-up: damping only removes energy); before puncture, a contact point deeper than
+/// needle_breach_depth inside the needle means the surface let the tool through (it stretched too
+/// far for its triangles to wrap the tip): what follows is no contact answer. A failed state
+/// halts the job.
+ZONA_HOST_DEVICE ZONA_INLINE void job_check_health(const JobParams& p, JobState& s,
+                                                   const JobSums& sums, const JobStepTotals& tot,
+                                                   JobRecord& r) {
   const double energy = tot.elastic_energy + tot.kinetic_energy;
   if (!(energy - energy == 0) || !(r.raw_force - r.raw_force == 0) ||
       !(tot.deformation - tot.deformation == 0))
-    r.status |= kNonFinite;
+    r.status |= kJobNonFinite;
   if (!s.budget_valid) {
     s.energy_budget = energy - energy == 0 ? energy : 0.0;
     s.budget_valid = 1;
   }
   s.energy_budget += sums.tool_work > 0 ? sums.tool_work : 0.0;
   const double floor = s.energy_budget > p.energy_floor ? s.energy_budget : p.energy_floor;
-  if (energy > p.energy_blowup_factor * floor) r.status |= kBlowUp;
+  if (energy > p.energy_blowup_factor * floor) r.status |= kJobBlowUp;
   r.energy_budget = s.energy_budget;
-  // A surface point far inside the needle before puncture: the surface let the tool through
-  // (it stretched too far for its triangles to wrap the tip); what follows is no contact answer.
   if (p.needle_breach_depth > 0 && !s.puncture.punctured &&
       sums.needle_depth > p.needle_breach_depth)
-    r.status |= kToolBreach;
-  if (r.status & (kNonFinite | kBlowUp | kToolBreach)) s.halted = 1;
+    r.status |= kJobToolBreach;
+  if (r.status & (kJobNonFinite | kJobBlowUp | kJobToolBreach)) s.halted = 1;
   r.halted = s.halted;
-  // Force filter (exact for a constant input over the step), on the needle's force and on the
-  // holder's, which the quasi-static check compares.
+}
+
+/// Record, force filter (exact for a constant input over the step), on the needle's force and on
+/// the holder's, which the quasi-static check compares.
+ZONA_HOST_DEVICE ZONA_INLINE void job_filter_forces(const JobParams& p, JobState& s,
+                                                    JobRecord& r) {
   const double holding_axial = dot(r.holding_force, p.needle_direction);
   if (p.force_filter > 0 && s.filter_started) {
     const double a = p.force_filter_weight;
@@ -576,14 +589,24 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   }
   s.filter_started = 1;
   r.force = s.filtered_force;
+}
+
+/// Commit, tool poses: after puncture the release follows the step's load; the tip of the next
+/// step (t_{n+1}); the record reports the tip the step ended at.
+ZONA_HOST_DEVICE ZONA_INLINE void job_commit_pose(const JobParams& p, JobState& s,
+                                                  const JobSums& sums, JobRecord& r) {
   if (s.puncture.punctured) job_follow_release(p, s, sums, r.raw_force);
-  // The next pose (tip at t_{n+1}); the record reports the tip the step ended at.
   job_follow_tip(p, s);
   job_set_pose(p, s);
   r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time))
                                : s.pose.tip;
   r.travel = dot(r.tip - p.needle_start, p.needle_direction);
-  // Local stiffness for the haptic thread: slope of force over at least stiffness_window.
+}
+
+/// Record, local stiffness for the haptic thread: the slope of force over at least
+/// stiffness_window of travel.
+ZONA_HOST_DEVICE ZONA_INLINE void job_local_stiffness(const JobParams& p, JobState& s,
+                                                      JobRecord& r) {
   if (!s.stiffness_anchor) {
     s.stiffness_anchor = 1;
     s.stiffness_force = r.force;
@@ -597,13 +620,27 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
     }
   }
   r.stiffness = s.stiffness;
-  // Quasi-static check while the needle loads the cell: a state whose load the holder does not
-  // carry (inertia, damping) is never taken as a puncture.
+}
+
+/// Record, quasi-static check while the needle loads the cell (engine/sim/quasi_static.h): a
+/// state whose load the holder does not carry (inertia, damping) is never taken as a puncture.
+/// True when this state fails it.
+ZONA_HOST_DEVICE ZONA_INLINE bool job_check_quasi_static(const JobParams& p, JobState& s,
+                                                         const JobStepTotals& tot, JobRecord& r) {
   const bool not_static = quasi_static_step(
       p.quasi, s.quasi, p.has_needle && !s.puncture.punctured && !s.halted, r.force,
       s.filtered_holding, tot.kinetic_energy, tot.elastic_energy, s.step, s.time, r.deformation);
-  if (not_static) r.status |= kNotQuasiStatic;
-  // Puncture: only from a healthy, quasi-static state, once.
+  if (not_static) r.status |= kJobNotQuasiStatic;
+  return not_static;
+}
+
+/// Puncture: only from a healthy, quasi-static state, once; the tip load then stays at the pose
+/// `tip_before` the step had. After it the stiffness the haptic thread extrapolates with is the
+/// shaft's drag per metre inserted, not the slope from before (which would keep pushing the hand).
+ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState& s,
+                                                    const JobSums& sums, const JobStepTotals& tot,
+                                                    bool not_static, Vec3d tip_before,
+                                                    JobRecord& r) {
   if (!s.halted && !not_static && p.has_needle && !s.puncture.punctured) {
     const bool met = (p.criterion == kJobCriterionForce && r.force >= p.threshold) ||
                      (p.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.threshold);
@@ -618,15 +655,11 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
       q.energy = tot.elastic_energy;
       q.force_vector = r.force_vector;
       s.released_contacts = sums.needle_contacts;
-      // The tip load stays at the puncture pose.
       s.pose.tip = tip_before;
       job_set_pose(p, s);
     }
   }
   if (s.puncture.punctured) {
-    // The membrane gave way: the load follows the prescribed release, then the shaft's drag,
-    // which grows by shaft_friction per metre inserted, not the tip's travel into the cell. A
-    // haptic renderer extrapolating with the slope from before would keep pushing the hand.
     s.stiffness = p.shaft_friction;
     s.stiffness_force = r.force;
     s.stiffness_travel = r.travel;
@@ -634,12 +667,34 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
   }
   r.puncture = s.puncture;
   r.quasi = s.quasi;
+}
+
+/// Whether a sample is due (every sample_interval of simulated time, and on a halt).
+ZONA_HOST_DEVICE ZONA_INLINE bool job_sample_due(const JobParams& p, JobState& s) {
   if (s.time >= s.next_sample - 0.5 * p.dt || s.halted) {
     s.next_sample += p.sample_interval > 0 ? p.sample_interval : p.dt;
     if (s.next_sample < s.time) s.next_sample = s.time + p.sample_interval;
     return true;
   }
   return false;
+}
+
+/// The record, commit and puncture stages of the step that took s from t_n to t_{n+1}
+/// (StepStage::kRecord, kCommit, kPuncture), in order; one call per step on either backend (the
+/// CPU runner, the CUDA record kernel). Returns true when a sample is due.
+ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& s,
+                                                 const JobSums& sums, const JobStepTotals& tot,
+                                                 JobRecord* out) {
+  JobRecord& r = *out;
+  const Vec3d tip_before = s.pose.tip;
+  job_record_measures(p, s, sums, tot, r);
+  job_check_health(p, s, sums, tot, r);
+  job_filter_forces(p, s, r);
+  job_commit_pose(p, s, sums, r);
+  job_local_stiffness(p, s, r);
+  const bool not_static = job_check_quasi_static(p, s, tot, r);
+  job_puncture_test(p, s, sums, tot, not_static, tip_before, r);
+  return job_sample_due(p, s);
 }
 
 /// Deformation at the entry point: the advance of the material point where the needle axis

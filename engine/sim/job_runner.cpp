@@ -7,8 +7,14 @@
 #include "engine/fem/fem_element.h"
 #include "engine/sim/integrator.h"
 #include "engine/fem/mass_scaling.h"
+#include "engine/sim/step_stage.h"
 
 namespace zona {
+
+// The record stage's status bits are the integrator's.
+static_assert(kJobNonFinite == kStepNonFinite && kJobBlowUp == kStepEnergyBlowUp &&
+              kJobToolBreach == kStepToolBreach && kJobNotQuasiStatic == kStepNotQuasiStatic);
+
 namespace {
 
 class CpuJobRunner final : public JobRunner {
@@ -208,25 +214,37 @@ class CpuJobRunner final : public JobRunner {
     }
   }
 
+  // One step as its stages (engine/sim/step_stage.h), one per line.
   void step_once() {
     const JobParams& p = setup_.params;
-    if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();
+    if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();  // masses
     ++steps_run_;
-    const size_t nv = model_.vertex_count();
-    std::vector<Vec3d>& ext = state_.external_force;
-    // 2. loads: stiffness damping, lagged one step (f(u_{n-1}) - f(u_{n-2})), on every vertex.
+    apply_loads();                                        // loads
+    JobSums sums = tool_forces();                         // tools (anchors committed in place)
+    const StepStatus status = elastic_and_integrate();    // elastic, integrate
+    const JobStepTotals tot = measure(status, sums);      // measure
+    record(sums, tot);                                    // record, commit, puncture
+  }
+
+  // StepStage::kLoads: stiffness damping, lagged one step (f(u_{n-1}) - f(u_{n-2})), on every
+  // vertex, and the drift damping's load (job_drift_update) on every free vertex.
+  void apply_loads() {
+    const JobParams& p = setup_.params;
     if (p.stiffness_damping_rate > 0) {
       const double k = p.stiffness_damping_rate;
-      for (size_t v = 0; v < nv; ++v) {
+      std::vector<Vec3d>& ext = state_.external_force;
+      for (size_t v = 0; v < model_.vertex_count(); ++v) {
         ext[v] = k * (state_.force[v] - force_prev_[v]);
         force_prev_[v] = state_.force[v];
       }
     }
-    // The drift damping's load (job_drift_update), on every free vertex.
-    if (p.drift_damping > 0)
-      run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
-    // 1. tools: the needle on the surface triangles (face quadrature), then every tool on the
-    // surface vertices.
+    if (p.drift_damping > 0) run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
+  }
+
+  // StepStage::kTools: the needle on the surface triangles (face quadrature), then every tool on
+  // the surface vertices, into external_force; returns the step's sums.
+  JobSums tool_forces() {
+    const JobParams& p = setup_.params;
     JobSums sums;
     if (p.needle_on_faces) {
       // Every triangle on the pool (each owns its anchors and its output slot), then the few
@@ -265,17 +283,28 @@ class CpuJobRunner final : public JobRunner {
       sums.rim_contacts += c.rim_contacts;
       sums.needle_depth = std::max(sums.needle_depth, c.needle_depth);
     }
-    // 3-4. internal forces and the centred-difference update.
+    return sums;
+  }
+
+  // StepStage::kElastic and kIntegrate: the element pass and the centred-difference update
+  // (integrator.cpp's step).
+  StepStatus elastic_and_integrate() {
     StepStatus status = step(model_, state_);
     // The integrator's own energy test counts the damping loads as work put in; the job's
     // budget (tools only) replaces it.
     status &= ~static_cast<StepStatus>(kStepEnergyBlowUp);
+    return status;
+  }
+
+  // StepStage::kMeasure: the tools' work over the step, the energies, the deformation at the
+  // entry point and (every kDriftInterval steps with drift damping) the cell's momentum.
+  JobStepTotals measure(StepStatus status, JobSums& sums) {
+    const JobParams& p = setup_.params;
     // The tools' work over the step, centred: f_n . (u_{n+1} - u_{n-1}) / 2.
     for (size_t i = 0; i < setup_.tool_vertices.size(); ++i) {
       const size_t v = static_cast<size_t>(setup_.tool_vertices[i]);
       sums.tool_work += 0.5 * dot(tool_force_[i], state_.u[v] - tool_u_before_[i]);
     }
-    // 5. measure.
     JobStepTotals tot;
     tot.elastic_energy = state_.diag.elastic_energy;
     tot.kinetic_energy = state_.diag.kinetic_energy;
@@ -297,8 +326,12 @@ class CpuJobRunner final : public JobRunner {
                                               u[static_cast<size_t>(p.entry_vertex[1])],
                                               u[static_cast<size_t>(p.entry_vertex[2])]);
     }
-    // 6. record.
-    const bool sample = job_finish_step(p, job_, sums, tot, &latest_);
+    return tot;
+  }
+
+  // StepStage::kRecord, kCommit and kPuncture (job_finish_step), and the sample.
+  void record(const JobSums& sums, const JobStepTotals& tot) {
+    const bool sample = job_finish_step(setup_.params, job_, sums, tot, &latest_);
     has_latest_ = true;
     if (sample) {
       if (samples_.size() < samples_.capacity())
