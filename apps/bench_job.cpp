@@ -54,7 +54,7 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
   Result<BackendKind> kind = parse_backend_kind(a.backend);
   if (!kind) return kind.error();
   if (*kind == BackendKind::kAuto) return make_error("--backend: give cpu or cuda for --job");
-  Result<std::string> path = find_scene(a.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(a.scene);
   if (!path) return path.error();
   if (a.repeats < 1) return make_error("--repeats: must be >= 1, got %d", a.repeats);
   const bool gpu = *kind == BackendKind::kCuda;

@@ -148,7 +148,7 @@ void add_generate(CLI::App& group) {
   cmd->callback([args] {
     CellMeshSpec spec;
     if (!args->scene.empty()) {
-      Result<std::string> path = find_scene(args->scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+      Result<std::string> path = find_scene_file(args->scene);
       if (!path.ok()) return fail(path.error().message);
       Result<Scene> scene = load_scene(*path, args->sets);
       if (!scene.ok()) return fail(scene.error().message);

@@ -212,7 +212,7 @@ Status write_force_plot(const std::string& path, const Simulation& sim, const Ru
 
 void run_command(const RunArgs& args) {
   namespace fs = std::filesystem;
-  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(args.scene);
   if (!path.ok()) return fail(path.error().message);
   Result<Scene> scene = load_scene(*path, args.sets);
   if (!scene.ok()) return fail(scene.error().message);
@@ -334,6 +334,8 @@ void run_command(const RunArgs& args) {
   const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
   nlohmann::json summary = run_summary_json(sim, run, metrics);
   summary["numerics"]["setup_time_s"] = setup_seconds;
+  // The file the scene name resolved to (./scenes, $ZONA_SCENES_DIR, installed, source tree).
+  summary["scene_file"] = *path;
   if (Status s = write_file_atomic((fs::path(out) / "summary.json").string(),
                                    summary.dump(2) + "\n");
       !s)
@@ -346,6 +348,7 @@ void run_command(const RunArgs& args) {
   }
 
   // What happened, on stdout.
+  std::printf("scene: %s (%s)\n", scene->name.c_str(), path->c_str());
   if (run.puncture.punctured)
     std::printf("puncture: t %.4f s, travel %.2f um, deformation %.2f um (%.1f %% of %.1f um), "
                 "force %.3f uN\n",

@@ -134,7 +134,7 @@ void convergence_command(const ConvergenceArgs& args) {
   Result<BackendKind> kind = parse_backend_kind(args.backend);
   if (!kind) return fail(kind.error().message);
   if (args.threads < 0) return fail("--threads must be >= 0");
-  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(args.scene);
   if (!path) return fail(path.error().message);
   Result<std::vector<Scene>> scenes = convergence_scenes(*path, args.sets, *vertices);
   if (!scenes) return fail(scenes.error().message);

@@ -1,9 +1,11 @@
 // zona: command-line entry point. Each command group registers itself from apps/cmd_*.cpp.
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
 
 #include "apps/commands.h"
+#include "engine/scene/scene.h"
 #include "build_commit.h"  // generated: ZONA_BUILD_COMMIT
 
 namespace zona::cli {
@@ -16,6 +18,16 @@ int& exit_code() {
 void fail(const std::string& message) {
   std::fprintf(stderr, "zona: error: %s\n", message.c_str());
   exit_code() = 1;
+}
+
+Result<std::string> find_scene_file(const std::string& name) {
+  // ZONA_INSTALLED_SCENES is relative to the installed binary's folder (apps/CMakeLists.txt).
+  Result<std::string> path = find_scene(
+      name, scene_search_dirs(ZONA_INSTALLED_SCENES, std::string(ZONA_SOURCE_DIR) + "/scenes"));
+  if (!path.ok()) return path;
+  std::error_code ec;
+  const std::filesystem::path absolute = std::filesystem::absolute(*path, ec);
+  return ec ? *path : absolute.lexically_normal().string();
 }
 
 std::string source_commit() {

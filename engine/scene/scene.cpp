@@ -975,30 +975,6 @@ Result<Scene> load_scene(const std::string& path, const std::vector<std::string>
   return parse_scene(doc, path, overrides);
 }
 
-Result<std::string> find_scene(const std::string& name, const std::vector<std::string>& search_dirs) {
-  if (name.empty()) return make_error("empty scene name");
-  std::error_code ec;
-  if (fs::is_regular_file(name, ec)) return name;
-  if (name.find('/') != std::string::npos) {
-    // A path: one that exists but is a directory, device or FIFO says so.
-    const std::string kind = file_kind(name);
-    if (kind.empty()) return make_error("%s: scene file not found", name.c_str());
-    return make_error("%s: is not a regular file (%s)", name.c_str(), kind.c_str());
-  }
-  std::vector<fs::path> dirs(search_dirs.begin(), search_dirs.end());
-  if (const char* env = std::getenv("ZONA_SCENES_DIR"); env && *env) dirs.emplace_back(env);
-  dirs.emplace_back("scenes");
-  const bool has_extension = fs::path(name).extension() == ".json";
-  std::string looked;
-  for (const fs::path& dir : dirs) {
-    const fs::path candidate = dir / (has_extension ? name : name + ".json");
-    if (fs::is_regular_file(candidate, ec)) return candidate.string();
-    looked += (looked.empty() ? "" : ", ") + dir.string();
-  }
-  return make_error("scene '%s' not found: not a file, and no %s%s in: %s", name.c_str(),
-                    name.c_str(), has_extension ? "" : ".json", looked.c_str());
-}
-
 const MaterialDef* find_material(const Scene& scene, const std::string& region) {
   const MaterialDef* fallback = nullptr;
   for (const RegionMaterialDef& m : scene.materials) {

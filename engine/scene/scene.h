@@ -401,8 +401,16 @@ Result<Scene> parse_scene(const nlohmann::json& json, const std::string& source_
 /// that is not an object (or an array with an index in range) is an error.
 Status apply_override(nlohmann::json& json, const std::string& assignment);
 
-/// Resolves a scene argument: an existing file path, or a name ("mouse_oocyte", with or without
-/// ".json") looked up in `search_dirs`, then $ZONA_SCENES_DIR, then ./scenes.
+/// The folders a scene name is looked up in, in this order: ./scenes, $ZONA_SCENES_DIR (when
+/// set), `installed_dir` (a relative one is taken from the running program's folder, so that an
+/// installed `bin/zona` finds `share/zona/scenes`), then `source_dir` (the source tree's scenes/,
+/// for a program run from its build folder). Empty arguments are left out.
+std::vector<std::string> scene_search_dirs(const std::string& installed_dir = "",
+                                           const std::string& source_dir = "");
+
+/// Resolves a scene argument: a path to an existing file as given; else a name ("mouse_oocyte",
+/// with or without ".json") looked up in `search_dirs` in order (scene_search_dirs() when
+/// empty). The error names every folder looked in.
 Result<std::string> find_scene(const std::string& name,
                                const std::vector<std::string>& search_dirs = {});
 
