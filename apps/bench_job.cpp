@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "apps/bench_job.h"
+#include "apps/commands.h"
 #include "bench/scaling/scaling_bench.h"
 #include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"

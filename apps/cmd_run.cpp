@@ -40,6 +40,7 @@ struct RunArgs {
   std::string frame_color = "displacement";
   int frame_count = 0;      // 0: the scene's output.frames (or 50 when it has none)
   bool quiet = false;
+  bool full_duration = false;  // simulate integrator.duration even long past the needle's end
   std::vector<std::string> compare;     // "FILE.csv[:label]": curves drawn beside this run's
   std::vector<std::string> references;  // "DEF_UM,FORCE_UN[:label]": reference points
 };
@@ -248,6 +249,23 @@ void run_command(const RunArgs& args) {
   } else if (!args.png_frames.empty() && scene->output.frames <= 0 && !scene->output.frame_interval) {
     scene->output.frames = 50;
   }
+  // A scene made for the haptic loop gives integrator.duration as long as a hand may need
+  // (mouse_oocyte_haptic: 3600 s); scripted, its needle stops after max_travel / speed, and the
+  // rest would be an hour of a resting cell. The run ends with the needle unless asked.
+  const NeedleDef& needle = scene->needle;
+  const double needle_end = needle.enabled && needle.trajectory.empty() && needle.max_travel > 0 &&
+                                    needle.speed > 0
+                                ? needle.max_travel / needle.speed
+                                : 0.0;
+  const double duration = scene->integrator.duration;
+  if (!args.full_duration && needle_end > 0 && duration > 2 * needle_end && duration > needle_end + 1.0) {
+    std::fprintf(stderr,
+                 "zona run: notice: integrator.duration is %.4g s but the needle stops at %.4g s "
+                 "(needle.max_travel / needle.speed): the run ends with the needle "
+                 "(--full-duration simulates all %.4g s)\n",
+                 duration, needle_end, duration);
+    scene->integrator.duration = 0;  // 0: the run ends when the needle's script does
+  }
   const auto setup_start = std::chrono::steady_clock::now();
   Result<std::unique_ptr<Simulation>> created = Simulation::create(*scene, options.simulation);
   if (!created.ok()) return fail(created.error().message);
@@ -421,6 +439,9 @@ void add_run_command(CLI::App& app) {
                   "--frames when the scene has none")
       ->capture_default_str();
   cmd->add_flag("--quiet", args->quiet, "No progress line");
+  cmd->add_flag("--full-duration", args->full_duration,
+                "Simulate the scene's whole integrator.duration, also when it lasts long past the "
+                "needle's end (by default such a run ends with the needle, with a notice)");
   cmd->add_option("--compare", args->compare,
                   "Draw another run's force.csv (loading part) in the plot: FILE[:label]");
   cmd->add_option("--reference", args->references,

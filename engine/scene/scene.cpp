@@ -239,7 +239,7 @@ void read_integrator(Reader& root, Scene& scene) {
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 
-// The particle model (seed 001): only with "model": "particles".
+// The particle model (Asgari et al.): only with "model": "particles".
 void read_particles(Reader& root, Scene& scene) {
   Reader r = root.object("particles", {"layout", "particles", "pole_axis", "membrane_modulus",
                                        "membrane_relaxation_time", "radial_stiffness",
@@ -581,7 +581,7 @@ void resolve_refine_at(Context& ctx, Scene& scene) {
   g.refine_at = p + t * d;
 }
 
-// Seed 002 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
+// Hajiyavand et al. 2019 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
 void resolve_speed_moduli(Context& ctx, Scene& scene) {
   for (RegionMaterialDef& entry : scene.materials) {
     std::vector<SpeedModulusPoint>& t = entry.material.young_by_speed;
