@@ -100,17 +100,20 @@ TEST(Docs, ScenesPageQuotesEveryShippedScenesOwnValues) {
     std::ifstream in(e.path());
     nlohmann::json scene = nlohmann::json::parse(in);  // operator[] on missing keys gives null
     const nlohmann::json young = scene["materials"]["default"]["young"];
-    if (young.is_string())
+    if (young.is_string()) {
       EXPECT_NE(row.find("E " + young.get<std::string>()), std::string::npos)
           << name << ": row should say E " << young.get<std::string>() << "\n" << row;
+    }
     const nlohmann::json diameter = scene["mesh"]["generate"]["diameter"];
-    if (diameter.is_string())
+    if (diameter.is_string()) {
       EXPECT_NE(row.find(diameter.get<std::string>()), std::string::npos)
           << name << ": row should say " << diameter.get<std::string>() << "\n" << row;
+    }
     const nlohmann::json speed = scene["needle"]["speed"];
-    if (speed.is_string())
+    if (speed.is_string()) {
       EXPECT_NE(row.find(speed.get<std::string>()), std::string::npos)
           << name << ": row should say " << speed.get<std::string>() << "\n" << row;
+    }
   }
   EXPECT_GE(scenes, 6);
 }

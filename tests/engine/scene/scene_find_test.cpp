@@ -17,7 +17,7 @@ namespace {
 namespace fs = std::filesystem;
 
 // A folder of its own per test, removed afterwards, with $ZONA_SCENES_DIR restored.
-struct LookupFixture : ::testing::Test {
+struct SceneFind : ::testing::Test {
   fs::path root;
   std::string saved_env;
   bool had_env = false;
@@ -47,7 +47,7 @@ struct LookupFixture : ::testing::Test {
   }
 };
 
-TEST_F(LookupFixture, SearchOrderIsWorkingFolderEnvInstalledSource) {
+TEST_F(SceneFind, SearchOrderIsWorkingFolderEnvInstalledSource) {
   ::setenv("ZONA_SCENES_DIR", "/env/scenes", 1);
   const std::vector<std::string> dirs = scene_search_dirs("/opt/zona/share/zona/scenes", "/src/scenes");
   EXPECT_EQ(dirs, (std::vector<std::string>{"scenes", "/env/scenes", "/opt/zona/share/zona/scenes",
@@ -57,7 +57,7 @@ TEST_F(LookupFixture, SearchOrderIsWorkingFolderEnvInstalledSource) {
   EXPECT_EQ(scene_search_dirs(), (std::vector<std::string>{"scenes"}));
 }
 
-TEST_F(LookupFixture, RelativeInstalledFolderIsTakenFromTheProgramsFolder) {
+TEST_F(SceneFind, RelativeInstalledFolderIsTakenFromTheProgramsFolder) {
   // The test binary stands in for the installed zona: bin/../share/zona/scenes.
   const fs::path exe = fs::read_symlink("/proc/self/exe");
   const std::vector<std::string> dirs = scene_search_dirs("../share/zona/scenes");
@@ -65,7 +65,7 @@ TEST_F(LookupFixture, RelativeInstalledFolderIsTakenFromTheProgramsFolder) {
   EXPECT_EQ(dirs[1], (exe.parent_path() / "../share/zona/scenes").lexically_normal().string());
 }
 
-TEST_F(LookupFixture, FirstFolderHoldingTheNameWins) {
+TEST_F(SceneFind, FirstFolderHoldingTheNameWins) {
   const std::string local = put("cwd/scenes", "cell.json");
   const std::string env = put("env", "cell.json");
   put("installed", "cell.json");
@@ -86,7 +86,7 @@ TEST_F(LookupFixture, FirstFolderHoldingTheNameWins) {
   EXPECT_EQ(*found, source_only);
 }
 
-TEST_F(LookupFixture, PathAsGivenBeatsEveryFolder) {
+TEST_F(SceneFind, PathAsGivenBeatsEveryFolder) {
   const std::string given = put("given", "cell.json");
   put("scenes", "cell.json");
   Result<std::string> found = find_scene(given, {(root / "scenes").string()});
@@ -94,7 +94,7 @@ TEST_F(LookupFixture, PathAsGivenBeatsEveryFolder) {
   EXPECT_EQ(*found, given);
 }
 
-TEST_F(LookupFixture, EnvironmentFolderIsSearchedByDefault) {
+TEST_F(SceneFind, EnvironmentFolderIsSearchedByDefault) {
   const std::string env = put("env", "only_in_env.json");
   ::setenv("ZONA_SCENES_DIR", (root / "env").string().c_str(), 1);
   Result<std::string> found = find_scene("only_in_env");
@@ -102,7 +102,7 @@ TEST_F(LookupFixture, EnvironmentFolderIsSearchedByDefault) {
   EXPECT_EQ(*found, env);
 }
 
-TEST_F(LookupFixture, MissingNameListsEveryFolderLookedIn) {
+TEST_F(SceneFind, MissingNameListsEveryFolderLookedIn) {
   const std::vector<std::string> dirs = {(root / "a").string(), (root / "b").string()};
   Result<std::string> found = find_scene("nowhere", dirs);
   ASSERT_FALSE(found.ok());
