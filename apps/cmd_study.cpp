@@ -29,7 +29,8 @@ namespace {
 
 struct ConvergenceArgs {
   std::string scene;
-  std::string vertices;  // empty: the backend's default sizes (kCpuSizes, kGpuSizes)
+  std::string vertices;         // the sizes given (empty list: an error)
+  bool vertices_given = false;  // false: the backend's default sizes (kCpuSizes, kGpuSizes)
   std::string backend = "cpu";
   int threads = 0;
   std::vector<std::string> sets;
@@ -169,7 +170,7 @@ void convergence_command(const ConvergenceArgs& args) {
   const std::vector<DeviceInfo> devices = cuda_devices(&device_notice);
   const bool gpu = *kind == BackendKind::kCuda || (*kind == BackendKind::kAuto && !devices.empty());
   ConvergenceArgs resolved = args;
-  if (resolved.vertices.empty()) resolved.vertices = gpu ? kGpuSizes : kCpuSizes;
+  if (!args.vertices_given) resolved.vertices = gpu ? kGpuSizes : kCpuSizes;
   Result<std::vector<int64_t>> vertices = parse_study_vertices(resolved.vertices);
   if (!vertices) return fail(vertices.error().message);
   Result<std::vector<double>> deformations = parse_study_deformations(args.deformations);
@@ -302,7 +303,7 @@ void add_study_commands(CLI::App& app) {
       "Run a scene's injection at several mesh sizes and compare the force-deformation curves");
   cmd->add_option("scene", args->scene, "Scene file or name (its mesh must be generated)")
       ->required();
-  cmd->add_option("--vertices", args->vertices,
+  CLI::Option* vertices = cmd->add_option("--vertices", args->vertices,
                   std::string("Mesh sizes: comma list of vertex counts (default: ") + kCpuSizes +
                       " on the CPU, " + kGpuSizes + " on the GPU)");
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
@@ -314,7 +315,10 @@ void add_study_commands(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--out", args->out, "Output folder (default: zona_study_<scene name>)");
   cmd->add_flag("--quiet", args->quiet, "No progress lines on stderr");
-  cmd->callback([args] { convergence_command(*args); });
+  cmd->callback([args, vertices] {
+    args->vertices_given = vertices->count() > 0;
+    convergence_command(*args);
+  });
 }
 
 }  // namespace zona::cli

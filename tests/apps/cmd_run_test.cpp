@@ -231,7 +231,7 @@ TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
     // 10 s of simulated time at 20 us steps: far longer than the test waits.
     zona::test::CliProcess p = zona::test::start_zona(
         "run " + scene.string() + " --out " + out.string() +
-            " --no-frames --quiet --set 'integrator.duration=10 s'",
+            " --no-frames --quiet --full-duration --set 'integrator.duration=10 s'",
         dir.path);
     ASSERT_GT(p.pid, 0);
     // Rows appear while the run goes: the header, the start, and a row flushed later.
