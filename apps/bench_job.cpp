@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "apps/bench_job.h"
+#include "apps/commands.h"
 #include "bench/scaling/scaling_bench.h"
 #include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
@@ -54,7 +55,7 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
   Result<BackendKind> kind = parse_backend_kind(a.backend);
   if (!kind) return kind.error();
   if (*kind == BackendKind::kAuto) return make_error("--backend: give cpu or cuda for --job");
-  Result<std::string> path = find_scene(a.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(a.scene);
   if (!path) return path.error();
   if (a.repeats < 1) return make_error("--repeats: must be >= 1, got %d", a.repeats);
   const bool gpu = *kind == BackendKind::kCuda;

@@ -1,4 +1,4 @@
-// `zona analytic maxwell|membrane|modulus`: seed 002's analytic models (engine/analysis/analytic.h) from
+// `zona analytic maxwell|membrane|modulus`: Hajiyavand et al. 2019's analytic models (engine/analysis/analytic.h) from
 // the command line, values with units in and out, text or --json.
 #include <cmath>
 #include <cstdio>
@@ -91,9 +91,9 @@ Status run_maxwell(const MaxwellArgs& a) {
     j["params"] = {{"k1_N_m", params.k1}, {"k2_N_m", params.k[0]}, {"k3_N_m", params.k[1]},
                    {"c2_N_s_m", params.c[0]}, {"c3_N_s_m", params.c[1]}};
   std::string text = std::string("maxwell-wiechert, ") + law + "\n";
-  text += format_line("  deformation %.4g um, speed %.4g mm/s, time %.4g s%s\n",
-                      (a.ramp ? v * t : x) * 1e6, v * 1e3, t)
-              .append(time_auto ? " (X / V)" : "");
+  text += format_line("  deformation %.4g um, speed %.4g mm/s, time %.4g s",
+                      (a.ramp ? v * t : x) * 1e6, v * 1e3, t);
+  text += time_auto ? " (X / V)\n" : "\n";
   text += format_line("  force %.6g mN (%.6g N)\n", force * 1e3, force);
   print_json_or(a.json, j, text);
   return Status::ok_status();
@@ -143,7 +143,7 @@ Status run_membrane(const MembraneArgs& a) {
                       {"load_radius_m", m.load_radius}, {"poisson", m.poisson},
                       {"zeta", zeta}, {"factor", point_load_factor(zeta)},
                       {"force_N", f}, {"deformation_m", w}, {"young_Pa", e}};
-  std::string text = "point-load membrane (seed 002 eq. 7), solved for ";
+  std::string text = "point-load membrane (Hajiyavand et al. 2019 eq. 7), solved for ";
   text.append(solved).append("\n");
   text += format_line("  h %.4g um, a %.4g um, c %.4g um, nu %.3g\n", m.thickness * 1e6,
                       m.radius * 1e6, m.load_radius * 1e6, m.poisson);
@@ -173,7 +173,7 @@ Status run_modulus(const ModulusArgs& a) {
   const std::vector<std::string> speeds =
       a.speeds.empty() ? std::vector<std::string>{"0.05 mm/s", "0.1 mm/s", "0.6 mm/s", "1 mm/s"} : a.speeds;
   nlohmann::json rows = nlohmann::json::array();
-  std::string text = format_line("speed-dependent modulus (seed 002 eq. 9): %.4g MPa at %.4g mm/s, "
+  std::string text = format_line("speed-dependent modulus (Hajiyavand et al. 2019 eq. 9): %.4g MPa at %.4g mm/s, "
                                  "%.4g MPa at %.4g mm/s, linear\n",
                                  law.young0 * 1e-6, law.speed0 * 1e3, law.young1 * 1e-6, law.speed1 * 1e3);
   for (const std::string& s : speeds) {
@@ -200,8 +200,9 @@ void add_quantity(CLI::App* cmd, const char* name, QuantityOption& o, const char
 }  // namespace
 
 void add_analytic_commands(CLI::App& app) {
-  auto* group = app.add_subcommand("analytic", "Seed 002's analytic models: maxwell, membrane, modulus");
-  group->require_subcommand(1);
+  auto* group = app.add_subcommand("analytic", "Hajiyavand et al. 2019's analytic models: maxwell, membrane, modulus");
+  // Its subcommand is required: main() lists them when it is missing.
+  group->require_subcommand(0, 1);
 
   auto m = std::make_shared<MaxwellArgs>();
   auto* maxwell = group->add_subcommand(

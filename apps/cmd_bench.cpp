@@ -1,4 +1,4 @@
-// `zona bench`: the vertices-versus-time scaling benchmark (seed 000 Table II and beyond) as a
+// `zona bench`: the vertices-versus-time scaling benchmark (Ladjal et al. Table II and beyond) as a
 // CSV, with a progress bar on stderr. The measurement lives in bench/scaling/scaling_bench.h; this file
 // parses the options and wires in the backend factory and the GPU probes from kernels/.
 #include <unistd.h>
@@ -206,7 +206,7 @@ void add_bench_command(CLI::App& app) {
   auto args = std::make_shared<BenchArgs>();
   auto* cmd = app.add_subcommand(
       "bench", "Vertices-versus-time scaling benchmark: precompute and step time per mesh size, "
-               "CSV (seed 000 Table II and beyond)");
+               "CSV (Ladjal et al. Table II and beyond)");
   cmd->add_option("--backend", args->backend, "cpu, cuda or all")->capture_default_str();
   cmd->add_option("--model", args->model, "svk, linear or all")->capture_default_str();
   cmd->add_option("--formulation", args->formulation,

@@ -38,7 +38,7 @@ std::string values_text(const CalibrationResult& r, const std::vector<double>& v
 }
 
 Status run_calibrate(const CalibrateArgs& a) {
-  Result<std::string> path = find_scene(a.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(a.scene);
   if (!path.ok()) return path.error();
   Result<ForceCurve> data = read_force_curve_csv(a.data);
   if (!data.ok()) return data.error();

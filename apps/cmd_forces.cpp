@@ -1,6 +1,8 @@
 // `zona forces REST DEFORMED ...`: the elastic force on every vertex of a deformed configuration
 // (minus the energy gradient, newtons), as CSV.
+#include <algorithm>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -74,6 +76,13 @@ Status run_forces(const ForcesArgs& a) {
     std::fprintf(file, "%zu,%.17g,%.17g,%.17g\n", v, f[v].x, f[v].y, f[v].z);
   if (std::fclose(file) != 0)
     return make_error("%s: write failed: %s", a.out.c_str(), std::strerror(errno));
+  // One line on success: what was written, from what, and the largest force (a sanity check).
+  double max_force = 0;
+  for (const Vec3d& fv : f) max_force = std::max(max_force, norm(fv));
+  std::printf("wrote %s: elastic forces on %zu vertices (%s, %s, E %.6g Pa, nu %.4g); "
+              "largest |f| %.6g N\n",
+              a.out.c_str(), f.size(), a.model.c_str(), a.formulation.c_str(), a.young, a.poisson,
+              max_force);
   return Status::ok_status();
 }
 

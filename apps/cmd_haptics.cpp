@@ -97,7 +97,7 @@ void run_haptics(const HapticsArgs& a) {
   if (a.hand_speed < 0 || !std::isfinite(a.hand_speed))
     return fail("--hand-speed: expected METRES_PER_SECOND >= 0");
   if (a.threads < 0) return fail("--threads: expected N >= 0");
-  auto path = find_scene(a.scene);
+  auto path = find_scene_file(a.scene);
   if (!path) return fail(path.error().message);
   auto loaded = load_scene(*path, a.sets);
   if (!loaded) return fail(loaded.error().message);

@@ -61,6 +61,9 @@ nlohmann::json mesh_summary(const Mesh& mesh) {
   j["min_edge_m"] = q.min_edge;
   j["max_edge_m"] = q.max_edge;
   j["bounds_m"] = {{box.lo.x, box.lo.y, box.lo.z}, {box.hi.x, box.hi.y, box.hi.z}};
+  j["centre_m"] = {0.5 * (box.lo.x + box.hi.x), 0.5 * (box.lo.y + box.hi.y),
+                   0.5 * (box.lo.z + box.hi.z)};
+  j["size_m"] = {box.hi.x - box.lo.x, box.hi.y - box.lo.y, box.hi.z - box.lo.z};
   j["regions"] = regions;
   return j;
 }
@@ -77,6 +80,14 @@ void print_summary_text(const std::string& name, const nlohmann::json& j) {
               j["max_aspect_ratio"].get<double>());
   std::printf("  edge length         %.4g .. %.4g m\n", j["min_edge_m"].get<double>(),
               j["max_edge_m"].get<double>());
+  const nlohmann::json& b = j["bounds_m"];
+  std::printf("  bounding box        %.4g .. %.4g, %.4g .. %.4g, %.4g .. %.4g m\n",
+              b[0][0].get<double>(), b[1][0].get<double>(), b[0][1].get<double>(),
+              b[1][1].get<double>(), b[0][2].get<double>(), b[1][2].get<double>());
+  const nlohmann::json& c = j["centre_m"];
+  std::printf("  centre              %.4g, %.4g, %.4g m; size %.4g x %.4g x %.4g m\n",
+              c[0].get<double>(), c[1].get<double>(), c[2].get<double>(), j["size_m"][0].get<double>(),
+              j["size_m"][1].get<double>(), j["size_m"][2].get<double>());
   std::printf("  regions            ");
   for (const auto& [region, count] : j["regions"].items())
     std::printf(" %s: %lld", region.c_str(), count.get<long long>());
@@ -103,6 +114,8 @@ void add_info(CLI::App& group) {
     std::vector<std::string> warnings;
     Result<Mesh> mesh = read_mesh(args->file, options, &warnings);
     if (!mesh.ok()) return fail(mesh.error().message);
+    if (const std::string hint = mesh_unit_hint(*mesh); !hint.empty())
+      warnings.push_back(args->file + " read with --unit " + args->unit + ": " + hint);
     print_warnings(warnings);
     const nlohmann::json j = mesh_summary(*mesh);
     if (args->json)
@@ -148,7 +161,7 @@ void add_generate(CLI::App& group) {
   cmd->callback([args] {
     CellMeshSpec spec;
     if (!args->scene.empty()) {
-      Result<std::string> path = find_scene(args->scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+      Result<std::string> path = find_scene_file(args->scene);
       if (!path.ok()) return fail(path.error().message);
       Result<Scene> scene = load_scene(*path, args->sets);
       if (!scene.ok()) return fail(scene.error().message);
@@ -242,7 +255,8 @@ void add_convert(CLI::App& group) {
 
 void add_mesh_commands(CLI::App& app) {
   auto* mesh = app.add_subcommand("mesh", "Inspect, generate and convert tetrahedral meshes");
-  mesh->require_subcommand(1);
+  // Its subcommand is required: main() lists them when it is missing.
+  mesh->require_subcommand(0, 1);
   add_info(*mesh);
   add_generate(*mesh);
   add_convert(*mesh);

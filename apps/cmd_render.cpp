@@ -52,7 +52,7 @@ struct RenderArgs {
 // `zona COMMAND: note: ...`, as `zona run` prints them.
 Result<std::unique_ptr<Simulation>> make_simulation(const RenderArgs& args, Scene* scene_out,
                                                     const char* command) {
-  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(args.scene);
   if (!path.ok()) return path.error();
   Result<Scene> scene = load_scene(*path, args.sets);
   if (!scene.ok()) return scene.error();

@@ -40,6 +40,7 @@ struct RunArgs {
   std::string frame_color = "displacement";
   int frame_count = 0;      // 0: the scene's output.frames (or 50 when it has none)
   bool quiet = false;
+  bool full_duration = false;  // simulate integrator.duration even long past the needle's end
   std::vector<std::string> compare;     // "FILE.csv[:label]": curves drawn beside this run's
   std::vector<std::string> references;  // "DEF_UM,FORCE_UN[:label]": reference points
 };
@@ -212,7 +213,7 @@ Status write_force_plot(const std::string& path, const Simulation& sim, const Ru
 
 void run_command(const RunArgs& args) {
   namespace fs = std::filesystem;
-  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(args.scene);
   if (!path.ok()) return fail(path.error().message);
   Result<Scene> scene = load_scene(*path, args.sets);
   if (!scene.ok()) return fail(scene.error().message);
@@ -247,6 +248,23 @@ void run_command(const RunArgs& args) {
     scene->output.frame_interval.reset();
   } else if (!args.png_frames.empty() && scene->output.frames <= 0 && !scene->output.frame_interval) {
     scene->output.frames = 50;
+  }
+  // A scene made for the haptic loop gives integrator.duration as long as a hand may need
+  // (mouse_oocyte_haptic: 3600 s); scripted, its needle stops after max_travel / speed, and the
+  // rest would be an hour of a resting cell. The run ends with the needle unless asked.
+  const NeedleDef& needle = scene->needle;
+  const double needle_end = needle.enabled && needle.trajectory.empty() && needle.max_travel > 0 &&
+                                    needle.speed > 0
+                                ? needle.max_travel / needle.speed
+                                : 0.0;
+  const double duration = scene->integrator.duration;
+  if (!args.full_duration && needle_end > 0 && duration > 2 * needle_end && duration > needle_end + 1.0) {
+    std::fprintf(stderr,
+                 "zona run: notice: integrator.duration is %.4g s but the needle stops at %.4g s "
+                 "(needle.max_travel / needle.speed): the run ends with the needle "
+                 "(--full-duration simulates all %.4g s)\n",
+                 duration, needle_end, duration);
+    scene->integrator.duration = 0;  // 0: the run ends when the needle's script does
   }
   const auto setup_start = std::chrono::steady_clock::now();
   Result<std::unique_ptr<Simulation>> created = Simulation::create(*scene, options.simulation);
@@ -334,6 +352,8 @@ void run_command(const RunArgs& args) {
   const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
   nlohmann::json summary = run_summary_json(sim, run, metrics);
   summary["numerics"]["setup_time_s"] = setup_seconds;
+  // The file the scene name resolved to (./scenes, $ZONA_SCENES_DIR, installed, source tree).
+  summary["scene_file"] = *path;
   if (Status s = write_file_atomic((fs::path(out) / "summary.json").string(),
                                    summary.dump(2) + "\n");
       !s)
@@ -346,6 +366,7 @@ void run_command(const RunArgs& args) {
   }
 
   // What happened, on stdout.
+  std::printf("scene: %s (%s)\n", scene->name.c_str(), path->c_str());
   if (run.puncture.punctured)
     std::printf("puncture: t %.4f s, travel %.2f um, deformation %.2f um (%.1f %% of %.1f um), "
                 "force %.3f uN\n",
@@ -418,6 +439,9 @@ void add_run_command(CLI::App& app) {
                   "--frames when the scene has none")
       ->capture_default_str();
   cmd->add_flag("--quiet", args->quiet, "No progress line");
+  cmd->add_flag("--full-duration", args->full_duration,
+                "Simulate the scene's whole integrator.duration, also when it lasts long past the "
+                "needle's end (by default such a run ends with the needle, with a notice)");
   cmd->add_option("--compare", args->compare,
                   "Draw another run's force.csv (loading part) in the plot: FILE[:label]");
   cmd->add_option("--reference", args->references,

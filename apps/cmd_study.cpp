@@ -3,12 +3,15 @@
 // convergence_summary.csv and convergence.png.
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "apps/commands.h"
@@ -26,7 +29,8 @@ namespace {
 
 struct ConvergenceArgs {
   std::string scene;
-  std::string vertices = "1e3,4e3,16e3,64e3,256e3,1e6";
+  std::string vertices;         // the sizes given (empty list: an error)
+  bool vertices_given = false;  // false: the backend's default sizes (kCpuSizes, kGpuSizes)
   std::string backend = "cpu";
   int threads = 0;
   std::vector<std::string> sets;
@@ -34,6 +38,38 @@ struct ConvergenceArgs {
   std::string out;
   bool quiet = false;
 };
+
+// Default mesh sizes: what the backend finishes in minutes (CPU, 2 cores: about 2 min; a GPU:
+// about 20 min, most of it the 1M-vertex mesh). Estimates below.
+constexpr const char* kCpuSizes = "1e3,2e3,4e3";
+constexpr const char* kGpuSizes = "1e3,4e3,16e3,64e3,256e3,1e6";
+
+// Rough wall time per step of the injection job, from the job benchmarks in bench/results:
+// the CPU about 0.1 us per vertex on 2 threads (1.03 ms at 10k vertices on an EPYC), the GPU a
+// floor of 13 us plus 0.57 ns per vertex (0.57 ms at 1M vertices on an H100).
+double estimated_ms_per_step(bool gpu, double vertices, int threads) {
+  if (gpu) return 0.013 + 5.7e-7 * vertices;
+  return 1.0e-4 * vertices * 2.0 / std::max(threads, 1);
+}
+
+// Steps of one size's run: its end time over its step; 0 when the step is set by the mesh
+// (no dt or target_dt in the scene) or nothing but a trajectory ends the run.
+double estimated_steps(const Scene& scene) {
+  const IntegratorDef& in = scene.integrator;
+  const double dt = in.target_dt ? *in.target_dt : (in.dt ? *in.dt : 0.0);
+  double end = in.duration;
+  if (!(end > 0) && scene.needle.enabled && scene.needle.speed > 0)
+    end = scene.needle.max_travel / scene.needle.speed;
+  return dt > 0 && end > 0 ? std::ceil(end / dt) : 0.0;
+}
+
+std::string format_wall(double seconds) {
+  char text[32];
+  if (seconds < 90) std::snprintf(text, sizeof text, "%.0f s", seconds);
+  else if (seconds < 5400) std::snprintf(text, sizeof text, "%.0f min", seconds / 60);
+  else std::snprintf(text, sizeof text, "%.1f h", seconds / 3600);
+  return text;
+}
 
 // The options in full (defaults included), for the CSVs' comment lines.
 std::string command_line(const ConvergenceArgs& a, const std::string& out) {
@@ -127,14 +163,20 @@ Status write_outputs(const std::filesystem::path& out, ConvergenceStudy study,
 void convergence_command(const ConvergenceArgs& args) {
   namespace fs = std::filesystem;
   // Everything that can be wrong with the input is found before the first size runs.
-  Result<std::vector<int64_t>> vertices = parse_study_vertices(args.vertices);
+  Result<BackendKind> kind = parse_backend_kind(args.backend);
+  if (!kind) return fail(kind.error().message);
+  // The GPU runs when asked for, or for auto when a device is there.
+  std::string device_notice;
+  const std::vector<DeviceInfo> devices = cuda_devices(&device_notice);
+  const bool gpu = *kind == BackendKind::kCuda || (*kind == BackendKind::kAuto && !devices.empty());
+  ConvergenceArgs resolved = args;
+  if (!args.vertices_given) resolved.vertices = gpu ? kGpuSizes : kCpuSizes;
+  Result<std::vector<int64_t>> vertices = parse_study_vertices(resolved.vertices);
   if (!vertices) return fail(vertices.error().message);
   Result<std::vector<double>> deformations = parse_study_deformations(args.deformations);
   if (!deformations) return fail(deformations.error().message);
-  Result<BackendKind> kind = parse_backend_kind(args.backend);
-  if (!kind) return fail(kind.error().message);
   if (args.threads < 0) return fail("--threads must be >= 0");
-  Result<std::string> path = find_scene(args.scene, {std::string(ZONA_SOURCE_DIR) + "/scenes"});
+  Result<std::string> path = find_scene_file(args.scene);
   if (!path) return fail(path.error().message);
   Result<std::vector<Scene>> scenes = convergence_scenes(*path, args.sets, *vertices);
   if (!scenes) return fail(scenes.error().message);
@@ -158,6 +200,31 @@ void convergence_command(const ConvergenceArgs& args) {
     };
   }
 
+  // The estimate first: a CPU study of a million vertices takes days, not minutes.
+  {
+    const int threads = args.threads > 0 ? args.threads
+                                         : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+    std::string line;
+    double total = 0;
+    bool known = true;
+    for (const Scene& scene : *scenes) {
+      const double n = static_cast<double>(scene.mesh.generate.target_vertices);
+      const double steps = estimated_steps(scene);
+      known = known && steps > 0;
+      const double wall = steps * estimated_ms_per_step(gpu, n, threads) * 1e-3;
+      total += wall;
+      char part[96];
+      std::snprintf(part, sizeof part, "%s%.0f vertices ~%s", line.empty() ? "" : ", ", n,
+                    steps > 0 ? format_wall(wall).c_str() : "?");
+      line += part;
+    }
+    std::printf("estimate (rough, from the job benchmarks): %s on %s: %s; total ~%s%s\n",
+                resolved.vertices.c_str(), gpu ? "the GPU" : ("the CPU, " + std::to_string(threads) + " threads").c_str(),
+                line.c_str(), format_wall(total).c_str(),
+                known ? "" : " (sizes with '?': the step is set by the mesh)");
+    std::fflush(stdout);
+  }
+
   const std::string out = args.out.empty() ? "zona_study_" + scenes->front().name : args.out;
   std::error_code ec;
   fs::create_directories(out, ec);
@@ -165,13 +232,11 @@ void convergence_command(const ConvergenceArgs& args) {
 
   // Comment lines of both CSVs: what ran, when, from which source, where.
   const MachineInfo machine = local_machine_info();
-  std::string device_notice;
-  const std::vector<DeviceInfo> devices = cuda_devices(&device_notice);
   const std::string commit = source_commit();
   const std::vector<std::string> comments = {
       "zona study convergence: scene " + scenes->front().name + " (" + *path + "), zona " +
           machine.zona_version,
-      "command: " + command_line(args, out),
+      "command: " + command_line(resolved, out),
       "date: " + utc_now(),
       "commit: " + (commit.empty() ? std::string("unknown") : commit),
       "machine: " + machine.cpu_model + ", " + std::to_string(machine.hardware_threads) +
@@ -229,7 +294,8 @@ void convergence_command(const ConvergenceArgs& args) {
 
 void add_study_commands(CLI::App& app) {
   auto* group = app.add_subcommand("study", "Numerical studies of a scene: convergence");
-  group->require_subcommand(1);
+  // Its subcommand is required: main() lists them when it is missing.
+  group->require_subcommand(0, 1);
 
   auto args = std::make_shared<ConvergenceArgs>();
   auto* cmd = group->add_subcommand(
@@ -237,8 +303,9 @@ void add_study_commands(CLI::App& app) {
       "Run a scene's injection at several mesh sizes and compare the force-deformation curves");
   cmd->add_option("scene", args->scene, "Scene file or name (its mesh must be generated)")
       ->required();
-  cmd->add_option("--vertices", args->vertices, "Mesh sizes: comma list of vertex counts")
-      ->capture_default_str();
+  CLI::Option* vertices = cmd->add_option("--vertices", args->vertices,
+                  std::string("Mesh sizes: comma list of vertex counts (default: ") + kCpuSizes +
+                      " on the CPU, " + kGpuSizes + " on the GPU)");
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();
@@ -248,7 +315,10 @@ void add_study_commands(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--out", args->out, "Output folder (default: zona_study_<scene name>)");
   cmd->add_flag("--quiet", args->quiet, "No progress lines on stderr");
-  cmd->callback([args] { convergence_command(*args); });
+  cmd->callback([args, vertices] {
+    args->vertices_given = vertices->count() > 0;
+    convergence_command(*args);
+  });
 }
 
 }  // namespace zona::cli

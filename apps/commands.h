@@ -22,6 +22,12 @@ void fail(const std::string& message);
 /// copied tree).
 std::string source_commit();
 
+/// The scene file a command's SCENE argument names, looked up as every command looks it up: a
+/// path as given, then ./scenes, $ZONA_SCENES_DIR, the installed scenes, the source tree's
+/// scenes (engine/scene/scene.h, scene_search_dirs). The path is absolute, for messages and
+/// summary.json.
+zona::Result<std::string> find_scene_file(const std::string& name);
+
 void add_info_command(CLI::App& app);
 void add_mesh_commands(CLI::App& app);
 void add_run_command(CLI::App& app);

@@ -1,9 +1,12 @@
 // zona: command-line entry point. Each command group registers itself from apps/cmd_*.cpp.
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include "apps/commands.h"
+#include "engine/scene/scene.h"
 #include "build_commit.h"  // generated: ZONA_BUILD_COMMIT
 
 namespace zona::cli {
@@ -16,6 +19,16 @@ int& exit_code() {
 void fail(const std::string& message) {
   std::fprintf(stderr, "zona: error: %s\n", message.c_str());
   exit_code() = 1;
+}
+
+Result<std::string> find_scene_file(const std::string& name) {
+  // ZONA_INSTALLED_SCENES is relative to the installed binary's folder (apps/CMakeLists.txt).
+  Result<std::string> path = find_scene(
+      name, scene_search_dirs(ZONA_INSTALLED_SCENES, std::string(ZONA_SOURCE_DIR) + "/scenes"));
+  if (!path.ok()) return path;
+  std::error_code ec;
+  const std::filesystem::path absolute = std::filesystem::absolute(*path, ec);
+  return ec ? *path : absolute.lexically_normal().string();
 }
 
 std::string source_commit() {
@@ -39,6 +52,16 @@ std::string source_commit() {
 
 }  // namespace zona::cli
 
+namespace {
+
+// Every subcommand a command defines (CLI11's get_subcommands() without a filter gives only the
+// parsed ones).
+std::vector<const CLI::App*> all_subcommands(const CLI::App& app) {
+  return app.get_subcommands([](const CLI::App*) { return true; });
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   CLI::App app{"zona: GPU-accelerated deformable simulation of cells under micro-injection"};
   app.require_subcommand(0, 1);
@@ -53,6 +76,10 @@ int main(int argc, char** argv) {
   zona::cli::add_analytic_commands(app);
   zona::cli::add_calibrate_command(app);
   zona::cli::add_study_commands(app);
+  // A group (mesh, analytic, study) without its subcommand lists them, checked after parsing:
+  // CLI11's own "A subcommand is required" does not say which.
+  for (CLI::App* group : app.get_subcommands([](CLI::App* c) { return !all_subcommands(*c).empty(); }))
+    group->require_subcommand(0, 1);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -63,6 +90,25 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "zona: error: %s\n", e.what());
+    return 2;
+  }
+  // `zona` alone: the usage, as a usage error.
+  if (app.get_subcommands().empty()) {
+    std::fprintf(stderr, "%s", app.help().c_str());
+    return 2;
+  }
+  for (const CLI::App* group : app.get_subcommands()) {
+    const std::vector<const CLI::App*> choices = all_subcommands(*group);
+    if (choices.empty() || !group->get_subcommands().empty()) continue;
+    std::string names;
+    for (const CLI::App* c : choices) names += (names.empty() ? "" : ", ") + c->get_name();
+    std::fprintf(stderr, "zona: error: 'zona %s' needs a subcommand: %s\n",
+                 group->get_name().c_str(), names.c_str());
+    for (const CLI::App* c : choices)
+      std::fprintf(stderr, "  zona %s %-12s %s\n", group->get_name().c_str(),
+                   c->get_name().c_str(), c->get_description().c_str());
+    std::fprintf(stderr, "  ('zona %s SUBCOMMAND --help' for its options)\n",
+                 group->get_name().c_str());
     return 2;
   }
   return zona::cli::exit_code();

@@ -98,7 +98,7 @@ VariantBytes variant_bytes(const Variant& v) {
 }
 
 // The step's floor for every variant: the packed tetrahedra (56 bytes) plus the three
-// displacement arrays and the coefficients (80 bytes per vertex), DESIGN.md / issue 4.
+// displacement arrays and the coefficients (80 bytes per vertex), issue 4.
 double floor_bytes(double nv, double nt) {
   return static_cast<double>(DeviceLayout::kTetBytes) * nt + 80.0 * nv;
 }
@@ -303,7 +303,7 @@ int run(int argc, char** argv) {
         continue;
       }
       // Warm-up (graph capture, caches), then timed windows; the needle moves at 1 mm/s (the
-      // top of seed 002's injection speeds).
+      // top of Hajiyavand et al. 2019's injection speeds).
       std::vector<Vec3d> targets(patch.size(), Vec3d{0, 0, 0});
       double push = 0;
       auto window = [&](StepReport* report) {

@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Plot of `zona bench` CSVs: step time and precompute time versus vertices (log-log), each
-series (backend, model, formulation, threads), seed 000 Table II's points, fitted power laws
+series (backend, model, formulation, threads), Ladjal et al. Table II's points, fitted power laws
 with their exponents in the legend and on stdout, the haptic (1 kHz) and visual (30 Hz) budgets
 and, when CPU and GPU rows are both given, the crossover size.
 
-    python3 bench/plot_scaling.py bench/results/cpu-....csv [gpu-....csv ...] --out plot.png
+    python3 bench/plot_scaling.py bench/results/cpu-xeon-2c/sweep.csv [bench/results/h100/sweep.csv ...] --out plot.png
 
 Needs matplotlib (Debian python3-matplotlib, in scripts/setup.sh). Under pyenv, run it with
 /usr/bin/python3 if the pyenv interpreter has no matplotlib.
@@ -16,7 +16,7 @@ import math
 import sys
 from collections import OrderedDict
 
-# Seed 000 Table II (SVK mass tensors, Intel Core Duo 3.2 GHz, 2009): vertices, tetrahedra,
+# Ladjal et al. Table II (SVK mass tensors, Intel Core Duo 3.2 GHz, 2009): vertices, tetrahedra,
 # precompute [ms], step [ms]. The same numbers as bench/scaling/scaling_bench.cpp's kSeedTable2.
 SEED_TABLE2 = [
     (115, 332, 0.875, 0.047), (123, 379, 0.99, 0.047), (128, 407, 1.094, 0.063),
@@ -212,15 +212,15 @@ def main():
               f"{fit_pre[1] if fit_pre else float('nan'):16.3f} {within(HAPTIC_MS):>12s} "
               f"{within(VISUAL_MS):>13s}")
 
-    # Seed 000 Table II and its own power laws.
+    # Ladjal et al. Table II and its own power laws.
     sx = [r[0] for r in SEED_TABLE2]
     s_step = [r[3] for r in SEED_TABLE2]
     s_pre = [r[2] for r in SEED_TABLE2]
     f_step, f_pre = fit_power_law(sx, s_step), fit_power_law(sx, s_pre)
     ax_step.plot(sx, s_step, "k^", ms=6, mfc="none",
-                 label=f"seed 000 Table II (n^{f_step[1]:.2f})")
-    ax_pre.plot(sx, s_pre, "k^", ms=6, mfc="none", label=f"seed 000 Table II (n^{f_pre[1]:.2f})")
-    print(f"{'seed 000 Table II':36s} {f_step[1]:14.3f} {'115..1093':>20s} {f_pre[1]:16.3f}")
+                 label=f"Ladjal et al. Table II (n^{f_step[1]:.2f})")
+    ax_pre.plot(sx, s_pre, "k^", ms=6, mfc="none", label=f"Ladjal et al. Table II (n^{f_pre[1]:.2f})")
+    print(f"{'Ladjal et al. Table II':36s} {f_step[1]:14.3f} {'115..1093':>20s} {f_pre[1]:16.3f}")
 
     # GPU-over-CPU crossover per model and formulation, from the sizes both measured.
     for key, pts in series.items():

@@ -6,7 +6,7 @@
 # the spread. Prints the median and range of step_ms_median per (backend, threads, vertices).
 #
 #   bench/repeat_bench.sh ZONA N PAUSE OUT.csv [zona bench arguments...]
-#   bench/repeat_bench.sh build/apps/zona 12 30 bench/results/cpu_step1101_repeats_$D.csv \
+#   bench/repeat_bench.sh build/apps/zona 12 30 bench/results/cpu-xeon-2c/step1101_repeats.csv \
 #       --backend cpu --vertices 1093 --threads 1,2 --steps 2000 --repeats 9
 # With VCPU_PROBE=path/to/vcpu_pair_bench, two more leading columns: what a second thread added
 # to one thread's vector arithmetic just before and just after each run (~2: two cores; ~1: the

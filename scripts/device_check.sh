@@ -95,7 +95,7 @@ run() {
     sed -n '/^# /p;/^vertices /,$p' "$out/bench.log" | tee -a "$summary"
   fi
   if has scaling; then
-    # The vertices-versus-time benchmark (bench/README.md): seed 000 Table II's sizes on the GPU
+    # The vertices-versus-time benchmark (bench/README.md): Ladjal et al. Table II's sizes on the GPU
     # and on this host's CPU, then the GPU sweep in powers of two.
     local day
     day=$(date -u +%Y-%m-%d)

@@ -1,4 +1,4 @@
-// Micro-benchmarks of the off-line phase (seed 000 Table II column 3) on the scaling benchmark's
+// Micro-benchmarks of the off-line phase (Ladjal et al. Table II column 3) on the scaling benchmark's
 // meshes: the whole build_model per formulation, and its two kernels alone (the rest geometry
 // of every tetrahedron; the stored mass tensors). Arguments: vertices, law (0 SVK, 1 linear),
 // formulation (0 gradient, 1 tensor_stored, 2 tensor_rebuilt), threads (0: all).

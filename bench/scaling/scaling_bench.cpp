@@ -32,7 +32,7 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// Seed 000 Table II, transcribed (vertices, tetrahedra, precompute ms, step ms).
+// Ladjal et al. Table II, transcribed (vertices, tetrahedra, precompute ms, step ms).
 constexpr SeedTable2Row kSeedTable2[] = {
     {115, 332, 0.875, 0.047},    {123, 379, 0.99, 0.047},    {128, 407, 1.094, 0.063},
     {165, 546, 1.718, 0.078},    {176, 614, 2.031, 0.094},   {192, 672, 2.359, 0.109},
@@ -749,7 +749,7 @@ std::string scaling_csv_comments(const ScalingBenchResult& result,
                                  const ScalingBenchConfig& config) {
   const MachineInfo& m = result.machine;
   std::ostringstream out;
-  out << "# zona bench: vertices-versus-time scaling (seed 000 Table II), zona "
+  out << "# zona bench: vertices-versus-time scaling (Ladjal et al. Table II), zona "
       << m.zona_version << ", commit " << (m.commit.empty() ? "unknown" : m.commit) << "\n";
   out << "# date: " << m.date << " (UTC)\n";
   if (!m.command.empty()) out << "# command: " << m.command << "\n";

@@ -1,4 +1,4 @@
-// The vertices-versus-time scaling benchmark (issue 5, seed 000 Table II): for each backend,
+// The vertices-versus-time scaling benchmark (issue 5, Ladjal et al. Table II): for each backend,
 // constitutive model, formulation, thread count and mesh size, the precompute time and the
 // median step time on the seed's cell meshes (refined at the puncture point), with the bytes a
 // step must move, the floor they set at the machine's measured copy bandwidth, and a hash of
@@ -26,7 +26,7 @@
 
 namespace zona {
 
-/// One row of seed 000 Table II (non-linear SVK model, Intel Core Duo 3.2 GHz, 2009).
+/// One row of Ladjal et al. Table II (non-linear SVK model, Intel Core Duo 3.2 GHz, 2009).
 struct SeedTable2Row {
   int64_t vertices = 0;
   int64_t tets = 0;
@@ -34,7 +34,7 @@ struct SeedTable2Row {
   double step_ms = 0;        ///< on-line simulation time per step [ms]
 };
 
-/// The twelve rows of seed 000 Table II, 115 to 1093 vertices, in the paper's order.
+/// The twelve rows of Ladjal et al. Table II, 115 to 1093 vertices, in the paper's order.
 std::span<const SeedTable2Row> seed_table2();
 
 /// What to measure. Every list is crossed with every other (rows = backends x models x
@@ -91,7 +91,7 @@ struct ScalingRow {
   int64_t tets = 0;
   double mesh_ms = 0;       ///< mesh generation (once per size, repeated on each row) [ms]
   /// build_model (validation, shapes, masses, critical step and, for tensor_stored on the
-  /// CPU, the mass tensors): median over the timed builds [ms]. Seed 000 Table II column 3.
+  /// CPU, the mass tensors): median over the timed builds [ms]. Ladjal et al. Table II column 3.
   double precompute_ms = 0;
   double tensor_precompute_ms = 0;  ///< the stored tensors alone (CPU tensor_stored), else 0 [ms]
   /// Backend::upload [ms]: the CPU backend's state copy; on the GPU the device layout, the

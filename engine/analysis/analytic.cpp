@@ -1,4 +1,4 @@
-// Seed 002's analytic models: Maxwell-Wiechert force, point-load membrane, speed-dependent modulus.
+// Hajiyavand et al. 2019's analytic models: Maxwell-Wiechert force, point-load membrane, speed-dependent modulus.
 #include "engine/analysis/analytic.h"
 
 #include <cmath>

@@ -1,5 +1,5 @@
 // Virtual coupling between the haptic device and the simulated needle: gains from Llewellyn's
-// absolute-stability condition (seed 000, eqs. 8-10) and a Hannaford-Ryu passivity observer and
+// absolute-stability condition (Ladjal et al., eqs. 8-10) and a Hannaford-Ryu passivity observer and
 // controller as the run-time guard.
 #pragma once
 
@@ -25,7 +25,7 @@ struct CouplingGains {
 /// Llewellyn's absolute-stability margin of the impedance display with virtual coupling, closed
 /// form: Re Z_d - k_c T / 2 - b_c = damping - k_c T / 2 - b_c [N*s/m]; stable when >= 0.
 /// Derivation (docs/haptics.md): with a zero-order hold and a backward-difference coupling
-/// damper, eq. (10) of seed 000 reduces for every frequency 0 < w <= pi/T to
+/// damper, eq. (10) of Ladjal et al. reduces for every frequency 0 < w <= pi/T to
 ///   b >= T/2 * Re{(1 - e^{-jwT}) H(e^{jwT})} / (1 - cos wT),  H(z) = k_c + b_c (1 - z^-1) / T,
 /// whose right side is k_c T/2 - b_c cos wT, largest at the Nyquist frequency.
 double llewellyn_margin(const CouplingGains& gains, const DeviceImpedance& device,

@@ -2,6 +2,7 @@
 #include "engine/mesh/mesh.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -289,6 +290,26 @@ Aabb mesh_bounds(const Mesh& mesh) {
       box.hi[i] = std::max(box.hi[i], q[i]);
     }
   return box;
+}
+
+std::string mesh_unit_hint(const Mesh& mesh) {
+  const Aabb box = mesh_bounds(mesh);
+  const double extent = std::max({box.hi.x - box.lo.x, box.hi.y - box.lo.y, box.hi.z - box.lo.z});
+  if (mesh.rest_positions.empty() || (extent >= kCellExtentMin && extent <= kCellExtentMax))
+    return "";
+  char text[256];
+  // Say which unit would make it a cell-sized mesh (um and mm are the usual file units).
+  if (extent > kCellExtentMax)
+    std::snprintf(text, sizeof text,
+                  "the mesh is %.4g m across, not a cell's size: are its coordinates in "
+                  "micrometres (unit um) or millimetres (unit mm) read as metres?",
+                  extent);
+  else
+    std::snprintf(text, sizeof text,
+                  "the mesh is %.4g m across, not a cell's size: are its coordinates in metres "
+                  "read with a smaller unit?",
+                  extent);
+  return text;
 }
 
 }  // namespace zona

@@ -133,4 +133,14 @@ struct Aabb {
 };
 Aabb mesh_bounds(const Mesh& mesh);
 
+/// Cells are between about 1 um (a bacterium) and 1 cm (the largest eggs) across; a mesh whose
+/// largest extent lies outside [kCellExtentMin, kCellExtentMax] was almost certainly read in
+/// the wrong length unit (micrometre coordinates read as metres give a 56 m cell).
+inline constexpr double kCellExtentMin = 1e-7;  ///< 0.1 um [m]
+inline constexpr double kCellExtentMax = 1e-2;  ///< 1 cm [m]
+
+/// One sentence naming the likely unit mistake when the mesh's largest extent lies outside the
+/// range above ("the mesh is 56 m across: ... read as metres"); "" when the size is plausible.
+std::string mesh_unit_hint(const Mesh& mesh);
+
 }  // namespace zona

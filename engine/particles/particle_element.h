@@ -1,4 +1,4 @@
-// Per-spring, per-triangle and per-particle math of the particle cell model (seed 001), shared by
+// Per-spring, per-triangle and per-particle math of the particle cell model (Asgari et al.), shared by
 // the CPU reference (engine/particles/particle_model.cpp) and the CUDA kernels (kernels/particle_backend.cu)
 // so that the two cannot drift apart (STYLE.md habit 5). Plain inline functions of positions and
 // velocities; no indexing of global arrays, no threadIdx.
@@ -11,7 +11,7 @@
 
 namespace zona {
 
-/// Force on particle i from a spring-dashpot to particle j (seed 001 eqs. 3-4 plus the dashpot
+/// Force on particle i from a spring-dashpot to particle j (Asgari et al. eqs. 3-4 plus the dashpot
 /// along the spring): [k (L - L0) + c (v_j - v_i).r] r, with r the unit vector from i to j.
 /// A stretched spring pulls i towards j. Positions [m], velocities [m/s], k [N/m], c [N*s/m];
 /// returns [N]. A zero-length spring (L = 0) has no direction and returns zero.
@@ -47,7 +47,7 @@ ZONA_HOST_DEVICE ZONA_INLINE Vec3d triangle_area_vector(Vec3d a, Vec3d b, Vec3d 
   return 0.5 * cross(b - a, c - a);
 }
 
-/// Hydraulic pressure of seed 001 eq. 6, beta = -(1/V) dV/dP, integrated at constant beta from
+/// Hydraulic pressure of Asgari et al. eq. 6, beta = -(1/V) dV/dP, integrated at constant beta from
 /// P = 0 at V0: P = ln(V0 / V) / beta [Pa]. Compression (V < V0) gives P > 0, pushing the
 /// membrane out. Volumes [m^3], beta [1/Pa].
 ZONA_HOST_DEVICE ZONA_INLINE double hydraulic_pressure(double volume, double rest_volume,
@@ -63,7 +63,7 @@ ZONA_HOST_DEVICE ZONA_INLINE double hydraulic_energy(double volume, double rest_
 }
 
 /// Centred-difference update of one component with diagonal (anisotropic) damping b treated
-/// centred-implicitly (seed 001 eq. 7 with eq. 5's B): (m + b dt/2) u+ = 2 m u - (m - b dt/2) u-
+/// centred-implicitly (Asgari et al. eq. 7 with eq. 5's B): (m + b dt/2) u+ = 2 m u - (m - b dt/2) u-
 /// + dt^2 f. Mass [kg], damping [N*s/m], dt [s], force [N]; returns u_{n+1} [m].
 ZONA_HOST_DEVICE ZONA_INLINE double particle_update(double u, double u_prev, double force,
                                                     double mass, double damping, double dt) {

@@ -1,4 +1,4 @@
-// The particle cell model (seed 001): layouts, build, stable step, body mesh/model, CPU step.
+// The particle cell model (Asgari et al.): layouts, build, stable step, body mesh/model, CPU step.
 #include "engine/particles/particle_model.h"
 
 #include <algorithm>
@@ -96,7 +96,7 @@ Layout icosphere(int n) {
   return out;
 }
 
-// Seed 001's latitude-longitude grid about `axis`: n_lat rings of n_lon particles between two
+// Asgari et al.'s latitude-longitude grid about `axis`: n_lat rings of n_lon particles between two
 // poles; springs to the four grid neighbours (each pole to its whole ring); the quads split into
 // two triangles for the volume and the contact surface (the diagonals carry no spring).
 Layout lat_long(int n_lat, int n_lon, Vec3d axis) {

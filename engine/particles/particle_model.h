@@ -1,4 +1,4 @@
-// The particle cell model of seed 001: membrane particles on a sphere, each joined to its
+// The particle cell model of Asgari et al.: membrane particles on a sphere, each joined to its
 // neighbours and to a centre particle by spring-dashpots (eqs. 1-4), diagonal anisotropic
 // damping (eq. 5), a hydraulic pressure from the enclosed volume and the interior's
 // compressibility beta (eq. 6) applied as forces on the membrane, integrated explicitly (eq. 7).

@@ -239,7 +239,7 @@ void read_integrator(Reader& root, Scene& scene) {
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 
-// The particle model (seed 001): only with "model": "particles".
+// The particle model (Asgari et al.): only with "model": "particles".
 void read_particles(Reader& root, Scene& scene) {
   Reader r = root.object("particles", {"layout", "particles", "pole_axis", "membrane_modulus",
                                        "membrane_relaxation_time", "radial_stiffness",
@@ -581,7 +581,7 @@ void resolve_refine_at(Context& ctx, Scene& scene) {
   g.refine_at = p + t * d;
 }
 
-// Seed 002 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
+// Hajiyavand et al. 2019 eq. 9: modulus linear in speed through the table, extrapolated beyond its ends.
 void resolve_speed_moduli(Context& ctx, Scene& scene) {
   for (RegionMaterialDef& entry : scene.materials) {
     std::vector<SpeedModulusPoint>& t = entry.material.young_by_speed;
@@ -973,30 +973,6 @@ Result<Scene> load_scene(const std::string& path, const std::vector<std::string>
   json doc;
   if (Status st = read_scene_json(path, &doc); !st) return st.error();
   return parse_scene(doc, path, overrides);
-}
-
-Result<std::string> find_scene(const std::string& name, const std::vector<std::string>& search_dirs) {
-  if (name.empty()) return make_error("empty scene name");
-  std::error_code ec;
-  if (fs::is_regular_file(name, ec)) return name;
-  if (name.find('/') != std::string::npos) {
-    // A path: one that exists but is a directory, device or FIFO says so.
-    const std::string kind = file_kind(name);
-    if (kind.empty()) return make_error("%s: scene file not found", name.c_str());
-    return make_error("%s: is not a regular file (%s)", name.c_str(), kind.c_str());
-  }
-  std::vector<fs::path> dirs(search_dirs.begin(), search_dirs.end());
-  if (const char* env = std::getenv("ZONA_SCENES_DIR"); env && *env) dirs.emplace_back(env);
-  dirs.emplace_back("scenes");
-  const bool has_extension = fs::path(name).extension() == ".json";
-  std::string looked;
-  for (const fs::path& dir : dirs) {
-    const fs::path candidate = dir / (has_extension ? name : name + ".json");
-    if (fs::is_regular_file(candidate, ec)) return candidate.string();
-    looked += (looked.empty() ? "" : ", ") + dir.string();
-  }
-  return make_error("scene '%s' not found: not a file, and no %s%s in: %s", name.c_str(),
-                    name.c_str(), has_extension ? "" : ".json", looked.c_str());
 }
 
 const MaterialDef* find_material(const Scene& scene, const std::string& region) {

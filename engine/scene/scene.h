@@ -22,9 +22,9 @@ namespace zona {
 
 /// Which physics model runs the scene.
 enum class ModelKind {
-  kSvk,        ///< St Venant-Kirchhoff mass-tensor FEM (seed 000, non-linear)
-  kLinear,     ///< linear mass-tensor FEM (seed 000; valid for small displacements)
-  kParticles,  ///< particle membrane model (seed 001)
+  kSvk,        ///< St Venant-Kirchhoff mass-tensor FEM (Ladjal et al., non-linear)
+  kLinear,     ///< linear mass-tensor FEM (Ladjal et al.; valid for small displacements)
+  kParticles,  ///< particle membrane model (Asgari et al.)
   /// Stable neo-Hookean FEM (Smith, de Goes and Kim 2018; gradient form): resists the tip's
   /// compression through inversion, no stretch clamp (docs/physics.md).
   kStableNeoHookean,
@@ -69,7 +69,7 @@ enum class MassSpec {
   kVertexMass,  ///< fixed mass per vertex, split between materials by tetrahedron count
 };
 
-/// One point of a speed-dependent Young's modulus table (seed 002 eq. 9).
+/// One point of a speed-dependent Young's modulus table (Hajiyavand et al. 2019 eq. 9).
 struct SpeedModulusPoint {
   double speed = 0.0;  ///< needle speed [m/s]
   double young = 0.0;  ///< Young's modulus at that speed [Pa]
@@ -84,7 +84,7 @@ struct MaterialDef {
   double total_mass = 0.0;   ///< mass of all tetrahedra using this material [kg], kTotalMass
   double vertex_mass = 0.0;  ///< mass of each vertex [kg], kVertexMass
   double damping = 0.0;      ///< mass-proportional damping: gamma = damping * M [1/s]
-  /// Speed-dependent modulus (seed 002 eq. 9): Young's modulus linear in needle speed through
+  /// Speed-dependent modulus (Hajiyavand et al. 2019 eq. 9): Young's modulus linear in needle speed through
   /// these points (extrapolated linearly beyond the ends); empty when `young` is given directly.
   /// Sorted by increasing speed, (point_count >= 2).
   std::vector<SpeedModulusPoint> young_by_speed;
@@ -103,7 +103,7 @@ enum class MassScalingMode {
   kSelective,  ///< each vertex only as much as its smallest element needs (engine/fem/mass_scaling.h)
 };
 
-/// Time stepping (explicit centred difference, seed 000 eq. 7).
+/// Time stepping (explicit centred difference, Ladjal et al. eq. 7).
 struct IntegratorDef {
   std::optional<double> dt;   ///< time step [s]; nullopt: auto = dt_safety * critical step
   double dt_safety = 0.9;     ///< fraction of the critical step used by auto dt, (0, 1]
@@ -169,7 +169,7 @@ struct BoundaryDef {
 };
 
 enum class NeedleShape {
-  kPoint,   ///< seed 000: the tip is a point, contact by ray-triangle; load spread over tip_radius
+  kPoint,   ///< Ladjal et al.: the tip is a point, contact by ray-triangle; load spread over tip_radius
   kSphere,  ///< hemispherical tip of tip_radius
   kFlat,    ///< flat circular end of tip_radius (blunt pipette)
 };
@@ -179,12 +179,12 @@ enum class ParticleLayout : int32_t {
   /// Geodesic icosphere (icosahedron subdivided at a frequency n: 10 n^2 + 2 particles), springs
   /// along the triangulation's edges (5 or 6 neighbours). Near-uniform spacing: the default.
   kIcosphere = 0,
-  /// Seed 001's latitude-longitude grid: rings of particles, each joined to its four neighbours
+  /// Asgari et al.'s latitude-longitude grid: rings of particles, each joined to its four neighbours
   /// (left, right, top, bottom); one particle at each pole joined to its whole first ring.
   kLatLong = 1,
 };
 
-/// The particle cell model (seed 001; `"model": "particles"`): the membrane of a sphere of
+/// The particle cell model (Asgari et al.; `"model": "particles"`): the membrane of a sphere of
 /// mesh.generate.diameter. engine/particles/particle_model.h says how each value enters.
 struct ParticlesDef {
   ParticleLayout layout = ParticleLayout::kIcosphere;
@@ -211,7 +211,7 @@ struct NeedleDef {
   double standoff = 5e-6;     ///< gap between tip and cell surface for an auto start [m]
   double speed = 1e-4;        ///< insertion speed [m/s]
   double max_travel = 0.0;    ///< travel after which the needle stops [m]; 0: no limit
-  double friction = 0.3;      ///< Coulomb coefficient needle-cell [-] (seed 002's contacts: 0.3)
+  double friction = 0.3;      ///< Coulomb coefficient needle-cell [-] (Hajiyavand et al. 2019's contacts: 0.3)
   /// Time constant of the first-order low-pass on the published needle force (a load cell's
   /// finite bandwidth; the puncture criterion reads the filtered force) [s]; 0: none.
   double force_filter = 0.0;
@@ -267,7 +267,7 @@ enum class HoldingMode {
   kFixed,    ///< the vertices of the aspirated patch are fixed (the simple option)
 };
 
-/// The holding pipette that keeps the cell in place by suction (seed 002).
+/// The holding pipette that keeps the cell in place by suction (Hajiyavand et al. 2019).
 struct HoldingPipetteDef {
   bool enabled = false;       ///< the scene has a holding pipette
   HoldingMode mode = HoldingMode::kSuction;
@@ -401,8 +401,16 @@ Result<Scene> parse_scene(const nlohmann::json& json, const std::string& source_
 /// that is not an object (or an array with an index in range) is an error.
 Status apply_override(nlohmann::json& json, const std::string& assignment);
 
-/// Resolves a scene argument: an existing file path, or a name ("mouse_oocyte", with or without
-/// ".json") looked up in `search_dirs`, then $ZONA_SCENES_DIR, then ./scenes.
+/// The folders a scene name is looked up in, in this order: ./scenes, $ZONA_SCENES_DIR (when
+/// set), `installed_dir` (a relative one is taken from the running program's folder, so that an
+/// installed `bin/zona` finds `share/zona/scenes`), then `source_dir` (the source tree's scenes/,
+/// for a program run from its build folder). Empty arguments are left out.
+std::vector<std::string> scene_search_dirs(const std::string& installed_dir = "",
+                                           const std::string& source_dir = "");
+
+/// Resolves a scene argument: a path to an existing file as given; else a name ("mouse_oocyte",
+/// with or without ".json") looked up in `search_dirs` in order (scene_search_dirs() when
+/// empty). The error names every folder looked in.
 Result<std::string> find_scene(const std::string& name,
                                const std::vector<std::string>& search_dirs = {});
 

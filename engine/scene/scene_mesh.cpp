@@ -1,6 +1,8 @@
 // Scene -> mesh: file reading or generation, and the needle's entry point on the cell surface.
 #include "engine/scene/scene_mesh.h"
 
+#include <cstdio>
+
 #include <cmath>
 
 #include "engine/mesh/mesh_io.h"
@@ -48,7 +50,16 @@ Result<Mesh> build_scene_mesh(const Scene& scene, std::vector<std::string>* warn
   if (scene.mesh.source == MeshSource::kFile) {
     ReadMeshOptions options;
     options.scale = scene.mesh.file_unit;
-    return read_mesh(scene.mesh.file, options, warnings);
+    Result<Mesh> mesh = read_mesh(scene.mesh.file, options, warnings);
+    if (!mesh.ok()) return mesh;
+    // A wrong unit makes a 56 m cell that fails later with an unrelated tool error: say it here.
+    if (const std::string hint = mesh_unit_hint(*mesh); !hint.empty()) {
+      char unit[64];
+      std::snprintf(unit, sizeof unit, "%.6g m", scene.mesh.file_unit);
+      return Error{(scene.source.empty() ? scene.name : scene.source) + ": mesh.unit: " +
+                   scene.mesh.file + " read with one file unit = " + unit + ": " + hint};
+    }
+    return mesh;
   }
   Result<Mesh> mesh = generate_cell_mesh(cell_mesh_spec(scene));
   if (!mesh.ok())

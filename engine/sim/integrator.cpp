@@ -67,7 +67,7 @@ struct VertexSums {
   return r;
 }
 
-// The centred-difference update u+ = a u - b u- + c (f_el + f_ext) (DESIGN.md section 3) of four
+// The centred-difference update u+ = a u - b u- + c (f_el + f_ext) (docs/physics.md) of four
 // consecutive vertices, one per lane, whose arrays start at the pointers given; f holds their
 // elastic forces as (x, y, z, *), lane 3 unread. Fixed vertices go to zero; prescribed ones keep
 // u_n here and are written by apply_prescribed_vertices. Each lane performs the Vec3d operations

@@ -1,4 +1,4 @@
-// Explicit dynamics (seed 000 eq. 7): the centred-difference step with lumped mass and
+// Explicit dynamics (Ladjal et al. eq. 7): the centred-difference step with lumped mass and
 // mass-proportional damping, its health flags, sub-stepping over a frame, and dynamic
 // relaxation (kinetic damping) for quasi-static answers.
 #pragma once

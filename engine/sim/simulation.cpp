@@ -200,7 +200,7 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     stage_start = now;
   };
 
-  // Mesh and surface. The particle model (seed 001) builds its own body mesh: the membrane
+  // Mesh and surface. The particle model (Asgari et al.) builds its own body mesh: the membrane
   // triangulation plus fan tetrahedra to the centre particle (engine/particles/particle_model.h).
   if (scene.model == ModelKind::kParticles) {
     Result<ParticleModelDesc> pd = particle_desc_from_scene(scene);
@@ -569,7 +569,7 @@ void Simulation::update_contacts() {
     mark(rim_contacts_.get(), 1);
     needle_contacts_->update(model_, u, tip_, std::span<const int32_t>(seeds_, 3), taken_,
                              full_scan, margin, options_.slip_relax);
-    // Seed 000's contact: where the tip point has passed the surface point the axis hits, the
+    // Ladjal et al.'s contact: where the tip point has passed the surface point the axis hits, the
     // hit triangle is carried along with the tip even if none of its corners lies inside the
     // tool (a coarse mesh, a tip smaller than the triangles).
     if (hit_valid_) {
@@ -751,7 +751,7 @@ void Simulation::measure() {
     filter_started_ = true;
     filter_time_ = time;
     report_.contacts = static_cast<int32_t>(needle_contacts_->size());
-    // Seed 000's contact point: the needle axis against the deformed surface, searched from the
+    // Ladjal et al.'s contact point: the needle axis against the deformed surface, searched from the
     // last hit triangle; the deformation is its advance over the same ray's rest hit.
     const Vec3d origin = tip_ - 2.0 * cell_diameter_ * d;
     const RayHit now = cast_ray(surface_, model_.rest_positions, u, origin, d, hit_triangle_);
@@ -813,7 +813,7 @@ void Simulation::measure() {
         report_.kinetic_energy, report_.elastic_energy, state_.step_count, time,
         report_.deformation);
   }
-  // Particle model: the enclosed volume against its rest value (seed 001 eq. 6's constraint).
+  // Particle model: the enclosed volume against its rest value (Asgari et al. eq. 6's constraint).
   if (particles_) {
     volume_change_rel_ = particle_volume(*particles_, state_.u) / particles_->rest_volume - 1.0;
     volume_change_max_rel_ = std::max(volume_change_max_rel_, std::fabs(volume_change_rel_));

@@ -108,7 +108,7 @@ RayHit cast_ray(const ContactSurface& surface, std::span<const Vec3d> rest,
                 int max_walk) {
   RayHit hit;
   const int32_t nt = static_cast<int32_t>(surface.triangles.size());
-  // Local search (seed 000): walk towards the triangle whose projection along the ray contains
+  // Local search (Ladjal et al.): walk towards the triangle whose projection along the ray contains
   // the ray, leaving each triangle across the edge opposite its most negative weight.
   int32_t tri = (start_triangle >= 0 && start_triangle < nt) ? start_triangle : -1;
   int32_t previous = -1;

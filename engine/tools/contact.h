@@ -1,4 +1,4 @@
-// Tool-cell contact: the boundary surface with its adjacency (built once), seed 000's
+// Tool-cell contact: the boundary surface with its adjacency (built once), Ladjal et al.'s
 // ray-triangle intersection with a local search from the last hit triangle, and the kinematic
 // contact constraint with Coulomb friction used by the needle and the holding pipette's rim.
 //
@@ -86,7 +86,7 @@ struct RayHit {
 };
 
 /// Casts the ray origin + t dir (dir unit, t > 0) against the deformed surface (positions
-/// rest + u) and returns its first hit on a triangle facing the ray. Seed 000's method: walk
+/// rest + u) and returns its first hit on a triangle facing the ray. Ladjal et al.'s method: walk
 /// from `start_triangle` (the last hit) across the edge with the most negative barycentric
 /// weight until the containing triangle is found (at most `max_walk` steps); if that fails (no
 /// start, a silhouette, a fold), test every triangle and keep the nearest hit. Never allocates.
@@ -122,7 +122,7 @@ struct Contact {
   /// Reaction measurements since the take (saturates at 2). The first is of the free vertex
   /// before it was put on the tool (the one-step lag): the contact is judged from the second.
   int32_t measurements = 0;
-  /// Held by seed 000's face contact (the tip point pierced a triangle whose corners lie outside
+  /// Held by Ladjal et al.'s face contact (the tip point pierced a triangle whose corners lie outside
   /// the tool): the anchor is the corner carried with the tip, not a point of the tool surface,
   /// and it sticks.
   bool face = false;
@@ -178,7 +178,7 @@ class ContactSet {
                        bool full_scan, double search_margin, double relax = 0.5);
 
   /// Holds `vertex` at `anchor` (relative to the tool origin, not necessarily on the tool
-  /// surface) with contact normal `normal`, sticking (Contact::face). For seed 000's face
+  /// surface) with contact normal `normal`, sticking (Contact::face). For Ladjal et al.'s face
   /// contact. Returns false when the vertex is already held or the set is full.
   bool hold(int32_t vertex, Vec3d anchor, Vec3d normal, Vec3d u_now);
 

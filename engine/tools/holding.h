@@ -1,4 +1,4 @@
-// The holding pipette (seed 002): a rigid tube whose mouth touches the cell opposite the
+// The holding pipette (Hajiyavand et al. 2019): a rigid tube whose mouth touches the cell opposite the
 // needle. Suction mode: the suction pressure acts on the aspirated patch (the surface over the
 // opening) as nodal forces, and the cell rests on the rim with Coulomb friction (the rim is a
 // contact tool, engine/tools/contact.h). Fixed mode: the surface vertices of that patch never move.

@@ -3,7 +3,7 @@
 //
 // Geometry: the tip advances along the unit axis d. A point or sphere tip is a hemisphere of
 // radius R whose apex is the tip point; the shaft behind it is a cylinder of the same radius. A
-// flat tip is a disk of radius R at the tip point on the same shaft. Seed 000 treats the tip as
+// flat tip is a disk of radius R at the tip point on the same shaft. Ladjal et al. treats the tip as
 // a point found by ray-triangle intersection; zona keeps that for the contact point and the
 // deformation measure, and spreads the load over the hemisphere of `tip_radius` (the footprint),
 // so that the force does not depend on which single vertex the point happens to hit

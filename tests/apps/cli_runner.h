@@ -35,14 +35,15 @@ inline std::string current_test_tag() {
   return tag;
 }
 
-/// Runs `zona ARGS` (ARGS as shell words) and captures its output through two files in `dir`
-/// (the temporary folder when empty), removed afterwards.
-inline CliRun run_zona(const std::string& args, const std::filesystem::path& dir = {}) {
+/// Runs `PREFIX zona ARGS` (shell words; PREFIX such as "cd DIR && NAME=value") and captures
+/// its output through two files in `dir` (the temporary folder when empty), removed afterwards.
+inline CliRun run_zona_after(const std::string& prefix, const std::string& args,
+                             const std::filesystem::path& dir = {}) {
   const std::filesystem::path folder = dir.empty() ? std::filesystem::temp_directory_path() : dir;
   const std::string tag = current_test_tag();
-  const std::string out_path = (folder / ("zona_cli_out_" + tag)).string();
-  const std::string err_path = (folder / ("zona_cli_err_" + tag)).string();
-  std::string cmd = ZONA_CLI_PATH;
+  const std::string out_path = (std::filesystem::absolute(folder) / ("zona_cli_out_" + tag)).string();
+  const std::string err_path = (std::filesystem::absolute(folder) / ("zona_cli_err_" + tag)).string();
+  std::string cmd = prefix + (prefix.empty() ? "" : " ") + ZONA_CLI_PATH;
   cmd.append(" ").append(args).append(" >").append(out_path).append(" 2>").append(err_path);
   const int status = std::system(cmd.c_str());
   CliRun r;
@@ -57,6 +58,12 @@ inline CliRun run_zona(const std::string& args, const std::filesystem::path& dir
   std::filesystem::remove(out_path, ec);
   std::filesystem::remove(err_path, ec);
   return r;
+}
+
+/// Runs `zona ARGS` (ARGS as shell words) and captures its output through two files in `dir`
+/// (the temporary folder when empty), removed afterwards.
+inline CliRun run_zona(const std::string& args, const std::filesystem::path& dir = {}) {
+  return run_zona_after("", args, dir);
 }
 
 /// A `zona` started in the background, for tests that watch its files or signal it.

@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -104,3 +106,56 @@ TEST(Cli, EveryCommandHasHelp) {
 }
 
 }  // namespace
+
+TEST(Cli, ZonaAlonePrintsUsageAndExits2) {
+  const CliRun r = run_zona("");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("Usage:"), std::string::npos) << r.err;
+  for (const char* command : {"run", "mesh", "study", "haptics"})
+    EXPECT_NE(r.err.find(command), std::string::npos) << command;
+}
+
+TEST(Cli, GroupsWithoutASubcommandListTheirSubcommands) {
+  const std::pair<const char*, std::vector<const char*>> groups[] = {
+      {"mesh", {"info", "generate", "convert"}},
+      {"analytic", {"maxwell", "membrane", "modulus"}},
+      {"study", {"convergence"}}};
+  for (const auto& [group, subcommands] : groups) {
+    const CliRun r = run_zona(group);
+    EXPECT_EQ(r.exit_code, 2) << group;
+    EXPECT_NE(r.err.find(std::string("'zona ") + group + "' needs a subcommand"), std::string::npos)
+        << r.err;
+    for (const char* s : subcommands)
+      EXPECT_NE(r.err.find(std::string("zona ") + group + " " + s), std::string::npos) << r.err;
+  }
+}
+
+TEST(Cli, MeshInfoPrintsBoundingBoxAndCentre) {
+  // The fixture's two boxes span [0,3] x [0,1] x [0,1] file units; read in um.
+  const CliRun r = run_zona("mesh info --unit um " + data("box2_v41_ascii.msh"));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("bounding box        0 .. 3e-06, 0 .. 1e-06, 0 .. 1e-06 m"), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("centre              1.5e-06, 5e-07, 5e-07 m"), std::string::npos) << r.out;
+  EXPECT_EQ(r.err.find("not a cell's size"), std::string::npos) << r.err;  // cell-sized: no unit warning
+  const CliRun j = run_zona("mesh info --json --unit um " + data("box2_v41_ascii.msh"));
+  const nlohmann::json js = nlohmann::json::parse(j.out);
+  EXPECT_NEAR(js["centre_m"][0].get<double>(), 1.5e-6, 1e-12);
+  EXPECT_NEAR(js["size_m"][0].get<double>(), 3e-6, 1e-12);
+}
+
+TEST(Cli, MeshInfoWarnsWhenTheSizeLooksLikeTheWrongUnit) {
+  // Micrometre coordinates read as metres: a 3 m "cell".
+  CliRun r = run_zona("mesh info --unit m " + data("box2_v41_ascii.msh"));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: "), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("read with --unit m: the mesh is 3 m across"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("micrometres"), std::string::npos) << r.err;
+  // Metre coordinates (a generated 56 um cell) read as micrometres.
+  const std::string path = (std::filesystem::temp_directory_path() / "zona_cli_unit.msh").string();
+  ASSERT_EQ(run_zona("mesh generate --diameter 56um --vertices 300 --out " + path).exit_code, 0);
+  r = run_zona("mesh info --unit um " + path);
+  std::filesystem::remove(path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("not a cell's size"), std::string::npos) << r.err;
+}

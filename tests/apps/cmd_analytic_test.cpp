@@ -1,6 +1,7 @@
 // End-to-end tests of `zona analytic maxwell|membrane|modulus`: values, --json, errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -77,3 +78,16 @@ TEST(CmdAnalytic, BadInputIsOneLineError) {
 }
 
 }  // namespace
+
+TEST(CmdAnalytic, MaxwellTextIsThreeWholeLines) {
+  // The default time X / V is said on the deformation line, not as a stray "(null)".
+  const CliRun r = run_zona("analytic maxwell");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out.find("(null)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("  deformation 300 um, speed 0.1 mm/s, time 3 s (X / V)\n  force "),
+            std::string::npos)
+      << r.out;
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 3) << r.out;
+  const CliRun given = run_zona("analytic maxwell --time 2s");
+  EXPECT_NE(given.out.find("time 2 s\n  force "), std::string::npos) << given.out;
+}

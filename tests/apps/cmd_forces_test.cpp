@@ -1,6 +1,8 @@
 // `zona forces`: the CLI's CSV equals the in-process forces; bad inputs fail with one line.
 #include <gtest/gtest.h>
 
+#include "tests/apps/cli_runner.h"
+
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -89,6 +91,25 @@ TEST(CmdForces, CsvMatchesTheEngine) {
     }
     EXPECT_EQ(rows, mesh.vertex_count());
   }
+}
+
+TEST(CmdForces, SuccessSaysWhatItWroteInOneLine) {
+  const fs::path dir = fs::temp_directory_path() / "zona_cmd_forces_test_line";
+  fs::create_directories(dir);
+  const Mesh mesh = testing::box_mesh({0, 0, 0}, {1, 1, 1}, 1, 1, 1);
+  write_tetgen(dir / "rest", mesh.rest_positions, mesh.tets);
+  const std::string rest = (dir / "rest.node").string(), csv = (dir / "f.csv").string();
+  const test::CliRun r = test::run_zona("forces " + rest + " " + rest +
+                                        " --scale 1e-6 --backend cpu --out " + csv);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out.rfind("wrote " + csv + ": elastic forces on " +
+                            std::to_string(mesh.vertex_count()) + " vertices (svk, gradient",
+                        0),
+            0u)
+      << r.out;
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+  EXPECT_NE(r.out.find("largest |f| 0 N"), std::string::npos) << r.out;  // at rest
+  fs::remove_all(dir);
 }
 
 TEST(CmdForces, BadInputsFailWithOneLine) {

@@ -144,6 +144,50 @@ TEST(CmdRun, SetOverridesAndModelChoice) {
   EXPECT_FALSE(fs::exists(out / "frames.pvd"));
 }
 
+TEST(CmdRun, EndsWithTheNeedleWhenTheDurationIsForAHapticSession) {
+  // mouse_oocyte_haptic keeps 3600 s for `zona haptics`; scripted, its needle stops after
+  // max_travel / speed (2 um at 0.1 mm/s: 0.02 s) and `zona run` ends there, saying so.
+  TempDir dir;
+  const fs::path out = dir.path / "haptic";
+  CliRun r = run_zona("run mouse_oocyte_haptic --no-frames --quiet --set needle.max_travel=2um "
+                      "--out " + out.string(),
+                      dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("integrator.duration is 3600 s but the needle stops at 0.02 s"),
+            std::string::npos)
+      << r.err;
+  std::ifstream js(out / "summary.json");
+  const nlohmann::json j = nlohmann::json::parse(js);
+  EXPECT_NEAR(j["numerics"]["simulated_time_s"].get<double>(), 0.02, 2e-4);
+  // --full-duration simulates all of it (1.1 s here, past the 0.001 s of needle travel).
+  const fs::path full = dir.path / "full";
+  r = run_zona("run mouse_oocyte_haptic --no-frames --quiet --full-duration "
+               "--set needle.max_travel=0.1um --set integrator.duration=1.1s --out " +
+                   full.string(),
+               dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("needle stops"), std::string::npos) << r.err;
+  std::ifstream fjs(full / "summary.json");
+  const nlohmann::json fj = nlohmann::json::parse(fjs);
+  EXPECT_NEAR(fj["numerics"]["simulated_time_s"].get<double>(), 1.1, 2e-4);
+}
+
+TEST(CmdRun, MeshFileInTheWrongUnitIsAUnitError) {
+  // The two-box fixture's coordinates are micrometre-sized numbers (0..3): read as metres the
+  // "cell" is 3 m across. The error is about the unit, not a tool that does not fit.
+  TempDir dir;
+  nlohmann::json scene = nlohmann::json::parse(kScene);
+  scene["mesh"] = {{"file", std::string(ZONA_TEST_DATA_DIR) + "/box2_v41_ascii.msh"}, {"unit", "m"}};
+  const fs::path path = dir.path / "unit.json";
+  std::ofstream(path) << scene.dump();
+  const CliRun r = run_zona("run " + path.string() + " --out " + (dir.path / "o").string(), dir.path);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_NE(r.err.find("mesh.unit: "), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("micrometres"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("holding"), std::string::npos) << r.err;
+}
+
 TEST(CmdRun, ErrorsAreOneLine) {
   TempDir dir;
   CliRun r = run_zona("run no_such_scene --out " + (dir.path / "x").string(), dir.path);
@@ -187,7 +231,7 @@ TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
     // 10 s of simulated time at 20 us steps: far longer than the test waits.
     zona::test::CliProcess p = zona::test::start_zona(
         "run " + scene.string() + " --out " + out.string() +
-            " --no-frames --quiet --set 'integrator.duration=10 s'",
+            " --no-frames --quiet --full-duration --set 'integrator.duration=10 s'",
         dir.path);
     ASSERT_GT(p.pid, 0);
     // Rows appear while the run goes: the header, the start, and a row flushed later.

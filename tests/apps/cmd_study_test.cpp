@@ -127,6 +127,26 @@ TEST(CmdStudy, ConvergenceWritesBothCsvsAndThePlot) {
   }
 }
 
+TEST(CmdStudy, PrintsAnEstimateFirstAndDefaultsToSizesTheCpuFinishes) {
+  // No --vertices on the CPU: the small default sizes, estimated before anything runs (the
+  // output folder that cannot be made stops it right after).
+  TempDir dir;
+  const CliRun r = run_zona("study convergence mouse_oocyte --backend cpu --threads 2 --out /dev/null/x",
+                            dir.path);
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_EQ(r.out.rfind("estimate (rough, from the job benchmarks): 1e3,2e3,4e3 on the CPU, 2 threads: "
+                        "1000 vertices ~",
+                        0),
+            0u)
+      << r.out;
+  // mouse_oocyte: 0.46 s of needle travel in 10 us steps, about 0.1 ms per step at 1000
+  // vertices on 2 threads: about 5 s; 4000 vertices about 18 s.
+  EXPECT_NE(r.out.find("1000 vertices ~5 s, 2000 vertices ~9 s, 4000 vertices ~18 s; total ~32 s"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.err.find("/dev/null/x"), std::string::npos) << r.err;
+}
+
 // One line on stderr, an error exit code.
 void expect_one_line_error(const CliRun& r, const std::string& what) {
   EXPECT_NE(r.exit_code, 0) << what;

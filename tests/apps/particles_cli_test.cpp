@@ -1,5 +1,5 @@
-// End-to-end test of `zona run scenes/zebrafish_particles.json`: the particle model (seed 001)
-// punctures the zebrafish embryo within seed 002's measured force range and writes its summary.
+// End-to-end test of `zona run scenes/zebrafish_particles.json`: the particle model (Asgari et al.)
+// punctures the zebrafish embryo within Hajiyavand et al. 2019's measured force range and writes its summary.
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -22,7 +22,7 @@ namespace fs = std::filesystem;
 TEST(ParticlesCli, ZebrafishPuncturesInTheMeasuredForceRange) {
   TempDir dir;
   const fs::path out = dir.path / "run";
-  // The shipped scene at seed 002's fastest speed (1 mm/s, also in its Fig. 12) and at a quarter
+  // The shipped scene at Hajiyavand et al. 2019's fastest speed (1 mm/s, also in its Fig. 12) and at a quarter
   // of its particles (642) so the test runs in about two seconds; stopped just after the
   // puncture. (Full scene at 0.1 mm/s: 315 um, 1 mN; this setting: 296 um, 1 mN.)
   std::string args = "run ";
@@ -38,7 +38,7 @@ TEST(ParticlesCli, ZebrafishPuncturesInTheMeasuredForceRange) {
   const nlohmann::json summary = nlohmann::json::parse(in);
   EXPECT_EQ(summary["model"], "particles");
   ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump(2);
-  // Seed 002 Fig. 12: about 0.1-2 mN at puncture.
+  // Hajiyavand et al. 2019 Fig. 12: about 0.1-2 mN at puncture.
   const double force = summary["puncture"]["force_N"].get<double>();
   EXPECT_GE(force, 0.1e-3);
   EXPECT_LE(force, 2e-3);

@@ -27,7 +27,7 @@ inline nlohmann::json small_cell_scene() {
       {"output", {{"frames", 0}, {"sample_interval", "0.1 ms"}}}};
 }
 
-/// The particle model (seed 001) of an 800 um cell, 642 particles, pushed along +x by a 30 um
+/// The particle model (Asgari et al.) of an 800 um cell, 642 particles, pushed along +x by a 30 um
 /// sphere at `speed` [m/s] up to 250 um of travel.
 inline nlohmann::json particle_scene(double speed = 2e-3) {
   char speed_text[32];

@@ -1,4 +1,4 @@
-// Cross-check of seed 002's point-load membrane model (eq. 7) against zona's FEM: a thin clamped
+// Cross-check of Hajiyavand et al. 2019's point-load membrane model (eq. 7) against zona's FEM: a thin clamped
 // plate indented over a small central disc, relaxed to equilibrium, and eq. 7 solved for E from
 // the FEM's force and deflection.
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// Seed 002's analytic models against values computed by hand from the printed formulas.
+// Hajiyavand et al. 2019's analytic models against values computed by hand from the printed formulas.
 #include "engine/analysis/analytic.h"
 
 #include <gtest/gtest.h>
@@ -8,7 +8,7 @@
 namespace zona {
 namespace {
 
-// Seed 002's chorion: 3 um thick, Poisson 0.5 (section 3.2), cell radius 400 um and pipette
+// Hajiyavand et al. 2019's chorion: 3 um thick, Poisson 0.5 (section 3.2), cell radius 400 um and pipette
 // radius 30 um (Table 5, section 2.3).
 PointLoadMembrane seed002_chorion() {
   PointLoadMembrane m;
@@ -76,7 +76,7 @@ TEST(Analytic, PointLoadForwardAndInverse) {
 }
 
 TEST(Analytic, Seed002ChorionModulusFromItsNumbers) {
-  // Seed 002's Table 1 is missing from the text; its numbers in words: deformation at puncture
+  // Hajiyavand et al. 2019's Table 1 is missing from the text; its numbers in words: deformation at puncture
   // falls by ~34 % from 0.05 to 0.6 mm/s, "almost 100 um" (section 3.1), so ~294 um at
   // 0.05 mm/s; eq. 8 gives the force there (t = X / V). Eq. 7 with the chorion (3 um, Poisson
   // 0.5, radius 400 um, tip 30 um) then gives E = 1.456 MPa by hand, within Table 3's

@@ -25,7 +25,7 @@ TEST(Plot, WritesAPngOfTheAskedSize) {
   spec.width = 640;
   spec.height = 400;
   PlotSeries curve{"svk", {0, 10, 20, 30, 45}, {0, 1, 2.5, 4.5, 7.5}, 0x1f77b4, 2, 0};
-  PlotSeries point{"seed 000", {45}, {7.5}, 0xd62728, 0, 6};
+  PlotSeries point{"Ladjal et al.", {45}, {7.5}, 0xd62728, 0, 6};
   spec.series = {curve, point};
   ASSERT_TRUE(write_plot_png(path.string(), spec).ok());
   std::ifstream in(path, std::ios::binary);

@@ -88,7 +88,7 @@ TEST(Units, CompoundUnits) {
   expect_rel(si("1e4 s^-1", dim::kFrequency), 1e4);
   expect_rel(si("1 g/cm^3", dim::kDensity), 1000.0);
   expect_rel(si("1 um^3", dim::kVolume), 1e-18);
-  expect_rel(si("91952 \xC2\xB5m\xC2\xB3", dim::kVolume), 91952e-18);  // µm³ as in seed 000
+  expect_rel(si("91952 \xC2\xB5m\xC2\xB3", dim::kVolume), 91952e-18);  // µm³ as in Ladjal et al.
   expect_rel(si("2 m/s^2", dim::kAcceleration), 2.0);
   expect_rel(si("1 kPa*m^2", dim::kForce), 1000.0);
   // Everything after '/' is the denominator: W/m^2*s is W/(m^2 s) = kg s^-4.

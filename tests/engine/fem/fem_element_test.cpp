@@ -16,7 +16,7 @@
 namespace zona {
 namespace {
 
-// An irregular tetrahedron of ~1 um and mouse-zona material (seed 000 Table I).
+// An irregular tetrahedron of ~1 um and mouse-zona material (Ladjal et al. Table I).
 struct Fixture {
   Vec3d x[4] = {{0.1e-6, -0.05e-6, 0.02e-6},
                 {1.05e-6, 0.1e-6, -0.03e-6},
@@ -215,7 +215,7 @@ TEST(FemElement, LinearTensorFormsEqualTheGradientForm) {
   }
   EXPECT_NEAR(ws, wg, 1e-12 * wg);
   EXPECT_NEAR(wr, wg, 1e-12 * wg);
-  // K = 2 B, entry by entry (seed 000 eq. 3 against DESIGN.md's B).
+  // K = 2 B, entry by entry (Ladjal et al. eq. 3 against the B of docs/physics.md).
   for (int i = 0; i < kTensorBSize; ++i) EXPECT_NEAR(k[i], 2 * t[i], 1e-14 * std::abs(k[i]) + 1e-30);
 }
 

@@ -9,7 +9,7 @@ namespace zona {
 namespace {
 
 TEST(Material, LameCoefficientsOfTheMouseZona) {
-  // Seed 000 Table I: E = 17.9 kPa, nu = 0.49.
+  // Ladjal et al. Table I: E = 17.9 kPa, nu = 0.49.
   const Lame l = lame_from_young_poisson(17.9e3, 0.49);
   EXPECT_NEAR(l.mu, 17.9e3 / 2.98, 1e-9);
   EXPECT_NEAR(l.lambda, 17.9e3 * 0.49 / (1.49 * 0.02), 1e-7);

@@ -164,7 +164,7 @@ TEST(MeshGenerate, UniformTargetVertexCount) {
 }
 
 TEST(MeshGenerate, Table2SizesAreReproduced) {
-  // A spread of seed 000's Table II sizes (115 ... 1093 vertices).
+  // A spread of Ladjal et al.'s Table II sizes (115 ... 1093 vertices).
   for (int64_t n : {115, 271, 1093}) {
     const CellMeshSpec s = table2_spec(n);
     const Result<Mesh> m = generate_cell_mesh(s);

@@ -1,4 +1,4 @@
-// Tests for engine/particle_model (seed 001): spring and damping forces against hand values,
+// Tests for engine/particle_model (Asgari et al.): spring and damping forces against hand values,
 // layouts, volume and pressure under uniform scaling against the analytic values, forces as the
 // energy's gradient, the stable step, determinism, bad parameters, and the model inside the
 // injection simulation (volume conservation, split step, CPU backend, scene round trip).

@@ -138,7 +138,7 @@ TEST(Scene, MouseOocyteHasSeed000TableOne) {
   expect_rel(s.needle.speed, 1e-4);
   expect_vec(s.needle.direction, {1.0, 0.0, 0.0});
   EXPECT_FALSE(s.needle.start.has_value());
-  // Seed 000's puncture force (Fig. 8: 7.5 uN at about 45 um).
+  // Ladjal et al.'s puncture force (Fig. 8: 7.5 uN at about 45 um).
   EXPECT_EQ(s.puncture.criterion, PunctureCriterion::kForce);
   expect_rel(s.puncture.threshold, 7.5e-6);
   EXPECT_TRUE(s.holding_pipette.enabled);

@@ -487,7 +487,7 @@ TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
 }
 
 TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
-  // Seed 000's 115-vertex resolution: a 1 um point tip fits between the vertices, and the
+  // Ladjal et al.'s 115-vertex resolution: a 1 um point tip fits between the vertices, and the
   // triangle it pierces is carried along (the force rises as soon as the tip meets the surface).
   json j = small_cell_scene();
   j["mesh"]["generate"]["vertices"] = 60;
@@ -562,10 +562,10 @@ TEST(Simulation, RunStreamsEverySampleAndStopsWhenAsked) {
 
 TEST(Simulation, MouseOocytePunctureLandsInSeed000Band) {
   // The main job on a 300-vertex mesh instead of 800 (CI time; `zona run` runs the full scene,
-  // docs/validation.md). Seed 000: puncture at about 45 um and 7.5 uN; the band is 35-55 um and
+  // docs/validation.md). Ladjal et al.: puncture at about 45 um and 7.5 uN; the band is 35-55 um and
   // 5-10 uN.
   // The kinematic contact with stiffness damping and SVK, the configuration first calibrated
-  // against seed 000 (docs/validation.md); the default scene now runs the converged
+  // against Ladjal et al. (docs/validation.md); the default scene now runs the converged
   // configuration (neo-Hookean with nodal pressure, penalty contact), calibrated on 1M vertices.
   Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json",
                                    {"mesh.generate.vertices=300", "output.frames=0",

@@ -1,4 +1,4 @@
-// Seed 002's speed trend with scenes/zebrafish_embryo.json: faster injection punctures at less
+// Hajiyavand et al. 2019's speed trend with scenes/zebrafish_embryo.json: faster injection punctures at less
 // deformation and more force, and the trend comes from eq. 9's modulus, not from the numerics.
 #include <gtest/gtest.h>
 
@@ -38,7 +38,7 @@ TEST(ZebrafishTrend, FasterInjectionPuncturesEarlierWithMoreForce) {
   const PunctureRecord fast = puncture_at("1 mm/s");
   ASSERT_TRUE(medium.punctured);
   ASSERT_TRUE(fast.punctured);
-  // Seed 002: less deformation and more force at puncture when the speed rises.
+  // Hajiyavand et al. 2019: less deformation and more force at puncture when the speed rises.
   EXPECT_LT(fast.deformation, 0.97 * medium.deformation);
   EXPECT_GT(fast.force, 1.03 * medium.force);
   // The same fast run with the 0.6 mm/s modulus (eq. 9: 61 kPa * (1 + 0.5 / 0.9 * 2/3))

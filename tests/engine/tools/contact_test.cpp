@@ -1,4 +1,4 @@
-// Tests for engine/contact: surface adjacency, ray-triangle intersection and seed 000's local
+// Tests for engine/contact: surface adjacency, ray-triangle intersection and Ladjal et al.'s local
 // search, and the contact set's add / release / friction logic on small models.
 #include "engine/tools/contact.h"
 
@@ -84,7 +84,7 @@ TEST(Contact, LocalSearchFindsTheGlobalHit) {
     const RayHit global = cast_ray(*surface, mesh->rest_positions, u, origin, d, -1);
     ASSERT_GE(global.triangle, 0);
     EXPECT_TRUE(global.global_scan);
-    // From the previous ray's triangle (seed 000: search from the last contact triangle).
+    // From the previous ray's triangle (Ladjal et al.: search from the last contact triangle).
     const RayHit walked = cast_ray(*surface, mesh->rest_positions, u, origin, d, last);
     ASSERT_GE(walked.triangle, 0);
     expect_vec(walked.point, global.point, 1e-12);

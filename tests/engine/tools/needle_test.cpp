@@ -35,7 +35,7 @@ TEST(Needle, SphereTipDistanceAheadBesideAndInside) {
   d = needle_distance(n, tip, Vec3d{-10, 1.5, 0});
   EXPECT_DOUBLE_EQ(d.distance, -0.5);
   expect_vec(d.normal, Vec3d{0, 1, 0}, 1e-15);
-  // The point shape uses the same hemisphere (the footprint of seed 000's point needle).
+  // The point shape uses the same hemisphere (the footprint of Ladjal et al.'s point needle).
   const NeedleGeometry p{NeedleShape::kPoint, 2.0, Vec3d{1, 0, 0}};
   EXPECT_DOUBLE_EQ(needle_distance(p, tip, Vec3d{-1, 0, 0}).distance, -1.0);
 }
