@@ -21,6 +21,9 @@ void fail(const std::string& message);
 /// no git process: HEAD, its branch ref, or packed-refs. Empty when the tree has no .git (a
 /// copied tree).
 std::string source_commit();
+/// The command line this process was started with, words joined by spaces and single-quoted
+/// where the shell would split or expand them (summary.json's provenance).
+const std::string& invocation();
 
 void add_info_command(CLI::App& app);
 void add_mesh_commands(CLI::App& app);
