@@ -357,9 +357,8 @@ Status FrameRecorder::write(const Simulation& sim) {
 }
 
 bool is_run_output(const std::string& file_name) {
-  static constexpr const char* kNames[] = {"force.csv",  "summary.json",          "scene.json",
-                                           "frames.pvd", "force_deformation.png", "frames.xdmf",
-                                           "frames.h5"};
+  static constexpr const char* kNames[] = {"force.csv", "summary.json", "scene.json",
+                                           "frames.pvd", "force_deformation.png"};
   for (const char* name : kNames) {
     const std::string n = name;
     if (file_name == n || file_name == n + ".tmp") return true;

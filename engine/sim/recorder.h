@@ -161,7 +161,7 @@ class FrameRecorder {
 
 /// Whether `file_name` (no folder) is one of the outputs `zona run` writes into its output
 /// folder: force.csv, summary.json, scene.json, force_deformation.png, frames.pvd,
-/// frames_<digits>.vtu, frames.xdmf, frames.h5, or the ".tmp" of one of them (atomic writes).
+/// frames_<digits>.vtu, or the ".tmp" of one of them (atomic writes).
 bool is_run_output(const std::string& file_name);
 
 /// Removes from `directory` the files is_run_output names (an earlier run's outputs, so that a
