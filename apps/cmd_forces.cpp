@@ -92,9 +92,9 @@ void add_forces_command(CLI::App& app) {
   auto args = std::make_shared<ForcesArgs>();
   auto* cmd = app.add_subcommand(
       "forces", "Elastic force on each vertex of a deformed mesh (-dW/du, newtons) as CSV");
-  cmd->add_option("REST", args->rest, "Rest mesh (.msh, or TetGen .node/.ele)")->required();
+  cmd->add_option("REST", args->rest, "Rest mesh (.msh, TetGen .node/.ele, or .vtu)")->required();
   cmd->add_option("DEFORMED", args->deformed,
-                  "Deformed positions, same vertices (a mesh, or a bare TetGen .node)")
+                  "Deformed positions, same vertices (a mesh, a bare TetGen .node, or a zona frame .vtu: points + displacement)")
       ->required();
   cmd->add_option("--model", args->model, "Constitutive model")
       ->check(CLI::IsMember({"svk", "linear", "neohookean"}))

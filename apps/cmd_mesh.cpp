@@ -102,7 +102,7 @@ void add_info(CLI::App& group) {
   };
   auto args = std::make_shared<Args>();
   auto* cmd = group.add_subcommand("info", "Counts, volume, quality and regions of a mesh file");
-  cmd->add_option("FILE", args->file, "Mesh file (.msh, .node)")->required();
+  cmd->add_option("FILE", args->file, "Mesh file (.msh, .node, .vtu)")->required();
   cmd->add_option("--unit", args->unit, "Length unit of the file's coordinates (m, um, mm)")
       ->capture_default_str();
   cmd->add_flag("--json", args->json, "Print one JSON object");
@@ -230,8 +230,8 @@ void add_convert(CLI::App& group) {
     std::string unit = "m";
   };
   auto args = std::make_shared<Args>();
-  auto* cmd = group.add_subcommand("convert", "Convert a mesh file (.msh, .node -> .msh, .vtu)");
-  cmd->add_option("IN", args->in, "Input mesh (.msh, .node)")->required();
+  auto* cmd = group.add_subcommand("convert", "Convert a mesh file (.msh, .node, .vtu -> .msh, .vtu)");
+  cmd->add_option("IN", args->in, "Input mesh (.msh, .node, .vtu)")->required();
   cmd->add_option("OUT", args->out, "Output mesh (.msh written as Gmsh 4.1, .vtu)")->required();
   cmd->add_option("--unit", args->unit, "Length unit of the input's coordinates (output is m)")
       ->capture_default_str();

@@ -22,6 +22,7 @@
 #include "engine/scene/scene.h"
 #include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
+#include "kernels/backend_info.h"
 #include "kernels/particle_backend.h"
 
 namespace zona::cli {
@@ -213,6 +214,9 @@ Status write_force_plot(const std::string& path, const Simulation& sim, const Ru
 
 void run_command(const RunArgs& args) {
   namespace fs = std::filesystem;
+  RunProvenance provenance = local_provenance();  // the date is the run's start
+  provenance.commit = source_commit();
+  provenance.command = invocation();
   Result<std::string> path = find_scene_file(args.scene);
   if (!path.ok()) return fail(path.error().message);
   Result<Scene> scene = load_scene(*path, args.sets);
@@ -311,10 +315,10 @@ void run_command(const RunArgs& args) {
   // Streamed outputs: scene.json before the run, force.csv row by row during it, so that a run
   // stopped half-way leaves its scene and its curve up to there. A failed row is reported once
   // after the run; the run goes on (its samples are still in memory for the summary and plot).
-  // A previous run's summary and plot would sit beside this run's curve until the end (or for
-  // good, if this run is killed): they go first.
-  for (const char* stale : {"summary.json", "force_deformation.png"})
-    fs::remove(fs::path(out) / stale, ec);
+  // A previous run's outputs (its summary and plot, frames beyond this run's count, a
+  // frames.pvd that --no-frames would leave) would sit beside this run's: they go first; any
+  // other file in the folder stays.
+  if (Status s = remove_run_outputs(out); !s) return fail(s.error().message);
   if (Status s = write_file_atomic((fs::path(out) / "scene.json").string(),
                                    scene_to_json(*scene).dump(2) + "\n");
       !s)
@@ -350,7 +354,12 @@ void run_command(const RunArgs& args) {
                  csv_error.c_str());
   }
   const TrainingMetrics metrics = compute_training_metrics(run, sim.cell_diameter());
-  nlohmann::json summary = run_summary_json(sim, run, metrics);
+  if (sim.backend() && std::string(sim.backend()->name()) == "cuda") {
+    // The backend runs on device 0 (BackendOptions::device, which run does not change).
+    for (const DeviceInfo& d : cuda_devices(nullptr))
+      if (d.ordinal == 0) provenance.gpu = d.name;
+  }
+  nlohmann::json summary = run_summary_json(sim, run, metrics, provenance);
   summary["numerics"]["setup_time_s"] = setup_seconds;
   // The file the scene name resolved to (./scenes, $ZONA_SCENES_DIR, installed, source tree).
   summary["scene_file"] = *path;

@@ -21,6 +21,9 @@ void fail(const std::string& message);
 /// no git process: HEAD, its branch ref, or packed-refs. Empty when the tree has no .git (a
 /// copied tree).
 std::string source_commit();
+/// The command line this process was started with, words joined by spaces and single-quoted
+/// where the shell would split or expand them (summary.json's provenance).
+const std::string& invocation();
 
 /// The scene file a command's SCENE argument names, looked up as every command looks it up: a
 /// path as given, then ./scenes, $ZONA_SCENES_DIR, the installed scenes, the source tree's

@@ -50,6 +50,34 @@ std::string source_commit() {
   return "";
 }
 
+namespace {
+std::string& invocation_text() {
+  static std::string text;
+  return text;
+}
+
+// "zona run --set 'name=a b'": a word with anything but [A-Za-z0-9_./=:,+-@%] is single-quoted.
+void record_invocation(int argc, char** argv) {
+  std::string& out = invocation_text();
+  for (int i = 0; i < argc; ++i) {
+    const std::string word = argv[i];
+    const bool plain = !word.empty() && word.find_first_not_of(
+                                            "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz"
+                                            "0123456789_./=:,+-@%") == std::string::npos;
+    if (i > 0) out += ' ';
+    if (plain) {
+      out += word;
+      continue;
+    }
+    out += '\'';
+    for (char ch : word) out += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
+    out += '\'';
+  }
+}
+}  // namespace
+
+const std::string& invocation() { return invocation_text(); }
+
 }  // namespace zona::cli
 
 namespace {
@@ -63,6 +91,7 @@ std::vector<const CLI::App*> all_subcommands(const CLI::App& app) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  zona::cli::record_invocation(argc, argv);
   CLI::App app{"zona: GPU-accelerated deformable simulation of cells under micro-injection"};
   app.require_subcommand(0, 1);
   app.set_version_flag("--version", std::string("zona ") + ZONA_VERSION);

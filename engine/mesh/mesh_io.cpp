@@ -468,7 +468,14 @@ Result<io_detail::RawMesh> read_raw(const std::string& path, bool positions_only
     if (!ele) return ele.error();
     return io_detail::parse_tetgen(*node, *ele, node_path, ele_path);
   }
-  return make_error("%s: unknown mesh format '%s' (expected .msh, .node or .ele)", path.c_str(),
+  if (ext == ".vtu") {
+    Result<std::string> data = io_detail::read_file(path);
+    if (!data) return data.error();
+    // read_positions (positions_only_allowed) wants the deformed configuration of a frame.
+    return io_detail::parse_vtu(*data, path, positions_only_allowed);
+  }
+  return make_error("%s: unknown mesh format '%s' (expected .msh, .node, .ele or .vtu)",
+                    path.c_str(),
                     io_detail::excerpt(ext).c_str());
 }
 

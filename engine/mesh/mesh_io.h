@@ -1,5 +1,5 @@
-// Mesh files: Gmsh .msh (2.2 / 4.1, ASCII / binary) and TetGen .node/.ele readers; Gmsh 4.1,
-// VTK .vtu and ParaView .pvd writers.
+// Mesh files: Gmsh .msh (2.2 / 4.1, ASCII / binary), TetGen .node/.ele and VTK .vtu (the
+// tetrahedra zona writes) readers; Gmsh 4.1, VTK .vtu and ParaView .pvd writers.
 //
 // Readers never trust the file: every count is checked against the bytes that remain before
 // anything is reserved, every index against its range, every number for syntax and finiteness.
@@ -26,14 +26,19 @@ struct ReadMeshOptions {
 };
 
 /// Reads a tetrahedral mesh, choosing the format by extension: `.msh` (Gmsh 2.x or 4.1, ASCII
-/// or binary, either byte order) or `.node` (TetGen; its `.ele` lies beside it with the same
-/// stem; naming the `.ele` works too). Only linear tetrahedra (Gmsh type 4, the first four
-/// corners of TetGen's 10-node elements) are kept; vertices that no tetrahedron uses are dropped
-/// and the rest renumbered compactly in file order. Regions: Gmsh physical tags (the tag of
-/// each tetrahedron's volume entity in 4.1, the first element tag in 2.x; 0 when absent) with
-/// names from $PhysicalNames; TetGen's first element attribute (its region attribute under
-/// `tetgen -A`), which must be an integer. The result has passed validate_mesh(); its warnings
-/// (and the reader's, e.g. dropped vertices) are appended to `warnings` when given.
+/// or binary, either byte order), `.node` (TetGen; its `.ele` lies beside it with the same
+/// stem; naming the `.ele` works too) or `.vtu` (a VTK XML UnstructuredGrid of linear
+/// tetrahedra as write_vtu writes it: one piece, ascii or inline base64 arrays, uncompressed,
+/// little-endian; anything else is refused with one line naming what is not supported). Only
+/// linear tetrahedra (Gmsh type 4, the first four corners of TetGen's 10-node elements, VTK
+/// type 10) are kept; vertices that no tetrahedron uses are dropped and the rest renumbered
+/// compactly in file order. Regions: Gmsh physical tags (the tag of each tetrahedron's volume
+/// entity in 4.1, the first element tag in 2.x; 0 when absent) with names from $PhysicalNames;
+/// TetGen's first element attribute (its region attribute under `tetgen -A`), which must be an
+/// integer; the VTU cell array "region" with names from the field arrays "region:NAME". A
+/// VTU's points are taken as they are (zona's frames hold the rest positions). The result has
+/// passed validate_mesh(); its warnings (and the reader's, e.g. dropped vertices) are appended
+/// to `warnings` when given.
 Result<Mesh> read_mesh(const std::string& path, const ReadMeshOptions& options = {},
                        std::vector<std::string>* warnings = nullptr);
 
@@ -41,6 +46,8 @@ Result<Mesh> read_mesh(const std::string& path, const ReadMeshOptions& options =
 /// read_mesh reads, numbered as read_mesh numbers them; a file without tetrahedra (a TetGen
 /// `.node` with no `.ele` beside it, a `.msh` with nodes only) gives every point in file order.
 /// No mesh validation runs, so a deformed configuration with inverted elements still loads.
+/// A `.vtu` frame of zona's (field array "points_at_rest" 1 and a 3-component point array
+/// "displacement") gives its deformed positions, points + displacement.
 Result<std::vector<Vec3d>> read_positions(const std::string& path,
                                           const ReadMeshOptions& options = {});
 
@@ -81,10 +88,17 @@ struct VtuOptions {
   const std::vector<Vec3d>* positions = nullptr;
   /// Base64 inline binary (compact, what ParaView writes) or plain ASCII.
   bool binary = true;
+  /// Arrays of the whole data set (VTK FieldData), any number of tuples of `components` each
+  /// (e.g. "TimeValue", the frame's time [s], which ParaView shows as the data set's time).
+  std::vector<VtkField> field_data;
+  /// A note for whoever opens the file, written as an XML comment after the header (one line;
+  /// "--" is replaced: XML comments cannot hold it).
+  std::string comment;
 };
 
 /// Writes a VTK XML UnstructuredGrid (.vtu) of linear tetrahedra with the given point and cell
-/// fields, plus a cell field "region" with each tetrahedron's tag.
+/// fields, plus a cell field "region" with each tetrahedron's tag and, per named region, a
+/// one-value Int32 field array "region:NAME" holding its tag (read_mesh reads the names back).
 Status write_vtu(const std::string& path, const Mesh& mesh,
                  const std::vector<VtkField>& point_data = {},
                  const std::vector<VtkField>& cell_data = {}, const VtuOptions& options = {});

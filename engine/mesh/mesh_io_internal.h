@@ -43,6 +43,9 @@ Result<RawMesh> parse_gmsh(std::string_view data, const std::string& name);
 /// TetGen parsers (engine/mesh/mesh_io_tetgen.cpp). An empty `ele_name` means positions only.
 Result<RawMesh> parse_tetgen(std::string_view node, std::string_view ele,
                              const std::string& node_name, const std::string& ele_name);
+/// VTU parser (engine/mesh/mesh_io_vtu_read.cpp). `deformed`: a zona frame (points at rest and
+/// a displacement array) gives points + displacement.
+Result<RawMesh> parse_vtu(std::string_view data, const std::string& name, bool deformed);
 
 /// Writes `data` to `path` (binary mode), reporting open/write/close failures.
 Status write_file(const std::string& path, std::string_view data);

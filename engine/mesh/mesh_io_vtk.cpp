@@ -72,14 +72,16 @@ const char* vtk_type_name<uint8_t>() { return "UInt8"; }
 
 // One <DataArray>. Binary: base64 of a UInt64 byte count followed by the raw values, encoded as
 // one stream (VTK decodes header and data from a single stream when there is no compression).
+// `tuples` >= 0 writes NumberOfTuples (field data arrays need it).
 template <class T>
 void append_array(std::string& out, const char* name, int components, const T* values,
-                  size_t count, bool binary) {
+                  size_t count, bool binary, int64_t tuples = -1) {
   out += "        <DataArray type=\"";
   out += vtk_type_name<T>();
   out += "\"";
   if (name) out += " Name=\"" + xml_escape(name) + "\"";
   if (components != 1) out += " NumberOfComponents=\"" + std::to_string(components) + "\"";
+  if (tuples >= 0) out += " NumberOfTuples=\"" + std::to_string(tuples) + "\"";
   out += binary ? " format=\"binary\">\n          " : " format=\"ascii\">\n          ";
   if (binary) {
     const uint64_t bytes = count * sizeof(T);
@@ -125,13 +127,42 @@ Status write_vtu(const std::string& path, const Mesh& mesh, const std::vector<Vt
     return make_error("%s: %zu positions for %zu vertices", path.c_str(), positions.size(), nv);
   if (Status s = check_fields(point_data, nv, "point", path); !s) return s;
   if (Status s = check_fields(cell_data, nt, "cell", path); !s) return s;
+  for (const VtkField& f : options.field_data) {
+    const size_t tuples = f.components > 0 ? f.values.size() / static_cast<size_t>(f.components) : 0;
+    if (Status s = check_fields({f}, tuples, "field", path); !s) return s;
+  }
   const bool bin = options.binary;
 
   std::string out;
   out.reserve(bin ? 200 + nv * 32 + nt * 60 : 200 + nv * 64 + nt * 64);
   out += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"";
   out += std::endian::native == std::endian::little ? "LittleEndian" : "BigEndian";
-  out += "\" header_type=\"UInt64\">\n  <UnstructuredGrid>\n";
+  out += "\" header_type=\"UInt64\">\n";
+  if (!options.comment.empty()) {
+    // One line, and no "--" (not allowed inside an XML comment).
+    std::string note;
+    for (char ch : options.comment) {
+      if (ch == '\n' || ch == '\r') ch = ' ';
+      if (ch == '-' && !note.empty() && note.back() == '-') note.push_back(' ');
+      note.push_back(ch);
+    }
+    out += "  <!-- " + note + " -->\n";
+  }
+  out += "  <UnstructuredGrid>\n";
+  // Whole-data-set arrays: the caller's, then the region names (VTK string arrays would keep
+  // the names more plainly, but meshio cannot read them: one Int32 per name instead).
+  std::vector<const Region*> named;
+  for (const Region& r : mesh.regions)
+    if (!r.name.empty()) named.push_back(&r);
+  if (!options.field_data.empty() || !named.empty()) {
+    out += "    <FieldData>\n";
+    for (const VtkField& f : options.field_data)
+      append_array(out, f.name.c_str(), f.components, f.values.data(), f.values.size(), bin,
+                   static_cast<int64_t>(f.values.size() / static_cast<size_t>(f.components)));
+    for (const Region* r : named)
+      append_array(out, ("region:" + r->name).c_str(), 1, &r->tag, 1, bin, 1);
+    out += "    </FieldData>\n";
+  }
   out += "    <Piece NumberOfPoints=\"" + std::to_string(nv) + "\" NumberOfCells=\"" +
          std::to_string(nt) + "\">\n";
 

@@ -1,4 +1,5 @@
-// force.csv, summary.json, training metrics and VTU frames of a run.
+// force.csv, summary.json (with provenance), training metrics, VTU frames of a run, and the
+// clean-up of an earlier run's outputs.
 #include "engine/sim/recorder.h"
 
 #include <unistd.h>
@@ -9,7 +10,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
+#include <fstream>
+#include <thread>
 #include <utility>
 
 #include <nlohmann/json.hpp>
@@ -205,8 +209,35 @@ Status write_file_atomic(const std::string& path, const std::string& text) {
   return Status::ok_status();
 }
 
+RunProvenance local_provenance() {
+  RunProvenance p;
+  p.zona_version = ZONA_VERSION;
+  char date[32];
+  const std::time_t now = std::time(nullptr);
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  std::strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  p.date_utc = date;
+  char host[256] = {};
+  if (::gethostname(host, sizeof host - 1) == 0) p.hostname = host;
+  std::ifstream cpuinfo("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(cpuinfo, line)) {
+    if (line.rfind("model name", 0) != 0) continue;
+    const size_t colon = line.find(':');
+    if (colon != std::string::npos) {
+      p.cpu_model = line.substr(colon + 1);
+      p.cpu_model.erase(0, p.cpu_model.find_first_not_of(" \t"));
+    }
+    break;
+  }
+  if (p.cpu_model.empty()) p.cpu_model = "unknown CPU";
+  p.hardware_threads = static_cast<int>(std::thread::hardware_concurrency());
+  return p;
+}
+
 nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
-                                const TrainingMetrics& metrics) {
+                                const TrainingMetrics& metrics, const RunProvenance& provenance) {
   using nlohmann::json;
   const Scene& scene = sim.scene();
   const Model& model = sim.model();
@@ -217,6 +248,18 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   j["model"] = model_name(scene.model);
   j["interrupted"] = run.interrupted;
   j["backend"] = sim.backend_description();
+  // The simulation runs on a Backend object only off the CPU (the CPU reference works in place).
+  j["backend_kind"] = sim.backend() ? sim.backend()->name() : "cpu";
+  j["solver"] = "explicit";
+  j["provenance"] = {{"zona_version", provenance.zona_version},
+                     {"commit", provenance.commit},
+                     {"command", provenance.command},
+                     {"date_utc", provenance.date_utc},
+                     {"machine",
+                      {{"hostname", provenance.hostname},
+                       {"cpu_model", provenance.cpu_model},
+                       {"hardware_threads", provenance.hardware_threads},
+                       {"gpu", provenance.gpu.empty() ? json(nullptr) : json(provenance.gpu)}}}};
   j["mesh"] = {{"vertices", model.vertex_count()},
                {"tets", model.tet_count()},
                {"surface_vertices", sim.surface().vertices.size()}};
@@ -300,109 +343,60 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   return j;
 }
 
-namespace {
-
-double von_mises(const Mat3d& s) {
-  const double a = s.m[0][0] - s.m[1][1], b = s.m[1][1] - s.m[2][2], c = s.m[2][2] - s.m[0][0];
-  const double shear = s.m[0][1] * s.m[0][1] + s.m[1][2] * s.m[1][2] + s.m[0][2] * s.m[0][2];
-  return std::sqrt(0.5 * (a * a + b * b + c * c) + 3.0 * shear);
-}
-
-}  // namespace
-
-void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
-                  std::vector<VtkField>* cell_data) {
-  frame_fields(sim.model(), sim.state(), sim.needle_contacts(), sim.holding_contacts(), point_data,
-               cell_data);
-  if (!sim.job_mode()) return;
-  // The penalty step keeps no contact sets: mark what the tools touch in this state (the
-  // needle's load stays at its puncture pose after puncture).
-  const JobParams& p = sim.job_setup().params;
-  const PunctureRecord& q = sim.puncture();
-  const Vec3d tip = q.punctured ? p.needle_start + q.needle_travel * p.needle_direction
-                                : sim.report().tip;
-  const std::vector<uint8_t> marks =
-      job_contact_marks(sim.job_setup(), sim.model(), sim.state(), tip);
-  std::vector<double>& contact = (*point_data)[1].values;
-  for (size_t v = 0; v < marks.size(); ++v) contact[v] = marks[v];
-}
-
-void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
-                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
-                  std::vector<VtkField>* cell_data) {
-  const size_t nv = model.vertex_count(), nt = model.tet_count();
-  point_data->resize(2);
-  VtkField& disp = (*point_data)[0];
-  disp.name = "displacement";
-  disp.components = 3;
-  disp.values.resize(3 * nv);
-  for (size_t v = 0; v < nv; ++v) {
-    disp.values[3 * v] = state.u[v].x;
-    disp.values[3 * v + 1] = state.u[v].y;
-    disp.values[3 * v + 2] = state.u[v].z;
-  }
-  VtkField& contact = (*point_data)[1];
-  contact.name = "contact";
-  contact.components = 1;
-  contact.values.assign(nv, 0.0);
-  for (const Contact& c : needle) contact.values[static_cast<size_t>(c.vertex)] = 1.0;
-  for (const Contact& c : holding) contact.values[static_cast<size_t>(c.vertex)] = 2.0;
-
-  cell_data->resize(2);
-  VtkField& strain = (*cell_data)[0];
-  strain.name = "green_strain";
-  strain.components = 6;
-  strain.values.resize(6 * nt);
-  VtkField& mises = (*cell_data)[1];
-  mises.name = "von_mises_stress";
-  mises.components = 1;
-  mises.values.resize(nt);
-  const bool svk = model.constitutive == ConstitutiveModel::kSvk;
-  for (size_t t = 0; t < nt; ++t) {
-    const Tet& e = model.tets[t];
-    const Vec3d ue[4] = {state.u[e[0]], state.u[e[1]], state.u[e[2]], state.u[e[3]]};
-    const Mat3d h = tet_displacement_gradient(model.tet_shape[t], ue);
-    const Mat3d green = green_strain(h);
-    const double* g = &green.m[0][0];
-    const double comps[6] = {g[0], g[4], g[8], g[1], g[5], g[2]};
-    std::copy(comps, comps + 6, strain.values.begin() + static_cast<std::ptrdiff_t>(6 * t));
-    const Lame& lame = model.tet_lame(t);
-    double psi = 0;
-    Mat3d sigma;
-    if (svk) {
-      // Cauchy stress sigma = F S F^T / J; an inverted element reports its S.
-      const Mat3d s = isotropic_stress(green, lame.lambda, lame.mu, &psi);
-      Mat3d f = h;
-      for (int i = 0; i < 3; ++i) f.m[i][i] += 1.0;
-      const double det = determinant(f);
-      sigma = det > 0 ? (1.0 / det) * (f * s * transpose(f)) : s;
-    } else if (model.constitutive == ConstitutiveModel::kStableNeoHookean) {
-      // Cauchy stress sigma = P F^T / J; an inverted element reports its P.
-      Mat3d p;
-      double jm1;
-      psi = snh_first_piola(h, lame.lambda, lame.mu, &p, &jm1);
-      Mat3d f = h;
-      for (int i = 0; i < 3; ++i) f.m[i][i] += 1.0;
-      sigma = jm1 > -1.0 ? (1.0 / (1.0 + jm1)) * (p * transpose(f)) : p;
-    } else {
-      sigma = isotropic_stress(small_strain(h), lame.lambda, lame.mu, &psi);
-    }
-    mises.values[t] = von_mises(sigma);
-  }
-}
-
 FrameRecorder::FrameRecorder(const std::string& directory)
     : writer_((std::filesystem::path(directory) / "frames.pvd").string()) {}
 
 Status FrameRecorder::write(const Simulation& sim) {
-  const Model& model = sim.model();
-  positions_.resize(model.vertex_count());
-  for (size_t v = 0; v < model.vertex_count(); ++v)
-    positions_[v] = model.rest_positions[v] + sim.state().u[v];
   frame_fields(sim, &point_data_, &cell_data_);
+  // The rest positions with the displacement beside them: one Warp By Vector shows the
+  // deformed cell (deformed points and a displacement array would show it deformed twice).
   VtuOptions options;
-  options.positions = &positions_;
+  options.field_data = {{"TimeValue", 1, {sim.state().time}}, {"points_at_rest", 1, {1.0}}};
+  options.comment = kFramePointsNote;
   return writer_.write_frame(sim.state().time, sim.mesh(), point_data_, cell_data_, options);
+}
+
+bool is_run_output(const std::string& file_name) {
+  static constexpr const char* kNames[] = {"force.csv", "summary.json", "scene.json",
+                                           "frames.pvd", "force_deformation.png"};
+  for (const char* name : kNames) {
+    const std::string n = name;
+    if (file_name == n || file_name == n + ".tmp") return true;
+  }
+  // frames_<digits>.vtu (PvdWriter numbers them with six digits; more past a million frames).
+  const std::string prefix = "frames_", suffix = ".vtu";
+  if (file_name.size() <= prefix.size() + suffix.size() || file_name.rfind(prefix, 0) != 0 ||
+      file_name.compare(file_name.size() - suffix.size(), suffix.size(), suffix) != 0)
+    return false;
+  for (size_t i = prefix.size(); i < file_name.size() - suffix.size(); ++i)
+    if (file_name[i] < '0' || file_name[i] > '9') return false;
+  return true;
+}
+
+Status remove_run_outputs(const std::string& directory, std::vector<std::string>* removed) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec)) return Status::ok_status();
+  // Names first, removal after: removing while iterating a directory is unspecified.
+  std::vector<fs::path> doomed;
+  for (fs::directory_iterator it(directory, ec), end; !ec && it != end; it.increment(ec)) {
+    const fs::file_status st = it->symlink_status(ec);
+    if (ec) break;
+    // A folder that happens to carry an output's name is the user's, never zona's.
+    if (fs::is_directory(st)) continue;
+    if (is_run_output(it->path().filename().string())) doomed.push_back(it->path());
+  }
+  if (ec)
+    return make_error("%s: cannot list the output folder: %s", directory.c_str(),
+                      ec.message().c_str());
+  std::sort(doomed.begin(), doomed.end());
+  for (const fs::path& p : doomed) {
+    if (!fs::remove(p, ec) && ec)
+      return make_error("%s: cannot remove an earlier run's output: %s", p.string().c_str(),
+                        ec.message().c_str());
+    if (removed) removed->push_back(p.filename().string());
+  }
+  return Status::ok_status();
 }
 
 }  // namespace zona

@@ -1,6 +1,7 @@
 // What a run leaves behind: force.csv (the recorded curve), summary.json (model, puncture, peak
-// force, training metrics, numerics), and VTU frames with displacement, Green strain and von
-// Mises stress (seed 002 Fig. 14) in a ParaView .pvd series.
+// force, training metrics, numerics, provenance), and VTU frames (rest positions with the
+// displacement, strain and stress at the vertices and per tetrahedron; seed 002 Fig. 14) in a
+// ParaView .pvd series; and the clean-up of an earlier run's outputs in the same folder.
 #pragma once
 
 #include <cstdio>
@@ -20,7 +21,7 @@ namespace zona {
 /// Version of the output schema: force.csv's columns (its first line, "# zona force.csv schema
 /// N") and summary.json's keys ("schema_version"), as docs/outputs.md lists them. Raised when a
 /// column or key changes meaning or goes; new columns and keys come at the end and raise it too.
-inline constexpr int kOutputSchemaVersion = 2;
+inline constexpr int kOutputSchemaVersion = 3;
 
 /// Training metrics of one insertion (seed 002's measures).
 struct TrainingMetrics {
@@ -95,15 +96,39 @@ class ForceCsvWriter {
 /// half of one. The .tmp is removed on failure.
 Status write_file_atomic(const std::string& path, const std::string& text);
 
+/// Where, when and by what a run was made (summary.json "provenance", docs/outputs.md).
+struct RunProvenance {
+  std::string zona_version;   ///< ZONA_VERSION
+  std::string commit;         ///< source commit of the build, "+dirty" when it had edits; "" unknown
+  std::string command;        ///< the command line ("" when not run from one)
+  std::string date_utc;       ///< ISO 8601, e.g. "2026-11-27T10:15:02Z"
+  std::string hostname;
+  std::string cpu_model;      ///< /proc/cpuinfo "model name"; "unknown CPU" without it
+  int hardware_threads = 0;   ///< std::thread::hardware_concurrency()
+  std::string gpu;            ///< the GPU the CUDA backend ran on; "" when it did not run
+};
+
+/// This machine now: version, date, hostname, CPU model and threads (commit, command and GPU
+/// are the caller's: the build stamp and argv live in the program, devices in kernels/).
+RunProvenance local_provenance();
+
 /// The summary of a run: scene and model, interrupted (the run was stopped by
 /// RunOptions::stop before its end), puncture {time_s, needle_travel_m, deformation_m,
-/// force_N}, peak_force_N, training metrics, numerics (steps, dt, mass scaling, wall time).
+/// force_N}, peak_force_N, training metrics, numerics (steps, dt, mass scaling, wall time),
+/// backend_kind ("cpu" or "cuda"), solver ("explicit") and `provenance`.
 nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& run,
-                                const TrainingMetrics& metrics);
+                                const TrainingMetrics& metrics,
+                                const RunProvenance& provenance = local_provenance());
 
-/// Per-frame fields: point "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
-/// free); cell "green_strain" [-] (6: xx yy zz xy yz xz), "von_mises_stress" [Pa] (1, of the
-/// Cauchy stress of the model's law: F S F^T / J for SVK, the small-strain stress for linear).
+/// Per-frame fields. Point: "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
+/// free), "stress" [Pa] (9, Cauchy, row-major), "strain" [-] (9, Green-Lagrange, row-major),
+/// "von_mises" [Pa] (1, of the vertex's "stress"); the vertex tensors are means over the
+/// tetrahedra around the vertex weighted by their rest volume; under nodal pressure (Model::
+/// nodal_pressure) the element part of the stress is averaged and the vertex's own pressure
+/// lambda_v (Jbar_v - 1) added. Cell: "green_strain" [-] (6: xx yy zz xy yz xz),
+/// "von_mises_stress" [Pa] (1). Cauchy stress of the model's law: F S F^T / J for SVK, P F^T /
+/// J for the stable neo-Hookean law, the small-strain stress for linear; an inverted element
+/// (J <= 0) gives S or P.
 void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
                   std::span<const Contact> holding, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data);
@@ -112,7 +137,15 @@ void frame_fields(const Model& model, const State& state, std::span<const Contac
 void frame_fields(const Simulation& simulation, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data);
 
-/// Writes frames of a simulation into DIR/frames.pvd + DIR/frames_<i>.vtu (deformed positions).
+/// The note each frame carries (an XML comment) and docs/outputs.md repeats.
+inline constexpr const char* kFramePointsNote =
+    "zona frame: the points are the REST positions; the deformed cell is points + the point "
+    "array 'displacement' (ParaView: Warp By Vector, vectors displacement, scale factor 1). "
+    "Field arrays: TimeValue [s], points_at_rest = 1. docs/outputs.md lists every array.";
+
+/// Writes frames of a simulation into DIR/frames.pvd + DIR/frames_<i>.vtu: the rest positions
+/// with frame_fields' arrays (the displacement among them), field arrays "TimeValue" [s] and
+/// "points_at_rest" (1), and kFramePointsNote.
 class FrameRecorder {
  public:
   explicit FrameRecorder(const std::string& directory);
@@ -123,8 +156,19 @@ class FrameRecorder {
 
  private:
   PvdWriter writer_;
-  std::vector<Vec3d> positions_;
   std::vector<VtkField> point_data_, cell_data_;
 };
+
+/// Whether `file_name` (no folder) is one of the outputs `zona run` writes into its output
+/// folder: force.csv, summary.json, scene.json, force_deformation.png, frames.pvd,
+/// frames_<digits>.vtu, or the ".tmp" of one of them (atomic writes).
+bool is_run_output(const std::string& file_name);
+
+/// Removes from `directory` the files is_run_output names (an earlier run's outputs, so that a
+/// rerun with fewer frames leaves none of the old ones beside its own) and nothing else: no
+/// folder, no other file. The names removed are appended to `removed` when given. A folder that
+/// does not exist holds nothing to remove. Errors: a listed file that cannot be removed.
+Status remove_run_outputs(const std::string& directory,
+                          std::vector<std::string>* removed = nullptr);
 
 }  // namespace zona

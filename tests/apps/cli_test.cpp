@@ -81,6 +81,37 @@ TEST(Cli, GenerateThenInfoRoundTrip) {
   EXPECT_GE(ji["min_dihedral_deg"].get<double>(), 10.0);
 }
 
+// zona reads the .vtu it writes: info of the converted mesh equals info of the original, and
+// converting back to Gmsh keeps it.
+TEST(Cli, MeshInfoAndConvertReadVtu) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "zona_cli_vtu";
+  std::filesystem::create_directories(dir);
+  const std::string vtu = (dir / "box2.vtu").string(), msh = (dir / "back.msh").string();
+  ASSERT_EQ(run_zona("mesh convert " + data("box2_v41_ascii.msh") + " " + vtu).exit_code, 0);
+  const CliRun convert = run_zona("mesh convert " + vtu + " " + msh);
+  ASSERT_EQ(convert.exit_code, 0) << convert.err;
+  const CliRun original = run_zona("mesh info --json " + data("box2_v41_ascii.msh"));
+  ASSERT_EQ(original.exit_code, 0) << original.err;
+  const nlohmann::json jo = nlohmann::json::parse(original.out);
+  for (const std::string& path : {vtu, msh}) {
+    const CliRun r = run_zona("mesh info --json " + path);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const nlohmann::json j = nlohmann::json::parse(r.out);
+    for (const char* key : {"vertices", "tets", "boundary_triangles", "regions"})
+      EXPECT_EQ(j[key], jo[key]) << path << " " << key;
+    EXPECT_NEAR(j["volume_m3"].get<double>(), jo["volume_m3"].get<double>(),
+                1e-12 * jo["volume_m3"].get<double>());
+  }
+  // A VTU zona does not read: one line naming the file and what is unsupported.
+  std::ofstream(dir / "zipped.vtu")
+      << "<VTKFile type=\"UnstructuredGrid\" compressor=\"vtkZLibDataCompressor\">\n";
+  const CliRun bad = run_zona("mesh info " + (dir / "zipped.vtu").string());
+  std::filesystem::remove_all(dir);
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_EQ(count_lines(bad.err), 1) << bad.err;
+  EXPECT_NE(bad.err.find("zipped.vtu:1: compressed data"), std::string::npos) << bad.err;
+}
+
 TEST(Cli, GenerateRejectsBadUnit) {
   const CliRun r = run_zona("mesh generate --diameter 56kPa --vertices 100 --out /tmp/x.msh");
   EXPECT_EQ(r.exit_code, 1);

@@ -3,6 +3,8 @@
 
 #include "tests/apps/cli_runner.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -14,6 +16,7 @@
 #include "engine/fem/forces_cpu.h"
 #include "engine/fem/model.h"
 #include "engine/fem/state.h"
+#include "engine/mesh/mesh_io.h"
 #include "tests/engine/physics_test_meshes.h"
 
 namespace zona {
@@ -109,6 +112,56 @@ TEST(CmdForces, SuccessSaysWhatItWroteInOneLine) {
       << r.out;
   EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
   EXPECT_NE(r.out.find("largest |f| 0 N"), std::string::npos) << r.out;  // at rest
+}
+
+// zona's own VTU files: a rest mesh and a frame (points at rest, displacement beside them) give
+// the forces of the frame's deformed configuration.
+TEST(CmdForces, ReadsZonasVtuRestMeshAndFrame) {
+  const fs::path dir = fs::temp_directory_path() / "zona_cmd_forces_test_vtu";
+  fs::create_directories(dir);
+  Mesh mesh = testing::box_mesh({0, 0, 0}, {2e-6, 1e-6, 1e-6}, 2, 1, 1);
+  std::vector<double> disp(3 * mesh.vertex_count());
+  for (size_t v = 0; v < mesh.vertex_count(); ++v) {
+    const Vec3d x = mesh.rest_positions[v];
+    disp[3 * v] = 0.2 * x.x + 0.1 * x.z;
+    disp[3 * v + 1] = -0.05 * x.y;
+    disp[3 * v + 2] = 0.05e6 * x.x * x.y;
+  }
+  ASSERT_TRUE(write_vtu((dir / "rest.vtu").string(), mesh).ok());
+  VtuOptions frame;
+  frame.field_data = {{"points_at_rest", 1, {1.0}}};
+  ASSERT_TRUE(write_vtu((dir / "frame.vtu").string(), mesh, {{"displacement", 3, disp}}, {}, frame).ok());
+  std::string err;
+  const fs::path csv = dir / "f.csv";
+  ASSERT_EQ(run((dir / "rest.vtu").string() + " " + (dir / "frame.vtu").string() +
+                    " --model svk --young 2000 --poisson 0.4 --backend cpu --out " + csv.string(),
+                &err),
+            0)
+      << err;
+  ModelDesc d;
+  d.material.young = 2000;
+  d.material.poisson = 0.4;
+  const Model m = build_model(mesh, d).value();
+  State s = make_state(m, 1);
+  for (size_t v = 0; v < s.u.size(); ++v) s.u[v] = Vec3d{disp[3 * v], disp[3 * v + 1], disp[3 * v + 2]};
+  compute_elastic_forces(m, s);
+  std::ifstream in(csv);
+  std::string line;
+  std::getline(in, line);
+  size_t rows = 0;
+  double largest = 0;
+  while (std::getline(in, line)) {
+    size_t v;
+    double f[3];
+    ASSERT_EQ(std::sscanf(line.c_str(), "%zu,%lf,%lf,%lf", &v, &f[0], &f[1], &f[2]), 4) << line;
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_NEAR(f[i], s.force[v][i], 1e-9 * (1e-12 + std::abs(f[i])));
+      largest = std::max(largest, std::abs(f[i]));
+    }
+    ++rows;
+  }
+  EXPECT_EQ(rows, mesh.vertex_count());
+  EXPECT_GT(largest, 1e-12);  // the frame was read deformed, not at rest
   fs::remove_all(dir);
 }
 

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <thread>
 #include <tuple>
@@ -78,6 +79,99 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   EXPECT_TRUE(fs::exists(out / "frames_000003.vtu"));
   EXPECT_TRUE(fs::exists(out / "scene.json"));
   EXPECT_TRUE(fs::exists(out / "force_deformation.png"));
+  // Provenance: what ran, where, when, from which build.
+  EXPECT_EQ(j["schema_version"], 3);
+  EXPECT_EQ(j["solver"], "explicit");
+  EXPECT_EQ(j["backend_kind"], "cpu");
+  const nlohmann::json& p = j["provenance"];
+  EXPECT_EQ(p["command"].get<std::string>(),
+            std::string(ZONA_CLI_PATH) + " run " + scene.string() + " --headless --out " +
+                out.string());
+  EXPECT_EQ(p["date_utc"].get<std::string>().size(), 20u);
+  EXPECT_TRUE(p["commit"].is_string());
+  EXPECT_FALSE(p["zona_version"].get<std::string>().empty());
+  EXPECT_FALSE(p["machine"]["hostname"].get<std::string>().empty());
+  EXPECT_FALSE(p["machine"]["cpu_model"].get<std::string>().empty());
+  EXPECT_TRUE(p["machine"]["gpu"].is_null());
+}
+
+// The frames of the run hold the rest positions: a frame is a mesh zona reads again, as the
+// scene's mesh.file, and gives the run the generated mesh gives.
+TEST(CmdRun, AFrameIsAMeshForTheNextRun) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "first";
+  const CliRun a = run_zona("run " + scene.string() + " --quiet --out " + out.string(), dir.path);
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  const fs::path msh = dir.path / "generated.msh";
+  const CliRun g = run_zona("mesh generate --scene " + scene.string() + " --out " + msh.string(), dir.path);
+  ASSERT_EQ(g.exit_code, 0) << g.err;
+  std::vector<nlohmann::json> summaries;
+  for (const fs::path& file : {out / "frames_000003.vtu", msh}) {
+    nlohmann::json next = nlohmann::json::parse(kScene);
+    next["mesh"] = {{"file", file.string()}, {"unit", "m"}};
+    const fs::path scene2 = dir.path / "from_file.json";
+    std::ofstream(scene2) << next.dump(2);
+    const fs::path out2 = dir.path / ("from_" + file.extension().string().substr(1));
+    const CliRun b = run_zona("run " + scene2.string() + " --quiet --out " + out2.string(), dir.path);
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    std::ifstream js(out2 / "summary.json");
+    summaries.push_back(nlohmann::json::parse(js));
+  }
+  std::ifstream j1(out / "summary.json");
+  const nlohmann::json first = nlohmann::json::parse(j1);
+  EXPECT_EQ(summaries[0]["mesh"], first["mesh"]);
+  // The same rest shape as the generated mesh's, to the last bit (a deformed frame would not be).
+  EXPECT_EQ(summaries[0]["cell_diameter_m"], summaries[1]["cell_diameter_m"]);
+  EXPECT_EQ(summaries[0]["peak_force_N"], summaries[1]["peak_force_N"]);
+}
+
+// A rerun into the same folder: zona's earlier outputs go, the user's files stay.
+TEST(CmdRun, RerunRemovesItsOwnEarlierOutputsOnly) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const std::string base = "run " + scene.string() + " --quiet --out " + out.string();
+  CliRun r = run_zona(base + " --frame-count 10", dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ASSERT_TRUE(fs::exists(out / "frames_000009.vtu"));
+  for (const char* user : {"notes.txt", "frames_mine.vtu", "force.csv.bak"})
+    std::ofstream(out / user) << "mine\n";
+  fs::create_directories(out / "plots");
+  std::ofstream(out / "plots" / "force.csv") << "mine\n";
+
+  auto frame_files = [&out] {
+    std::vector<std::string> names;
+    for (const auto& e : fs::directory_iterator(out)) {
+      const std::string n = e.path().filename().string();
+      if (n.rfind("frames_0", 0) == 0) names.push_back(n);
+    }
+    std::sort(names.begin(), names.end());
+    return names;
+  };
+  auto user_files_intact = [&out] {
+    for (const char* user : {"notes.txt", "frames_mine.vtu", "force.csv.bak"})
+      EXPECT_TRUE(fs::exists(out / user)) << user;
+    EXPECT_TRUE(fs::exists(out / "plots" / "force.csv"));
+  };
+
+  r = run_zona(base + " --frame-count 3", dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(frame_files(), (std::vector<std::string>{"frames_000000.vtu", "frames_000001.vtu",
+                                                     "frames_000002.vtu"}));
+  std::ifstream pvd(out / "frames.pvd");
+  const std::string collection((std::istreambuf_iterator<char>(pvd)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(collection.find("frames_000003.vtu"), std::string::npos);
+  user_files_intact();
+
+  r = run_zona(base + " --no-frames", dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(frame_files().empty());
+  EXPECT_FALSE(fs::exists(out / "frames.pvd"));
+  EXPECT_TRUE(fs::exists(out / "summary.json"));
+  user_files_intact();
 }
 
 TEST(CmdRun, AFastNeedleOnAMassScaledCellIsNotAResult) {

@@ -1,5 +1,6 @@
-// Tests for engine/recorder: training metrics with known answers, force.csv, summary.json, the
-// frame fields (Green strain and von Mises stress of a uniform stretch), the .pvd frames.
+// Tests for engine/recorder: training metrics with known answers, force.csv, summary.json (with
+// its provenance), the .pvd frames (rest positions and the note), the clean-up of an earlier
+// run's outputs. The frame fields: recorder_fields_test.cpp.
 #include "engine/sim/recorder.h"
 
 #include <gtest/gtest.h>
@@ -8,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <sstream>
@@ -15,6 +17,7 @@
 #include <vector>
 
 #include "engine/mesh/mesh_generate.h"
+#include "engine/mesh/mesh_io.h"
 
 namespace zona {
 namespace {
@@ -169,40 +172,6 @@ TEST(Recorder, WriteFileAtomicReplacesTheWholeFile) {
   fs::remove_all(dir);
 }
 
-TEST(Recorder, FrameFieldsOfAUniformStretch) {
-  const Mesh box = generate_box_mesh(Vec3d{0, 0, 0}, Vec3d{1, 1, 1}, 2, 2, 2);
-  ModelDesc desc;
-  desc.material.young = 1e3;
-  desc.material.poisson = 0.25;
-  Result<Model> model = build_model(box, desc);
-  ASSERT_TRUE(model.ok());
-  State state = make_state(*model, 1);
-  const double s = 1.1;  // stretch along x
-  for (size_t v = 0; v < box.vertex_count(); ++v)
-    state.u[v] = Vec3d{(s - 1) * box.rest_positions[v].x, 0, 0};
-  Contact c;
-  c.vertex = 3;
-  const Contact needle[1] = {c};
-  std::vector<VtkField> points, cells;
-  frame_fields(*model, state, needle, {}, &points, &cells);
-  ASSERT_EQ(points.size(), 2u);
-  EXPECT_EQ(points[0].name, "displacement");
-  EXPECT_EQ(points[1].values[3], 1.0);
-  ASSERT_EQ(cells.size(), 2u);
-  EXPECT_EQ(cells[0].name, "green_strain");
-  EXPECT_EQ(cells[1].name, "von_mises_stress");
-  // E_xx = (s^2 - 1) / 2; Cauchy stress of SVK: sigma = F S F^T / J with S = lambda tr E I +
-  // 2 mu E: sigma_xx = s (lambda + 2 mu) E_xx, sigma_yy = sigma_zz = lambda E_xx / s.
-  const Lame l = lame_from_young_poisson(1e3, 0.25);
-  const double exx = 0.5 * (s * s - 1);
-  const double mises = std::fabs(s * (l.lambda + 2 * l.mu) * exx - l.lambda * exx / s);
-  for (size_t t = 0; t < model->tet_count(); ++t) {
-    EXPECT_NEAR(cells[0].values[6 * t], exx, 1e-12);
-    EXPECT_NEAR(cells[0].values[6 * t + 1], 0.0, 1e-12);
-    EXPECT_NEAR(cells[1].values[t], mises, 1e-9 * mises);
-  }
-}
-
 TEST(Recorder, FramesAndSummaryOfAShortRun) {
   const fs::path dir = fs::temp_directory_path() / "zona_recorder_frames";
   fs::create_directories(dir);
@@ -232,6 +201,79 @@ TEST(Recorder, FramesAndSummaryOfAShortRun) {
   EXPECT_EQ(j["numerics"]["steps"].get<int64_t>(), run.steps);
   EXPECT_EQ(j["numerics"]["mass_scaling_mode"], "selective");
   EXPECT_NEAR(j["training"]["mean_insertion_speed_m_per_s"].get<double>(), 1e-3, 1e-6);
+  EXPECT_EQ(j["schema_version"], kOutputSchemaVersion);
+  EXPECT_EQ(j["backend_kind"], "cpu");
+  EXPECT_EQ(j["solver"], "explicit");
+  EXPECT_EQ(j["provenance"]["zona_version"], ZONA_VERSION);
+  EXPECT_TRUE(j["provenance"]["machine"]["gpu"].is_null());
+  EXPECT_GT(j["provenance"]["machine"]["hardware_threads"].get<int>(), 0);
+  // The frames hold the rest positions; the displacement beside them gives the deformed cell.
+  Result<Mesh> read = read_mesh((dir / "frames_000002.vtu").string());
+  ASSERT_TRUE(read.ok()) << read.error().message;
+  ASSERT_EQ(read->vertex_count(), (*sim)->mesh().vertex_count());
+  auto same = [](Vec3d a, Vec3d b) { return a.x == b.x && a.y == b.y && a.z == b.z; };
+  for (size_t v = 0; v < read->vertex_count(); ++v)
+    ASSERT_TRUE(same(read->rest_positions[v], (*sim)->mesh().rest_positions[v])) << v;
+  const fs::path last = dir / "last";
+  fs::create_directories(last);
+  FrameRecorder final_frame(last.string());
+  ASSERT_TRUE(final_frame.write(**sim).ok());
+  Result<std::vector<Vec3d>> deformed = read_positions((last / "frames_000000.vtu").string());
+  ASSERT_TRUE(deformed.ok()) << deformed.error().message;
+  double largest = 0;
+  for (size_t v = 0; v < deformed->size(); ++v) {
+    const Vec3d want = (*sim)->model().rest_positions[v] + (*sim)->state().u[v];
+    ASSERT_TRUE(same((*deformed)[v], want)) << v;
+    largest = std::max(largest, norm((*sim)->state().u[v]));
+  }
+  EXPECT_GT(largest, 0.1e-6);  // the needle moved the cell: the two readings differ
+  std::ifstream in(last / "frames_000000.vtu");
+  const std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(xml.find("REST positions"), std::string::npos);
+  EXPECT_NE(xml.find("Name=\"TimeValue\""), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(Recorder, ProvenanceOfThisMachine) {
+  const RunProvenance p = local_provenance();
+  EXPECT_EQ(p.zona_version, ZONA_VERSION);
+  // ISO 8601 UTC: 2026-11-27T10:15:02Z.
+  ASSERT_EQ(p.date_utc.size(), 20u) << p.date_utc;
+  EXPECT_EQ(p.date_utc[4], '-');
+  EXPECT_EQ(p.date_utc[10], 'T');
+  EXPECT_EQ(p.date_utc.back(), 'Z');
+  EXPECT_FALSE(p.hostname.empty());
+  EXPECT_FALSE(p.cpu_model.empty());
+  EXPECT_TRUE(p.gpu.empty());
+}
+
+TEST(Recorder, RunOutputNames) {
+  for (const char* name : {"force.csv", "summary.json", "summary.json.tmp", "scene.json",
+                           "force_deformation.png", "frames.pvd", "frames.pvd.tmp",
+                           "frames_000000.vtu", "frames_1234567.vtu"})
+    EXPECT_TRUE(is_run_output(name)) << name;
+  for (const char* name : {"notes.txt", "force.csv.bak", "my_force.csv", "frames_.vtu",
+                           "frames_12a.vtu", "frames_000001.vtu.bak", "frames_000001.vtk",
+                           "Frames_000001.vtu", "frames.pvd.old", "mesh.vtu", "frames.h5"})
+    EXPECT_FALSE(is_run_output(name)) << name;
+}
+
+TEST(Recorder, RemoveRunOutputsRemovesOnlyZonasFiles) {
+  const fs::path dir = fs::temp_directory_path() / "zona_recorder_stale";
+  fs::remove_all(dir);
+  fs::create_directories(dir / "frames_000005.vtu");  // a user's folder with an output's name
+  for (const char* name : {"force.csv", "summary.json", "frames.pvd", "frames_000000.vtu",
+                           "frames_000009.vtu", "notes.txt", "frames_notes.vtu", "mesh.vtu"})
+    std::ofstream(dir / name) << "x\n";
+  std::vector<std::string> removed;
+  ASSERT_TRUE(remove_run_outputs(dir.string(), &removed).ok());
+  EXPECT_EQ(removed, (std::vector<std::string>{"force.csv", "frames.pvd", "frames_000000.vtu",
+                                               "frames_000009.vtu", "summary.json"}));
+  for (const char* name : {"notes.txt", "frames_notes.vtu", "mesh.vtu", "frames_000005.vtu"})
+    EXPECT_TRUE(fs::exists(dir / name)) << name;
+  for (const std::string& name : removed) EXPECT_FALSE(fs::exists(dir / name)) << name;
+  // A folder that does not exist: nothing to do.
+  EXPECT_TRUE(remove_run_outputs((dir / "absent").string()).ok());
   fs::remove_all(dir);
 }
 
