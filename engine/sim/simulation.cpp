@@ -1,7 +1,9 @@
-// The injection experiment: building it from a scene, the split step, and the run driver.
-// (Over 800 lines: the kinematic-contact step and the generic run driver share the Simulation's
-// private state with the setup; the penalty step's setup and driver are in simulation_job.cpp.)
+// The injection experiment: building it from a scene, and the kinematic-contact split step.
+// (Over 800 lines: the kinematic-contact step shares the Simulation's private state with the
+// setup; the penalty step's setup is in simulation_job.cpp, the run driver in run.cpp.)
 #include "engine/sim/simulation.h"
+
+#include "engine/sim/kinematic_runner.h"
 
 #include <algorithm>
 #include <chrono>
@@ -495,8 +497,16 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   stage_done("backend");
   tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   report_.tip = tip_;
-  if (job_path)
+  if (job_path) {
     if (Status s = start_job(); !s) return s;
+    sample_capacity_ = job_setup_.sample_capacity;
+  } else {
+    // One row per output interval (or step) over the run, sized once: a full buffer is
+    // reported, not grown.
+    const double row_dt = std::max(std::max(scene.output.sample_interval, 0.0), model_.dt);
+    sample_capacity_ = static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 4;
+    kinematic_runner_ = make_kinematic_runner(*this, sample_capacity_);
+  }
   stage_done("start");
   notes_.push_back("setup: " + stage_times);
   return Status::ok_status();
@@ -863,135 +873,6 @@ std::span<const Contact> Simulation::needle_contacts() const {
 
 std::span<const Contact> Simulation::holding_contacts() const {
   return rim_contacts_ ? rim_contacts_->contacts() : std::span<const Contact>();
-}
-
-// ---------------------------------------------------------------------------------------------
-// The run driver.
-
-FrameSchedule frame_schedule(const Scene& scene, double end) {
-  FrameSchedule f;
-  f.count = scene.output.frames;
-  if (scene.output.frame_interval) {
-    f.interval = *scene.output.frame_interval;
-    f.count = static_cast<int>(std::floor(end / f.interval + 1e-9)) + 1;
-  } else if (f.count > 1) {
-    f.interval = end / (f.count - 1);
-  }
-  return f;
-}
-
-RunResult run_simulation(Simulation& sim, const RunOptions& options) {
-  if (sim.job_mode()) return run_job_simulation(sim, options);
-  RunResult result;
-  const auto wall_start = std::chrono::steady_clock::now();
-  auto wall = [&] {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
-  };
-  const Scene& scene = sim.scene();
-  const double dt = sim.model().dt;
-  const double end = sim.end_time();
-  const double interval = std::max(scene.output.sample_interval, 0.0);
-  // Rows: one per interval (or step), sized once; a full buffer is reported, not grown.
-  const double row_dt = std::max(interval, dt);
-  result.samples.reserve(static_cast<size_t>(std::ceil(end / row_dt * (1 + 1e-9))) + 4);
-
-  // Frame times: evenly spaced over the run, t = 0 and the end included.
-  const FrameSchedule schedule = frame_schedule(scene, end);
-  const int frame_count = schedule.count;
-  const double frame_dt = schedule.interval;
-  int next_frame = 0;
-  auto maybe_frame = [&](bool force_last) {
-    if (!options.frame || frame_count <= 0) return;
-    const double t = sim.state().time;
-    while (next_frame < frame_count &&
-           (t >= next_frame * frame_dt - 0.5 * dt || (force_last && next_frame == frame_count - 1))) {
-      options.frame(sim, next_frame);
-      ++next_frame;
-      if (frame_dt <= 0) break;
-    }
-  };
-  auto record = [&](const NeedleReport& r) {
-    if (result.samples.size() == result.samples.capacity()) {
-      result.sample_buffer_full = true;
-      return;
-    }
-    ForceSample s;
-    s.time = r.time;
-    s.travel = r.travel;
-    s.deformation = r.deformation;
-    s.force = r.force;
-    s.raw_force = r.raw_force;
-    s.force_vector = r.force_vector;
-    s.holding_force = dot(r.holding_force, sim.needle_script().direction);
-    s.contacts = r.contacts;
-    s.elastic_energy = r.elastic_energy;
-    s.kinetic_energy = r.kinetic_energy;
-    s.punctured = r.punctured;
-    s.status = r.status;
-    s.imbalance = r.quasi.imbalance;
-    s.kinetic_share = r.quasi.kinetic_share;
-    result.samples.push_back(s);
-    if (options.on_sample) options.on_sample(s);
-  };
-
-  record(sim.report());
-  maybe_frame(false);
-  bool warned = false;  // the quasi-static warning is said once
-  double next_sample = interval;
-  double next_progress = options.progress_interval;
-  while (!sim.finished()) {
-    if (options.stop && options.stop->load(std::memory_order_relaxed)) {
-      result.interrupted = true;
-      break;
-    }
-    const StepStatus status = sim.step();
-    result.status |= status;
-    ++result.steps;
-    const NeedleReport& r = sim.report();
-    if (!warned && r.quasi.failed_steps > 0 && sim.quasi_limits().enforce) {
-      warned = true;
-      if (options.warning) options.warning(quasi_static_warning(r.quasi, sim.quasi_limits()));
-    }
-    if (r.force > result.peak_force) result.peak_force = r.force;
-    if (r.deformation > result.peak_deformation) result.peak_deformation = r.deformation;
-    if (status & kStepFailed || ((status & kStepDtAboveCritical) &&
-                                      !sim.model().unsafe_allow_dt_above_critical)) {
-      result.stopped_early = true;
-      result.stop_reason = describe_step_status(status, sim.model(), sim.state());
-      break;
-    }
-    if (r.time >= next_sample - 0.5 * dt) {
-      record(r);
-      next_sample += interval;
-      if (next_sample < r.time) next_sample = r.time + interval;  // interval below dt
-    }
-    maybe_frame(false);
-    if (options.progress) {
-      const double w = wall();
-      if (w >= next_progress) {
-        options.progress(RunProgress{r.time, end, w, &r});
-        next_progress = w + options.progress_interval;
-      }
-    }
-    if (options.stop_after_puncture >= 0 && sim.puncture().punctured &&
-        r.time >= sim.puncture().time + options.stop_after_puncture)
-      break;
-  }
-  if (result.samples.empty() || result.samples.back().time < sim.report().time) record(sim.report());
-  maybe_frame(true);
-  result.puncture = sim.puncture();
-  result.quasi = sim.report().quasi;
-  result.quasi_limits = sim.quasi_limits();
-  result.simulated_time = sim.state().time;
-  result.wall_seconds = wall();
-  if (options.progress) options.progress(RunProgress{sim.report().time, end, result.wall_seconds, &sim.report()});
-  return result;
-}
-
-Result<RunResult> run_scene(const Scene& scene, const RunOptions& options) {
-  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene, options.simulation);
-  if (!sim.ok()) return sim.error();
-  return run_simulation(**sim, options);
 }
 
 }  // namespace zona

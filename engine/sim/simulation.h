@@ -199,6 +199,16 @@ class Simulation {
   bool job_mode() const { return job_ != nullptr; }
   /// The job's runner, or null on the kinematic-contact path.
   JobRunner* job() { return job_; }
+  /// The runner the run driver steps: the job's, or the kinematic step's
+  /// (engine/sim/kinematic_runner.h).
+  JobRunner& runner() { return job_ ? *job_ : *kinematic_runner_; }
+  /// Samples a runner keeps between two takes (JobSetup::sample_capacity on the job path; the
+  /// whole run's rows on the kinematic path).
+  size_t sample_capacity() const { return sample_capacity_; }
+  /// The needle's direction of travel (unit) [-].
+  Vec3d needle_direction() const {
+    return job_ ? job_setup_.params.needle_direction : script_.direction;
+  }
   /// The job's setup (tool vertices, parameters); empty on the kinematic path.
   const JobSetup& job_setup() const { return job_setup_; }
   /// Makes state() current: on the job path waits for the steps in flight and downloads the
@@ -304,7 +314,9 @@ class Simulation {
   JobRunner* job_ = nullptr;
   PunctureRecord job_puncture_;
   bool job_halted_ = false;
-  friend RunResult run_job_simulation(Simulation&, const RunOptions&);
+  std::unique_ptr<JobRunner> kinematic_runner_;  // the kinematic path's runner
+  size_t sample_capacity_ = 0;
+  friend RunResult run_simulation(Simulation&, const RunOptions&);
 };
 
 /// A row of force.csv.
@@ -382,22 +394,18 @@ struct RunResult {
   bool quasi_static() const { return quasi.failed_steps == 0; }
 };
 
-/// Runs a built simulation to its end (or stop_after_puncture) and records the curve.
+/// Runs a built simulation to its end (or stop_after_puncture) and records the curve: the one
+/// run driver (engine/sim/run.cpp), on every path.
 RunResult run_simulation(Simulation& simulation, const RunOptions& options = {});
 
 /// When a run of length `end` [s] writes its frames: `count` frames `interval` [s] apart, the
 /// first at t = 0 (output.frame_interval, or output.frames spread over the run with the end
-/// included). Both run drivers use it.
+/// included).
 struct FrameSchedule {
   int count = 0;
   double interval = 0;
 };
 FrameSchedule frame_schedule(const Scene& scene, double end);
-
-/// run_simulation's loop for the job path (engine/sim/simulation_job.cpp): steps are handed to the
-/// runner in batches, samples come back from where the state lives, and the state is brought
-/// to the host only for frames.
-RunResult run_job_simulation(Simulation& simulation, const RunOptions& options);
 
 /// Builds a simulation from `scene` and runs it: the reusable driver behind `zona run` and
 /// calibration.

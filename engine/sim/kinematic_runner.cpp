@@ -1,0 +1,129 @@
+// The kinematic-contact step as a JobRunner (kinematic_runner.h).
+#include "engine/sim/kinematic_runner.h"
+
+#include <vector>
+
+#include "engine/sim/simulation.h"
+
+namespace zona {
+
+JobRecord kinematic_record(const Simulation& sim) {
+  const NeedleReport& n = sim.report();
+  JobRecord r;
+  r.step = sim.state().step_count;
+  r.time = n.time;
+  r.tip = n.tip;
+  r.travel = n.travel;
+  r.deformation = n.deformation;
+  r.force = n.force;
+  r.raw_force = n.raw_force;
+  r.force_vector = n.force_vector;
+  r.holding_force = n.holding_force;
+  r.stiffness = n.stiffness;
+  r.elastic_energy = n.elastic_energy;
+  r.kinetic_energy = n.kinetic_energy;
+  r.contacts = n.contacts;
+  r.holding_contacts = n.holding_contacts;
+  r.status = n.status;
+  const bool above = (n.status & kStepDtAboveCritical) && !sim.model().unsafe_allow_dt_above_critical;
+  r.halted = (n.status & kStepFailed) || above ? 1 : 0;
+  r.first_bad = sim.state().diag.first_nonfinite >= 0 ? sim.state().diag.first_nonfinite
+                                                       : sim.state().diag.first_inverted;
+  const PunctureRecord& p = sim.puncture();
+  r.puncture.punctured = p.punctured ? 1 : 0;
+  r.puncture.step = p.step;
+  r.puncture.time = p.time;
+  r.puncture.needle_travel = p.needle_travel;
+  r.puncture.deformation = p.deformation;
+  r.puncture.force = p.force;
+  r.puncture.energy = p.energy;
+  r.puncture.force_vector = p.force_vector;
+  r.quasi = n.quasi;
+  return r;
+}
+
+namespace {
+
+class KinematicRunner final : public JobRunner {
+ public:
+  KinematicRunner(Simulation& sim, size_t capacity) : sim_(sim) {
+    samples_.reserve(capacity);
+    const double interval = sim.scene().output.sample_interval;
+    interval_ = interval > 0 ? interval : 0;
+  }
+
+  Status advance(int64_t steps) override {
+    const int64_t target = advanced_ + steps;
+    advanced_ = target;
+    while (!halted_ && sim_.state().step_count < target) {
+      sim_.step1();
+      if (has_tip_) sim_.set_needle_tip(tip_);
+      sim_.step2();
+      latest_ = kinematic_record(sim_);
+      seen_status_ |= latest_.status;
+      has_latest_ = true;
+      halted_ = latest_.halted != 0;
+      // Sampled as the job's record stage samples (job_sample_due): the step whose time
+      // reaches the next sample time, and a failed step. Its status carries every flag seen
+      // since the last sample, so that a flag between samples is not lost.
+      const double dt = sim_.model().dt;
+      if (latest_.time >= next_sample_ - 0.5 * dt || halted_) {
+        next_sample_ += interval_ > 0 ? interval_ : dt;
+        if (next_sample_ < latest_.time) next_sample_ = latest_.time + interval_;
+        JobRecord sample = latest_;
+        sample.status = seen_status_;
+        seen_status_ = 0;
+        if (samples_.size() < samples_.capacity())
+          samples_.push_back(sample);
+        else
+          lost_ = true;
+      }
+    }
+    return {};
+  }
+
+  bool latest(JobRecord* out) override {
+    if (!has_latest_) return false;
+    *out = latest_;
+    return true;
+  }
+
+  bool take_samples(std::vector<JobRecord>& out) override {
+    out.insert(out.end(), samples_.begin(), samples_.end());
+    samples_.clear();
+    const bool ok = !lost_;
+    lost_ = false;
+    return ok;
+  }
+
+  Status finish() override { return {}; }
+  Status download(State&) override { return {}; }  // the state is the simulation's own
+
+  void set_tip(Vec3d tip) override {
+    has_tip_ = true;
+    tip_ = tip;
+  }
+
+  int64_t steps_advanced() const override { return sim_.state().step_count; }
+  uint64_t host_bytes_moved() const override { return 0; }
+  int64_t mass_raises() override { return 0; }
+  std::string description() const override { return sim_.backend_description(); }
+
+ private:
+  Simulation& sim_;
+  std::vector<JobRecord> samples_;
+  JobRecord latest_;
+  bool has_latest_ = false, halted_ = false, lost_ = false, has_tip_ = false;
+  Vec3d tip_{0, 0, 0};
+  int64_t advanced_ = 0;
+  double interval_ = 0, next_sample_ = 0;
+  uint32_t seen_status_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<JobRunner> make_kinematic_runner(Simulation& sim, size_t sample_capacity) {
+  return std::make_unique<KinematicRunner>(sim, sample_capacity);
+}
+
+}  // namespace zona
