@@ -135,9 +135,9 @@ Status CudaJob::start(const JobSetup& setup) {
   if (setup.tool_area.size() != n || setup.tool_suction.size() != n)
     return make_error("cuda job: tool arrays of different lengths");
   params_ = setup.params;
-  if (params_.has_entry)
+  if (params_.record.has_entry)
     for (int k = 0; k < 3; ++k)
-      params_.entry_vertex[k] = b_.old_to_new_[static_cast<size_t>(params_.entry_vertex[k])];
+      params_.record.entry_vertex[k] = b_.old_to_new_[static_cast<size_t>(params_.record.entry_vertex[k])];
 
   // Tool vertices in device order.
   std::vector<int32_t> vertex(n);
@@ -164,8 +164,8 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = side_.create(); !s) return s;
   if (Status s = fork_.create(false); !s) return s;
   if (Status s = join_.create(false); !s) return s;
-  damping_rate_ = static_cast<float>(params_.stiffness_damping_rate);
-  if (params_.stiffness_damping_rate > 0) {
+  damping_rate_ = static_cast<float>(params_.damping.stiffness_rate);
+  if (params_.damping.stiffness_rate > 0) {
     if (Status s = d_damp_.allocate(b_.nv_, "damping loads"); !s) return s;
     if (Status s = d_force_prev_.allocate(b_.nv_, "previous forces"); !s) return s;
     if (Status s = d_damp_.fill_bytes(0); !s) return s;
@@ -184,7 +184,7 @@ Status CudaJob::start(const JobSetup& setup) {
 
   // The job's scalars: the first pose, as the CPU runner starts.
   JobState js;
-  js.pose.tip = params_.needle_start;
+  js.pose.tip = params_.needle.start;
   job_follow_tip(params_, js);
   job_set_pose(params_, js);
   if (Status s = d_job_.allocate(1, "job state"); !s) return s;
@@ -193,9 +193,9 @@ Status CudaJob::start(const JobSetup& setup) {
   if (Status s = d_sums_.fill_bytes(0); !s) return s;
   if (Status s = d_counters_.allocate(1, "job counters"); !s) return s;
   if (Status s = d_counters_.fill_bytes(0); !s) return s;
-  if (params_.mass_interval > 0) {
-    if (kPhases % params_.mass_interval != 0)
-      return make_error("cuda job: mass check interval %d does not divide %d", params_.mass_interval,
+  if (params_.mass.interval > 0) {
+    if (kPhases % params_.mass.interval != 0)
+      return make_error("cuda job: mass check interval %d does not divide %d", params_.mass.interval,
                         kPhases);
     if (setup.tet_rest_need.size() != b_.nt_ || setup.vertex_volume.size() != b_.nv_)
       return make_error("cuda job: dynamic mass scaling arrays of the wrong size");
@@ -210,7 +210,7 @@ Status CudaJob::start(const JobSetup& setup) {
     if (Status s = d_vertex_need_.fill_bytes(0); !s) return s;
   }
   if (Status s = d_mass_raises_.allocate(1, "mass raises"); !s) return s;
-  if (params_.needle_on_faces) {
+  if (params_.needle.on_faces) {
     const size_t nf = setup.tool_faces.size();
     if (setup.tool_face_area.size() != nf || nf == 0)
       return make_error("cuda job: face quadrature without faces");
@@ -261,10 +261,10 @@ Status CudaJob::enqueue_step(int64_t g) {
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   const bool energy = g % kEnergyInterval == 0;
   // Dynamic mass scaling first: it changes the masses and u_{n-1} that the rim's damper reads.
-  if (params_.mass_interval > 0 && g % params_.mass_interval == 0) {
+  if (params_.mass.interval > 0 && g % params_.mass.interval == 0) {
     keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
                 static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
-                static_cast<float>(params_.mass_gate), params_.mass_law));
+                static_cast<float>(params_.mass.gate), params_.mass.law));
     keep(launch(pdl, mass_raise_kernel, vb, s, static_cast<const float*>(d_vertex_need_.data()),
                 static_cast<const float*>(d_vertex_volume_.data()), b_.d_mass_.data(),
                 b_.d_update_.data(), vp.u,
@@ -278,7 +278,7 @@ Status CudaJob::enqueue_step(int64_t g) {
   // were the step).
   keep(cudaEventRecord(fork_.get(), s));
   keep(cudaStreamWaitEvent(side_.get(), fork_.get(), 0));
-  const int nf = params_.needle_on_faces ? static_cast<int>(d_faces_.size()) : 0;
+  const int nf = params_.needle.on_faces ? static_cast<int>(d_faces_.size()) : 0;
   const bool small = nf <= kFaceLanesSmallMaxFaces;
   const int lanes = small ? kFaceLanesSmall : kFaceLanes;
   const int face_blocks = static_cast<int>(blocks_for(static_cast<size_t>(nf) * lanes));
@@ -307,7 +307,7 @@ Status CudaJob::enqueue_step(int64_t g) {
   });
   // The tool loads join here.
   keep(cudaStreamWaitEvent(s, join_.get(), 0));
-  const bool drift = params_.drift_damping > 0;
+  const bool drift = params_.damping.drift > 0;
   const bool momentum = drift && g % kDriftInterval == 0;  // kPhases is a multiple of it
   const bool fixed = b_.options_.assembly == Assembly::kScatterFixed;
   auto step_kernel = fixed ? (momentum ? job_step_kernel<true, true> : job_step_kernel<true, false>)

@@ -136,13 +136,13 @@ __device__ __forceinline__ ToolVertexForce tool_stage(const JobParams& p, const 
                tl.rest[3 * i + 2] + un[2] * lu};
   in.area = tl.area[i];
   in.suction = Vec3d{tl.suction[3 * i], tl.suction[3 * i + 1], tl.suction[3 * i + 2]};
-  if (p.rim_damping > 0) {
+  if (p.rim.damping > 0) {
     const double* up = vp.u_prev + 3 * static_cast<size_t>(v);
     const double s = lu / p.dt;
     in.velocity = Vec3d{(un[0] - up[0]) * s, (un[1] - up[1]) * s, (un[2] - up[2]) * s};
     in.mass = vp.mass[v];
   }
-  return tool_vertex_force(p, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
+  return tool_vertex_force(p.needle, p.rim, p.dt, pose, in, tl.needle_anchor + i, tl.rim_anchor + i);
 }
 
 /// Threads per triangle in the face part of tool_kernel, each taking every LANES-th point: four
@@ -202,7 +202,7 @@ __global__ void __launch_bounds__(kBlock)
                          t.rim.y != 0 || t.rim.z != 0)) {
       for (int c = 0; c < 3; ++c) block_sum_add(t.needle[c], &sums->needle_force[c]);
       for (int c = 0; c < 3; ++c) block_sum_add(t.rim[c], &sums->rim_force[c]);
-      if (!p.needle_on_faces) block_max_store(t.needle_depth, &sums->needle_depth);
+      if (!p.needle.on_faces) block_max_store(t.needle_depth, &sums->needle_depth);
       using Reduce = cub::BlockReduce<int, kBlock>;
       __shared__ typename Reduce::TempStorage temp;
       const int nc = Reduce(temp).Sum(t.needle_contact);
@@ -235,13 +235,13 @@ __global__ void __launch_bounds__(kBlock)
                       tl.rest[3 * k + 2] + un[2] * lu};
     }
     const ToolPose pose = job->pose;
-    if (needle_face_may_touch(p, pose, in)) {
+    if (needle_face_may_touch(p.needle, pose, in)) {
       in.area = face_area[f];
       StickAnchor* anchors = face_anchor + static_cast<size_t>(f) * kFacePoints;
       for (int q = lane; q < kFacePoints; q += LANES) {
         Vec3d force;
         double b[3], point_depth = 0;
-        if (!needle_face_point(p, pose, in, q, &force, &point_depth, b, anchors + q)) continue;
+        if (!needle_face_point(p.needle, pose, in, q, &force, &point_depth, b, anchors + q)) continue;
         for (int c = 0; c < 3; ++c)
           for (int j = 0; j < 3; ++j) load[3 * c + j] += b[c] * force[j];
         ++contact;
@@ -309,10 +309,10 @@ __device__ void record_stage(const JobParams& p, JobState* job, JobSums* sums, D
   tot.first_bad = st->first_nonfinite != LLONG_MAX   ? st->first_nonfinite
                   : st->first_inverted != LLONG_MAX ? st->first_inverted
                                                     : -1;
-  if (p.has_entry) {
+  if (p.record.has_entry) {
     Vec3d e[3];
     for (int k = 0; k < 3; ++k) {
-      const double* x = u_next + 3 * static_cast<size_t>(p.entry_vertex[k]);
+      const double* x = u_next + 3 * static_cast<size_t>(p.record.entry_vertex[k]);
       e[k] = Vec3d{x[0] * length_unit, x[1] * length_unit, x[2] * length_unit};
     }
     tot.deformation = job_entry_deformation(p, e[0], e[1], e[2]);

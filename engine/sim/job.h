@@ -41,6 +41,7 @@
 #include "engine/core/vec.h"
 #include "engine/sim/quasi_static.h"
 #include "engine/tools/penalty.h"
+#include "engine/tools/tool_params.h"
 #include "engine/tools/tool_sdf.h"
 
 namespace zona {
@@ -56,80 +57,71 @@ inline constexpr double kNeedleBreachFraction = 0.5;
 /// contact's only).
 enum JobCriterion : int32_t { kJobCriterionNone = 0, kJobCriterionForce = 1, kJobCriterionEnergy = 3 };
 
-/// Everything constant the stages need, in SI units. Plain data: passed by value to kernels.
-struct JobParams {
-  // Needle (a scripted straight insertion, or a pose handed in by the haptic thread).
-  int32_t has_needle = 0;
-  int32_t needle_flat = 0;         ///< flat tip instead of the hemisphere
-  /// The needle's pressure is integrated over the surface triangles (needle_face_force) instead
-  /// of lumped at the vertices: the tip cannot pass between vertices that it pushes apart.
-  int32_t needle_on_faces = 0;
-  Vec3d needle_start{0, 0, 0};     ///< tip at t = 0 [m]
-  Vec3d needle_direction{1, 0, 0}; ///< unit direction of travel [-]
-  double needle_speed = 0;         ///< [m/s]
-  double needle_max_travel = 0;    ///< travel after which the tip stops [m]; 0: no limit
-  /// A tip handed in by the haptic thread (set_tip) is followed at most at this speed [m/s],
-  /// step by step on the stepping side: the host hands poses in batches (the GPU reads its
-  /// mailbox every few steps), and a jump of a batch's travel in one step shakes the contact.
-  /// 0: the handed-in tip is taken as it is.
-  double external_tip_max_speed = 0;
-  double needle_radius = 0;        ///< tip and shaft radius [m]
-  double needle_pressure_stiffness = 0;  ///< contact pressure per penetration [Pa/m]
-  double needle_friction = 0;      ///< Coulomb coefficient [-]
-  /// Before puncture, a contact point deeper than this inside the needle means the surface let
-  /// the tool through (job_finish_step halts: kStepToolBreach) [m]; 0: not checked.
-  double needle_breach_depth = 0;
-  // Holding pipette (suction mode): the rim as a contact tool, suction ramped in.
-  int32_t has_rim = 0;
-  Vec3d rim_mouth{0, 0, 0};        ///< [m]
-  Vec3d rim_axis{1, 0, 0};         ///< unit, from the cell into the pipette [-]
-  double rim_inner_radius = 0, rim_outer_radius = 0;  ///< [m]
-  double rim_edge_radius = 0;      ///< rounding of the mouth's edges [m]
-  double rim_pressure_stiffness = 0;  ///< [Pa/m]
-  double rim_friction = 0;            ///< [-]
-  /// Normal damper of the rim contact as a fraction of each contact point's critical damping
-  /// (rim_damper_coefficient) [-]; 0: an undamped spring.
-  double rim_damping = 0;
-  double suction_ramp_time = 0;       ///< suction reaches full strength after this [s]
-  // Stiffness-proportional damping: load k (f(u_{n-1}) - f(u_{n-2})), k = beta / dt [-].
-  double stiffness_damping_rate = 0;
-  // Drift damping (job_drift_update): rate [1/s] (0: off) and the running mean's time
-  // constant [s].
-  double drift_damping = 0;
+/// Damping of the explicit step.
+struct DampingParams {
+  /// Stiffness-proportional damping: load k (f(u_{n-1}) - f(u_{n-2})), k = beta / dt [-].
+  double stiffness_rate = 0;
+  /// Drift damping (job_drift_update): rate [1/s] (0: off) and the running mean's time
+  /// constant [s].
+  double drift = 0;
   double drift_window = 0;
-  // Puncture.
+};
+
+/// The puncture criterion and what follows it.
+struct PunctureParams {
   int32_t criterion = kJobCriterionNone;
-  double threshold = 0;        ///< [N] or [J]
-  double force_drop = 1;       ///< fraction of the tip load released [-]
-  double drop_time = 0;        ///< [s]
-  double shaft_friction = 0;   ///< axial drag per inserted length [N/m]
-  // Measurement.
-  int32_t has_entry = 0;          ///< the needle axis meets the rest surface
-  int32_t entry_vertex[3] = {0, 0, 0};  ///< corners of the rest triangle the axis enters
-  double entry_weight[3] = {0, 0, 0};   ///< barycentric weights of the entry point [-]
-  double dt = 0;                  ///< [s]
-  double force_filter = 0;        ///< low-pass time constant of the published force [s]
-  double force_filter_weight = 1; ///< 1 - exp(-dt / force_filter): the filter's step weight [-]
-  double sample_interval = 0;     ///< a sample every this much simulated time [s]; 0: every step
-  double stiffness_window = 20e-9;  ///< travel over which the local stiffness is taken [m]
-  // Whether the run is quasi-static (engine/sim/quasi_static.h), judged in the record stage.
-  QuasiStaticLimits quasi;
-  // Health.
+  double threshold = 0;       ///< [N] or [J]
+  double force_drop = 1;      ///< fraction of the tip load released [-]
+  double drop_time = 0;       ///< [s]
+  double shaft_friction = 0;  ///< axial drag per inserted length [N/m]
+};
+
+/// What the record stage measures and publishes.
+struct RecordParams {
+  int32_t has_entry = 0;                 ///< the needle axis meets the rest surface
+  int32_t entry_vertex[3] = {0, 0, 0};   ///< corners of the rest triangle the axis enters
+  double entry_weight[3] = {0, 0, 0};    ///< barycentric weights of the entry point [-]
+  double force_filter = 0;         ///< low-pass time constant of the published force [s]
+  double force_filter_weight = 1;  ///< 1 - exp(-dt / force_filter): the filter's step weight [-]
+  double sample_interval = 0;      ///< a sample every this much simulated time [s]; 0: every step
+  double stiffness_window = 20e-9; ///< travel over which the local stiffness is taken [m]
+};
+
+/// The record stage's health verdict.
+struct HealthParams {
   double energy_blowup_factor = 10;  ///< kinetic + elastic above this x the budget is a blow-up
   double energy_floor = 0;           ///< energies below this are noise [J]
-  // Dynamic mass scaling (engine/fem/mass_scaling.h): every mass_interval steps each element's
-  // stiffening (tet_stiffening) is measured; where it passes mass_gate the element asks its
-  // corners for density growth x its rest need (JobSetup::tet_rest_need), and a vertex whose
-  // mass falls short is raised to it. Masses only grow. Off when mass_interval is 0.
-  int32_t mass_interval = 0;  ///< steps between checks; 0: off
-  int32_t mass_law = 0;       ///< StiffeningLaw of the model
-  double mass_gate = 1;       ///< stiffening that every element's current masses carry [-]
+};
+
+/// Dynamic mass scaling (engine/fem/mass_scaling.h): every `interval` steps each element's
+/// stiffening (tet_stiffening) is measured; where it passes `gate` the element asks its corners
+/// for density growth x its rest need (JobSetup::tet_rest_need), and a vertex whose mass falls
+/// short is raised to it. Masses only grow. Off when interval is 0.
+struct MassScalingParams {
+  int32_t interval = 0;  ///< steps between checks; 0: off
+  int32_t law = 0;       ///< StiffeningLaw of the model
+  double gate = 1;       ///< stiffening that every element's current masses carry [-]
+};
+
+/// Everything constant the stages need, by topic, in SI units. Plain data: passed by value to
+/// kernels.
+struct JobParams {
+  double dt = 0;  ///< [s]
+  NeedleParams needle;
+  RimParams rim;
+  DampingParams damping;
+  PunctureParams puncture;
+  RecordParams record;
+  HealthParams health;
+  MassScalingParams mass;
+  /// Whether the run is quasi-static (engine/sim/quasi_static.h), judged in the record stage.
+  QuasiStaticLimits quasi;
 };
 
 /// Density [kg/m^3] an element of rest need `rest_need` (JobSetup::tet_rest_need) asks of its
 /// corners at stiffening `growth`; 0 while the masses it had at the start carry it.
 ZONA_HOST_DEVICE inline double job_mass_need(const JobParams& p, double growth, double rest_need) {
-  return growth > p.mass_gate ? growth * rest_need : 0.0;
+  return growth > p.mass.gate ? growth * rest_need : 0.0;
 }
 
 /// u_{n-1} of a vertex whose mass rises from m_old to m_new at u_n: the momentum is kept, so
@@ -174,44 +166,46 @@ struct ToolVertexForce {
 /// at most m / dt. The cap keeps the explicit (one step lagged) damper at half its stability
 /// limit (c dt / m < 2); the contact's mass raise (m >= k dt^2, Simulation) puts most rim
 /// vertices at omega dt = 1, where the cap is the critical damping itself. [kg/s]
-ZONA_HOST_DEVICE ZONA_INLINE double rim_damper_coefficient(const JobParams& p, double area,
-                                                          double mass) {
-  if (!(p.rim_damping > 0) || !(mass > 0)) return 0;
-  const double critical = 2.0 * sqrt(p.rim_pressure_stiffness * area * mass);
-  const double c = p.rim_damping * critical;
-  const double cap = mass / p.dt;
+ZONA_HOST_DEVICE ZONA_INLINE double rim_damper_coefficient(const RimParams& rim, double dt,
+                                                          double area, double mass) {
+  if (!(rim.damping > 0) || !(mass > 0)) return 0;
+  const double critical = 2.0 * sqrt(rim.pressure_stiffness * area * mass);
+  const double c = rim.damping * critical;
+  const double cap = mass / dt;
   return c < cap ? c : cap;
 }
 
 /// Stage 1 for one surface vertex: needle, rim and suction, with the vertex's stick anchors
-/// on the needle (used with JobParams::needle_on_faces off) and on the rim.
-ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const JobParams& p,
+/// on the needle (used with NeedleParams::on_faces off) and on the rim; dt [s] for the rim's
+/// damper.
+ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const NeedleParams& needle,
+                                                              const RimParams& rim, double dt,
                                                               const ToolPose& pose,
                                                               const ToolVertexInput& in,
                                                               StickAnchor* needle_anchor,
                                                               StickAnchor* rim_anchor) {
   ToolVertexForce out;
-  if (p.has_needle && !p.needle_on_faces) {
-    const ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius,
-                                   p.needle_flat != 0, in.x);
+  if (needle.on && !needle.on_faces) {
+    const ToolSdf sdf = needle_sdf(pose.tip, needle.direction, needle.radius,
+                                   needle.flat != 0, in.x);
     if (sdf.distance < 0) {
       out.needle_depth = -sdf.distance;
-      out.needle = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
-                                                             p.needle_friction, in.area,
+      out.needle = pose.needle_scale * penalty_contact_force(sdf, needle.pressure_stiffness,
+                                                             needle.friction, in.area,
                                                              in.x - pose.tip, pose.step,
                                                              needle_anchor) +
                    pose.drag_per_contact;
       out.needle_contact = 1;
     }
   }
-  if (p.has_rim) {
+  if (rim.on) {
     const ToolSdf sdf =
-        holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius, p.rim_outer_radius, in.x,
-                    p.rim_edge_radius);
+        holding_sdf(rim.mouth, rim.axis, rim.inner_radius, rim.outer_radius, in.x,
+                    rim.edge_radius);
     if (sdf.distance < 0) {
-      out.rim = penalty_contact_force(sdf, p.rim_pressure_stiffness, p.rim_friction, in.area,
-                                      in.x - p.rim_mouth, pose.step, rim_anchor,
-                                      rim_damper_coefficient(p, in.area, in.mass), in.velocity);
+      out.rim = penalty_contact_force(sdf, rim.pressure_stiffness, rim.friction, in.area,
+                                      in.x - rim.mouth, pose.step, rim_anchor,
+                                      rim_damper_coefficient(rim, dt, in.area, in.mass), in.velocity);
       out.rim_contact = 1;
     }
     out.rim += pose.suction_ramp * in.suction;
@@ -249,7 +243,8 @@ struct ToolFaceForce {
 /// points of a triangle on a few threads with needle_face_point). A triangle whose centroid lies
 /// farther from the needle than from its farthest corner cannot touch it (the distance field is
 /// 1-Lipschitz): needle_face_may_touch is false and it is skipped.
-ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, const ToolPose& pose,
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const NeedleParams& needle,
+                                                        const ToolPose& pose,
                                                         const ToolFaceInput& in) {
   const Vec3d centroid = (1.0 / 3.0) * (in.x[0] + in.x[1] + in.x[2]);
   double reach = 0;
@@ -257,7 +252,7 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const JobParams& p, cons
     const Vec3d d = in.x[c] - centroid;
     reach = reach > dot(d, d) ? reach : dot(d, d);
   }
-  return needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, centroid)
+  return needle_sdf(pose.tip, needle.direction, needle.radius, needle.flat != 0, centroid)
              .distance < std::sqrt(reach);
 }
 
@@ -290,12 +285,13 @@ ZONA_HOST_DEVICE ZONA_INLINE Vec3d face_point(const Vec3d x[3], int q, double b[
 /// The needle's load [N] at quadrature point q of a triangle and how deep the point is inside
 /// the needle [m] (false, and nothing written but a void anchor, where the point is outside the
 /// needle), and the point's barycentric weights b[3]; `anchor` is the point's stick anchor.
-ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const ToolPose& pose,
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const NeedleParams& needle,
+                                                    const ToolPose& pose,
                                                     const ToolFaceInput& in, int q, Vec3d* force,
                                                     double* depth, double b[3],
                                                     StickAnchor* anchor) {
   const Vec3d x = face_point(in.x, q, b);
-  ToolSdf sdf = needle_sdf(pose.tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, x);
+  ToolSdf sdf = needle_sdf(pose.tip, needle.direction, needle.radius, needle.flat != 0, x);
   if (!(sdf.distance < 0)) return false;
   *depth = -sdf.distance;
   // The pressure acts along the triangle's inward normal (the tool's normal where the triangle
@@ -305,25 +301,25 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const JobParams& p, const To
   const double n_len = norm(n);
   if (n_len > 0 && dot(n, sdf.normal) < 0) sdf.normal = (-1.0 / n_len) * n;
   constexpr double w = 1.0 / kFacePoints;
-  *force = pose.needle_scale * penalty_contact_force(sdf, p.needle_pressure_stiffness,
-                                                     p.needle_friction, w * in.area, x - pose.tip,
+  *force = pose.needle_scale * penalty_contact_force(sdf, needle.pressure_stiffness,
+                                                     needle.friction, w * in.area, x - pose.tip,
                                                      pose.step, anchor) +
            pose.drag_per_contact;
   return true;
 }
 
 /// needle_face_point over every point of a triangle; anchors: its kFacePoints stick anchors.
-ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const JobParams& p,
+ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const NeedleParams& needle,
                                                             const ToolPose& pose,
                                                             const ToolFaceInput& in,
                                                             StickAnchor* anchors) {
   ToolFaceForce out;
   for (int c = 0; c < 3; ++c) out.corner[c] = Vec3d{0, 0, 0};
-  if (!needle_face_may_touch(p, pose, in)) return out;
+  if (!needle_face_may_touch(needle, pose, in)) return out;
   for (int q = 0; q < kFacePoints; ++q) {
     Vec3d f;
     double b[3], depth = 0;
-    if (!needle_face_point(p, pose, in, q, &f, &depth, b, anchors + q)) continue;
+    if (!needle_face_point(needle, pose, in, q, &f, &depth, b, anchors + q)) continue;
     for (int c = 0; c < 3; ++c) out.corner[c] += b[c] * f;
     ++out.contacts;
     out.depth = out.depth > depth ? out.depth : depth;
@@ -410,15 +406,15 @@ struct JobState {
 
 /// Scripted tip at time t [s]: start + speed t d, stopped at max_travel [m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_scripted_tip(const JobParams& p, double t) {
-  double travel = p.needle_speed * t;
-  if (p.needle_max_travel > 0 && travel > p.needle_max_travel) travel = p.needle_max_travel;
-  return p.needle_start + travel * p.needle_direction;
+  double travel = p.needle.speed * t;
+  if (p.needle.max_travel > 0 && travel > p.needle.max_travel) travel = p.needle.max_travel;
+  return p.needle.start + travel * p.needle.direction;
 }
 
 /// Fraction of the tip load still applied `elapsed` [s] after puncture.
 ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, double elapsed) {
-  const double ramp = p.drop_time > 0 ? (elapsed < p.drop_time ? elapsed / p.drop_time : 1.0) : 1.0;
-  return 1.0 - p.force_drop * ramp;
+  const double ramp = p.puncture.drop_time > 0 ? (elapsed < p.puncture.drop_time ? elapsed / p.puncture.drop_time : 1.0) : 1.0;
+  return 1.0 - p.puncture.force_drop * ramp;
 }
 
 /// After puncture, once per step from the step's needle sums: the contact's scale moves so that
@@ -430,7 +426,7 @@ ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, doubl
 /// step later, and a larger gain rang.
 ZONA_HOST_DEVICE ZONA_INLINE void job_follow_release(const JobParams& p, JobState& s,
                                                      const JobSums& sums, double needle_force) {
-  const double drag = dot(s.pose.drag_per_contact, p.needle_direction) * sums.needle_contacts;
+  const double drag = dot(s.pose.drag_per_contact, p.needle.direction) * sums.needle_contacts;
   const double contact = needle_force - drag;
   if (!(contact > 0)) return;  // nothing touches the tip: nothing to release
   const double target = job_release_factor(p, s.time - s.puncture.time) * s.puncture.force;
@@ -450,8 +446,8 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_follow_tip(const JobParams& p, JobState& s
   }
   const Vec3d d = s.external_tip_value - s.external_tip_now;
   const double len = sqrt(dot(d, d));
-  const double max_step = p.external_tip_max_speed * p.dt;
-  s.external_tip_now = p.external_tip_max_speed > 0 && len > max_step
+  const double max_step = p.needle.external_tip_max_speed * p.dt;
+  s.external_tip_now = p.needle.external_tip_max_speed > 0 && len > max_step
                            ? s.external_tip_now + (max_step / len) * d
                            : s.external_tip_value;
 }
@@ -461,18 +457,18 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s) 
   ToolPose& pose = s.pose;
   pose.step = s.step;
   const Vec3d tip = s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time);
-  const double ramp = p.suction_ramp_time > 0 ? s.time / p.suction_ramp_time : 1.0;
+  const double ramp = p.rim.suction_ramp_time > 0 ? s.time / p.rim.suction_ramp_time : 1.0;
   pose.suction_ramp = ramp < 1.0 ? ramp : 1.0;
   if (s.puncture.punctured) {
     // The needle is inside: the tip load stays where it was, released over drop_time, and the
     // shaft drag pulls the rim of the hole along the axis.
-    const double travel = dot(tip, p.needle_direction) -
-                          dot(p.needle_start, p.needle_direction);
+    const double travel = dot(tip, p.needle.direction) -
+                          dot(p.needle.start, p.needle.direction);
     const double inserted = travel > s.puncture.needle_travel ? travel - s.puncture.needle_travel : 0;
     pose.needle_scale = s.release_scale;
     pose.drag_per_contact = s.released_contacts > 0
-                                ? (p.shaft_friction * inserted / s.released_contacts) *
-                                      p.needle_direction
+                                ? (p.puncture.shaft_friction * inserted / s.released_contacts) *
+                                      p.needle.direction
                                 : Vec3d{0, 0, 0};
     return;
   }
@@ -511,12 +507,12 @@ inline constexpr int kDriftInterval = 8;
 /// between updates) keeps the load.
 ZONA_HOST_DEVICE ZONA_INLINE void job_drift_update(const JobParams& p, JobState& s,
                                                  const JobStepTotals& tot) {
-  if (!(p.drift_damping > 0) || !(tot.mass > 0)) return;
+  if (!(p.damping.drift > 0) || !(tot.mass > 0)) return;
   const Vec3d v = (1.0 / tot.mass) * tot.momentum;
   const double span = kDriftInterval * p.dt;
-  const double a = span / (p.drift_window > span ? p.drift_window : span);
+  const double a = span / (p.damping.drift_window > span ? p.damping.drift_window : span);
   s.drift_mean += a * (v - s.drift_mean);
-  s.drift_accel = (-p.drift_damping) * (v - s.drift_mean);
+  s.drift_accel = (-p.damping.drift) * (v - s.drift_mean);
 }
 
 /// StepStatusBits (engine/sim/integrator.h) the record stage sets.
@@ -539,7 +535,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_record_measures(const JobParams& p, JobSta
   r.contacts = sums.needle_contacts;
   r.holding_contacts = sums.rim_contacts;
   r.needle_depth = sums.needle_depth;
-  r.raw_force = dot(r.force_vector, p.needle_direction);
+  r.raw_force = dot(r.force_vector, p.needle.direction);
   r.deformation = tot.deformation;
   r.elastic_energy = tot.elastic_energy;
   r.kinetic_energy = tot.kinetic_energy;
@@ -564,11 +560,11 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_check_health(const JobParams& p, JobState&
     s.budget_valid = 1;
   }
   s.energy_budget += sums.tool_work > 0 ? sums.tool_work : 0.0;
-  const double floor = s.energy_budget > p.energy_floor ? s.energy_budget : p.energy_floor;
-  if (energy > p.energy_blowup_factor * floor) r.status |= kJobBlowUp;
+  const double floor = s.energy_budget > p.health.energy_floor ? s.energy_budget : p.health.energy_floor;
+  if (energy > p.health.energy_blowup_factor * floor) r.status |= kJobBlowUp;
   r.energy_budget = s.energy_budget;
-  if (p.needle_breach_depth > 0 && !s.puncture.punctured &&
-      sums.needle_depth > p.needle_breach_depth)
+  if (p.needle.breach_depth > 0 && !s.puncture.punctured &&
+      sums.needle_depth > p.needle.breach_depth)
     r.status |= kJobToolBreach;
   if (r.status & (kJobNonFinite | kJobBlowUp | kJobToolBreach)) s.halted = 1;
   r.halted = s.halted;
@@ -578,9 +574,9 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_check_health(const JobParams& p, JobState&
 /// the holder's, which the quasi-static check compares.
 ZONA_HOST_DEVICE ZONA_INLINE void job_filter_forces(const JobParams& p, JobState& s,
                                                     JobRecord& r) {
-  const double holding_axial = dot(r.holding_force, p.needle_direction);
-  if (p.force_filter > 0 && s.filter_started) {
-    const double a = p.force_filter_weight;
+  const double holding_axial = dot(r.holding_force, p.needle.direction);
+  if (p.record.force_filter > 0 && s.filter_started) {
+    const double a = p.record.force_filter_weight;
     s.filtered_force += a * (r.raw_force - s.filtered_force);
     s.filtered_holding += a * (holding_axial - s.filtered_holding);
   } else {
@@ -600,7 +596,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_commit_pose(const JobParams& p, JobState& 
   job_set_pose(p, s);
   r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time))
                                : s.pose.tip;
-  r.travel = dot(r.tip - p.needle_start, p.needle_direction);
+  r.travel = dot(r.tip - p.needle.start, p.needle.direction);
 }
 
 /// Record, local stiffness for the haptic thread: the slope of force over at least
@@ -613,7 +609,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_local_stiffness(const JobParams& p, JobSta
     s.stiffness_travel = r.travel;
   } else {
     const double dtr = r.travel - s.stiffness_travel;
-    if (dtr >= p.stiffness_window || dtr <= -p.stiffness_window) {
+    if (dtr >= p.record.stiffness_window || dtr <= -p.record.stiffness_window) {
       s.stiffness = (r.force - s.stiffness_force) / dtr;
       s.stiffness_force = r.force;
       s.stiffness_travel = r.travel;
@@ -628,7 +624,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_local_stiffness(const JobParams& p, JobSta
 ZONA_HOST_DEVICE ZONA_INLINE bool job_check_quasi_static(const JobParams& p, JobState& s,
                                                          const JobStepTotals& tot, JobRecord& r) {
   const bool not_static = quasi_static_step(
-      p.quasi, s.quasi, p.has_needle && !s.puncture.punctured && !s.halted, r.force,
+      p.quasi, s.quasi, p.needle.on && !s.puncture.punctured && !s.halted, r.force,
       s.filtered_holding, tot.kinetic_energy, tot.elastic_energy, s.step, s.time, r.deformation);
   if (not_static) r.status |= kJobNotQuasiStatic;
   return not_static;
@@ -641,9 +637,9 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState
                                                     const JobSums& sums, const JobStepTotals& tot,
                                                     bool not_static, Vec3d tip_before,
                                                     JobRecord& r) {
-  if (!s.halted && !not_static && p.has_needle && !s.puncture.punctured) {
-    const bool met = (p.criterion == kJobCriterionForce && r.force >= p.threshold) ||
-                     (p.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.threshold);
+  if (!s.halted && !not_static && p.needle.on && !s.puncture.punctured) {
+    const bool met = (p.puncture.criterion == kJobCriterionForce && r.force >= p.puncture.threshold) ||
+                     (p.puncture.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.puncture.threshold);
     if (met) {
       JobPuncture& q = s.puncture;
       q.punctured = 1;
@@ -660,7 +656,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState
     }
   }
   if (s.puncture.punctured) {
-    s.stiffness = p.shaft_friction;
+    s.stiffness = p.puncture.shaft_friction;
     s.stiffness_force = r.force;
     s.stiffness_travel = r.travel;
     r.stiffness = s.stiffness;
@@ -672,8 +668,8 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState
 /// Whether a sample is due (every sample_interval of simulated time, and on a halt).
 ZONA_HOST_DEVICE ZONA_INLINE bool job_sample_due(const JobParams& p, JobState& s) {
   if (s.time >= s.next_sample - 0.5 * p.dt || s.halted) {
-    s.next_sample += p.sample_interval > 0 ? p.sample_interval : p.dt;
-    if (s.next_sample < s.time) s.next_sample = s.time + p.sample_interval;
+    s.next_sample += p.record.sample_interval > 0 ? p.record.sample_interval : p.dt;
+    if (s.next_sample < s.time) s.next_sample = s.time + p.record.sample_interval;
     return true;
   }
   return false;
@@ -702,9 +698,9 @@ ZONA_HOST_DEVICE ZONA_INLINE bool job_finish_step(const JobParams& p, JobState& 
 /// corners [m].
 ZONA_HOST_DEVICE ZONA_INLINE double job_entry_deformation(const JobParams& p, Vec3d u0, Vec3d u1,
                                                         Vec3d u2) {
-  if (!p.has_entry) return 0;
-  const Vec3d u = p.entry_weight[0] * u0 + p.entry_weight[1] * u1 + p.entry_weight[2] * u2;
-  return dot(u, p.needle_direction);
+  if (!p.record.has_entry) return 0;
+  const Vec3d u = p.record.entry_weight[0] * u0 + p.record.entry_weight[1] * u1 + p.record.entry_weight[2] * u2;
+  return dot(u, p.needle.direction);
 }
 
 }  // namespace zona

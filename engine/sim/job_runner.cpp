@@ -28,15 +28,15 @@ class CpuJobRunner final : public JobRunner {
     needle_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
     tool_chunk_sums_.assign((setup.tool_vertices.size() + kToolChunk - 1) / kToolChunk, JobSums{});
     rim_anchor_.assign(setup.tool_vertices.size(), StickAnchor{});
-    if (setup.params.needle_on_faces) {
+    if (setup.params.needle.on_faces) {
       face_anchor_.assign(setup.tool_faces.size() * kFacePoints, StickAnchor{});
       face_out_.assign(setup.tool_faces.size(), ToolFaceForce{});
       face_hit_.assign(setup.tool_faces.size(), 0);
     }
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
     drift_chunks_.assign((model.vertex_count() + kDriftChunk - 1) / kDriftChunk, DriftChunk{});
-    if (setup.params.mass_interval > 0) growth_.assign(model.tet_count(), 1.0);
-    job_.pose.tip = setup.params.needle_start;
+    if (setup.params.mass.interval > 0) growth_.assign(model.tet_count(), 1.0);
+    job_.pose.tip = setup.params.needle.start;
     job_follow_tip(setup_.params, job_);
     job_set_pose(setup_.params, job_);
     // The state starts without loads: the stages own external_force from here on.
@@ -93,7 +93,7 @@ class CpuJobRunner final : public JobRunner {
         [](void* context, int64_t begin, int64_t end) {
           auto* self = static_cast<CpuJobRunner*>(context);
           const Model& m = self->model_;
-          const auto law = static_cast<StiffeningLaw>(self->setup_.params.mass_law);
+          const auto law = static_cast<StiffeningLaw>(self->setup_.params.mass.law);
           const size_t last = std::min(m.tet_count(), static_cast<size_t>(end * kChunk));
           for (size_t t = static_cast<size_t>(begin * kChunk); t < last; ++t) {
             Vec3d u[4];
@@ -134,9 +134,9 @@ class CpuJobRunner final : public JobRunner {
         const size_t v = static_cast<size_t>(setup_.tool_vertices[k]);
         in.x[c] = model_.rest_positions[v] + state_.u[v];
       }
-      if (!needle_face_may_touch(p, job_.pose, in)) continue;
+      if (!needle_face_may_touch(p.needle, job_.pose, in)) continue;
       in.area = setup_.tool_face_area[f];
-      face_out_[f] = needle_face_force(p, job_.pose, in, &face_anchor_[f * kFacePoints]);
+      face_out_[f] = needle_face_force(p.needle, job_.pose, in, &face_anchor_[f * kFacePoints]);
       face_hit_[f] = face_out_[f].contacts > 0 ? 1 : 0;
     }
   }
@@ -158,7 +158,7 @@ class CpuJobRunner final : public JobRunner {
   // m drift_accel into external_force (after the stiffness damping's, which it adds to), and
   // after the update the chunk's momentum m (u_{n+1} - u_n) / dt and mass.
   void drift_load(size_t chunk) {
-    const bool add = setup_.params.stiffness_damping_rate > 0;
+    const bool add = setup_.params.damping.stiffness_rate > 0;
     const Vec3d a = job_.drift_accel;
     const size_t end = std::min(model_.vertex_count(), (chunk + 1) * kDriftChunk);
     for (size_t v = chunk * kDriftChunk; v < end; ++v) {
@@ -184,7 +184,7 @@ class CpuJobRunner final : public JobRunner {
   // faces' loads gathered before, into external_force, and the chunk's sums.
   void tool_vertices(size_t chunk) {
     const JobParams& p = setup_.params;
-    const bool damping = p.stiffness_damping_rate > 0 || p.drift_damping > 0;
+    const bool damping = p.damping.stiffness_rate > 0 || p.damping.drift > 0;
     JobSums& sums = tool_chunk_sums_[chunk];
     sums = JobSums{};
     const size_t end = std::min(setup_.tool_vertices.size(), (chunk + 1) * kToolChunk);
@@ -194,11 +194,11 @@ class CpuJobRunner final : public JobRunner {
       in.x = model_.rest_positions[v] + state_.u[v];
       in.area = setup_.tool_area[i];
       in.suction = setup_.tool_suction[i];
-      if (p.rim_damping > 0) {
+      if (p.rim.damping > 0) {
         in.velocity = (1.0 / p.dt) * (state_.u[v] - state_.u_prev[v]);
         in.mass = model_.vertex_mass[v];
       }
-      ToolVertexForce f = tool_vertex_force(p, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
+      ToolVertexForce f = tool_vertex_force(p.needle, p.rim, p.dt, job_.pose, in, &needle_anchor_[i], &rim_anchor_[i]);
       f.force += face_force_[i];
       Vec3d& ext = state_.external_force[v];
       ext = damping ? ext + f.force : f.force;
@@ -217,7 +217,7 @@ class CpuJobRunner final : public JobRunner {
   // One step as its stages (engine/sim/step_stage.h), one per line.
   void step_once() {
     const JobParams& p = setup_.params;
-    if (p.mass_interval > 0 && steps_run_ % p.mass_interval == 0) raise_masses();  // masses
+    if (p.mass.interval > 0 && steps_run_ % p.mass.interval == 0) raise_masses();  // masses
     ++steps_run_;
     apply_loads();                                        // loads
     JobSums sums = tool_forces();                         // tools (anchors committed in place)
@@ -230,15 +230,15 @@ class CpuJobRunner final : public JobRunner {
   // vertex, and the drift damping's load (job_drift_update) on every free vertex.
   void apply_loads() {
     const JobParams& p = setup_.params;
-    if (p.stiffness_damping_rate > 0) {
-      const double k = p.stiffness_damping_rate;
+    if (p.damping.stiffness_rate > 0) {
+      const double k = p.damping.stiffness_rate;
       std::vector<Vec3d>& ext = state_.external_force;
       for (size_t v = 0; v < model_.vertex_count(); ++v) {
         ext[v] = k * (state_.force[v] - force_prev_[v]);
         force_prev_[v] = state_.force[v];
       }
     }
-    if (p.drift_damping > 0) run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
+    if (p.damping.drift > 0) run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
   }
 
   // StepStage::kTools: the needle on the surface triangles (face quadrature), then every tool on
@@ -246,7 +246,7 @@ class CpuJobRunner final : public JobRunner {
   JobSums tool_forces() {
     const JobParams& p = setup_.params;
     JobSums sums;
-    if (p.needle_on_faces) {
+    if (p.needle.on_faces) {
       // Every triangle on the pool (each owns its anchors and its output slot), then the few
       // that touch the needle are gathered in order (the same sums on any thread count).
       const size_t nf = setup_.tool_faces.size();
@@ -311,7 +311,7 @@ class CpuJobRunner final : public JobRunner {
     tot.status = status;
     tot.first_bad = state_.diag.first_nonfinite >= 0 ? state_.diag.first_nonfinite
                                                      : state_.diag.first_inverted;
-    if (p.drift_damping > 0 && (steps_run_ - 1) % kDriftInterval == 0) {
+    if (p.damping.drift > 0 && (steps_run_ - 1) % kDriftInterval == 0) {
       // Per fixed chunk on the pool, the chunks then in order (the same sums on any thread
       // count).
       run_chunks<&CpuJobRunner::drift_momentum>(drift_chunks_.size());
@@ -320,11 +320,11 @@ class CpuJobRunner final : public JobRunner {
         tot.mass += c.mass;
       }
     }
-    if (p.has_entry) {
+    if (p.record.has_entry) {
       const auto& u = state_.u;
-      tot.deformation = job_entry_deformation(p, u[static_cast<size_t>(p.entry_vertex[0])],
-                                              u[static_cast<size_t>(p.entry_vertex[1])],
-                                              u[static_cast<size_t>(p.entry_vertex[2])]);
+      tot.deformation = job_entry_deformation(p, u[static_cast<size_t>(p.record.entry_vertex[0])],
+                                              u[static_cast<size_t>(p.record.entry_vertex[1])],
+                                              u[static_cast<size_t>(p.record.entry_vertex[2])]);
     }
     return tot;
   }
@@ -379,17 +379,17 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
   std::vector<uint8_t> marks(model.vertex_count(), 0);
   auto position = [&](size_t v) { return model.rest_positions[v] + state.u[v]; };
   auto in_needle = [&](Vec3d x) {
-    return needle_sdf(tip, p.needle_direction, p.needle_radius, p.needle_flat != 0, x).distance < 0;
+    return needle_sdf(tip, p.needle.direction, p.needle.radius, p.needle.flat != 0, x).distance < 0;
   };
   for (size_t i = 0; i < setup.tool_vertices.size(); ++i) {
     const size_t v = static_cast<size_t>(setup.tool_vertices[i]);
     const Vec3d x = position(v);
-    if (p.has_rim && holding_sdf(p.rim_mouth, p.rim_axis, p.rim_inner_radius,
-                                 p.rim_outer_radius, x, p.rim_edge_radius).distance < 0)
+    if (p.rim.on && holding_sdf(p.rim.mouth, p.rim.axis, p.rim.inner_radius,
+                                 p.rim.outer_radius, x, p.rim.edge_radius).distance < 0)
       marks[v] = 2;
-    if (p.has_needle && !p.needle_on_faces && in_needle(x)) marks[v] = 1;
+    if (p.needle.on && !p.needle.on_faces && in_needle(x)) marks[v] = 1;
   }
-  if (!p.has_needle || !p.needle_on_faces) return marks;
+  if (!p.needle.on || !p.needle.on_faces) return marks;
   for (const std::array<int32_t, 3>& f : setup.tool_faces) {
     Vec3d x[3];
     size_t v[3];

@@ -72,7 +72,7 @@ void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
   // needle's load stays at its puncture pose after puncture).
   const JobParams& p = sim.job_setup().params;
   const PunctureRecord& q = sim.puncture();
-  const Vec3d tip = q.punctured ? p.needle_start + q.needle_travel * p.needle_direction
+  const Vec3d tip = q.punctured ? p.needle.start + q.needle_travel * p.needle.direction
                                 : sim.report().tip;
   const std::vector<uint8_t> marks =
       job_contact_marks(sim.job_setup(), sim.model(), sim.state(), tip);

@@ -207,7 +207,7 @@ class Simulation {
   size_t sample_capacity() const { return sample_capacity_; }
   /// The needle's direction of travel (unit) [-].
   Vec3d needle_direction() const {
-    return job_ ? job_setup_.params.needle_direction : script_.direction;
+    return job_ ? job_setup_.params.needle.direction : script_.direction;
   }
   /// The job's setup (tool vertices, parameters); empty on the kinematic path.
   const JobSetup& job_setup() const { return job_setup_; }

@@ -44,33 +44,33 @@ Status Simulation::prepare_job() {
     if (!script_.trajectory.time.empty())
       return make_error("%s: needle.trajectory needs contact.model 'kinematic' (the penalty "
                         "step scripts straight insertions)", name.c_str());
-    p.has_needle = 1;
-    p.needle_flat = scene_.needle.shape == NeedleShape::kFlat ? 1 : 0;
-    p.needle_start = script_.start;
-    p.needle_direction = script_.direction;
-    p.needle_speed = script_.speed;
-    p.needle_max_travel = script_.max_travel;
-    p.external_tip_max_speed = options_.external_tip_max_speed;
-    p.needle_radius = scene_.needle.tip_radius;
-    p.needle_pressure_stiffness = kappa;
-    p.needle_friction = scene_.needle.friction;
-    p.needle_breach_depth = kNeedleBreachFraction * p.needle_radius;
-    p.force_filter = scene_.needle.force_filter;
-    p.force_filter_weight =
-        p.force_filter > 0 ? 1.0 - std::exp(-model_.dt / p.force_filter) : 1.0;
+    p.needle.on = 1;
+    p.needle.flat = scene_.needle.shape == NeedleShape::kFlat ? 1 : 0;
+    p.needle.start = script_.start;
+    p.needle.direction = script_.direction;
+    p.needle.speed = script_.speed;
+    p.needle.max_travel = script_.max_travel;
+    p.needle.external_tip_max_speed = options_.external_tip_max_speed;
+    p.needle.radius = scene_.needle.tip_radius;
+    p.needle.pressure_stiffness = kappa;
+    p.needle.friction = scene_.needle.friction;
+    p.needle.breach_depth = kNeedleBreachFraction * p.needle.radius;
+    p.record.force_filter = scene_.needle.force_filter;
+    p.record.force_filter_weight =
+        p.record.force_filter > 0 ? 1.0 - std::exp(-model_.dt / p.record.force_filter) : 1.0;
     const PunctureDef& pd = scene_.puncture;
     switch (pd.criterion) {
-      case PunctureCriterion::kNone: p.criterion = kJobCriterionNone; break;
-      case PunctureCriterion::kForce: p.criterion = kJobCriterionForce; break;
-      case PunctureCriterion::kEnergy: p.criterion = kJobCriterionEnergy; break;
+      case PunctureCriterion::kNone: p.puncture.criterion = kJobCriterionNone; break;
+      case PunctureCriterion::kForce: p.puncture.criterion = kJobCriterionForce; break;
+      case PunctureCriterion::kEnergy: p.puncture.criterion = kJobCriterionEnergy; break;
       case PunctureCriterion::kStrain:
         return make_error("%s: puncture.criterion 'strain' needs contact.model 'kinematic' (use "
                           "force or energy)", name.c_str());
     }
-    p.threshold = pd.threshold;
-    p.force_drop = pd.force_drop;
-    p.drop_time = pd.drop_time;
-    p.shaft_friction = pd.shaft_friction;
+    p.puncture.threshold = pd.threshold;
+    p.puncture.force_drop = pd.force_drop;
+    p.puncture.drop_time = pd.drop_time;
+    p.puncture.shaft_friction = pd.shaft_friction;
     // The entry point's barycentric weights on its rest triangle (the deformation measure).
     if (rest_hit_triangle_ >= 0) {
       const Triangle& tri = surface_.triangles[static_cast<size_t>(rest_hit_triangle_)];
@@ -80,36 +80,36 @@ Status Simulation::prepare_job() {
       double t = 0, b1 = 0, b2 = 0;
       const Vec3d d = script_.direction;
       if (ray_triangle(entry_point_ - cell_diameter_ * d, d, a, b, c, &t, &b1, &b2)) {
-        p.has_entry = 1;
-        for (int k = 0; k < 3; ++k) p.entry_vertex[k] = tri[k];
-        p.entry_weight[0] = 1.0 - b1 - b2;
-        p.entry_weight[1] = b1;
-        p.entry_weight[2] = b2;
+        p.record.has_entry = 1;
+        for (int k = 0; k < 3; ++k) p.record.entry_vertex[k] = tri[k];
+        p.record.entry_weight[0] = 1.0 - b1 - b2;
+        p.record.entry_weight[1] = b1;
+        p.record.entry_weight[2] = b2;
       }
     }
   }
   if (suction) {
-    p.has_rim = 1;
-    p.rim_mouth = holding_->geometry.mouth;
-    p.rim_axis = holding_->geometry.axis;
-    p.rim_inner_radius = holding_->geometry.inner_radius;
-    p.rim_outer_radius = holding_->geometry.outer_radius;
-    p.rim_edge_radius = holding_->geometry.edge_radius;
-    p.rim_pressure_stiffness = kappa;
-    p.rim_friction = holding_->friction;
-    p.rim_damping = scene_.contact.rim_damping;
+    p.rim.on = 1;
+    p.rim.mouth = holding_->geometry.mouth;
+    p.rim.axis = holding_->geometry.axis;
+    p.rim.inner_radius = holding_->geometry.inner_radius;
+    p.rim.outer_radius = holding_->geometry.outer_radius;
+    p.rim.edge_radius = holding_->geometry.edge_radius;
+    p.rim.pressure_stiffness = kappa;
+    p.rim.friction = holding_->friction;
+    p.rim.damping = scene_.contact.rim_damping;
     // Suction ramped in over half the needle's approach, so the cell settles without ringing.
     double ramp_time = 0.05 * end_time_;
     if (has_needle_ && script_.speed > 0)
       ramp_time = std::min(ramp_time, 0.5 * scene_.needle.standoff / script_.speed);
-    p.suction_ramp_time = ramp_time;
+    p.rim.suction_ramp_time = ramp_time;
   }
   p.quasi = quasi_limits_;
-  p.stiffness_damping_rate = scene_.integrator.stiffness_damping / model_.dt;
-  p.sample_interval = std::max(scene_.output.sample_interval, 0.0);
-  p.stiffness_window = options_.stiffness_window;
-  p.energy_blowup_factor = model_.energy_blowup_factor;
-  p.energy_floor = model_.energy_floor;
+  p.damping.stiffness_rate = scene_.integrator.stiffness_damping / model_.dt;
+  p.record.sample_interval = std::max(scene_.output.sample_interval, 0.0);
+  p.record.stiffness_window = options_.stiffness_window;
+  p.health.energy_blowup_factor = model_.energy_blowup_factor;
+  p.health.energy_floor = model_.energy_floor;
 
   // Tool vertices: the boundary surface, with its areas and the suction loads.
   const size_t ns = surface_.vertices.size();
@@ -122,7 +122,7 @@ Status Simulation::prepare_job() {
       if (k >= 0) js.tool_suction[static_cast<size_t>(k)] = holding_->suction_force[i];
     }
   if (has_needle_ && scene_.contact.needle_on_faces) {
-    p.needle_on_faces = 1;
+    p.needle.on_faces = 1;
     const size_t nf = surface_.triangles.size();
     js.tool_faces.resize(nf);
     js.tool_face_area.resize(nf);
@@ -137,7 +137,7 @@ Status Simulation::prepare_job() {
       js.tool_face_area[f] = 0.5 * norm(cross(b - a, c - a));
     }
   }
-  const double row_dt = std::max(p.sample_interval, model_.dt);
+  const double row_dt = std::max(p.record.sample_interval, model_.dt);
   js.sample_capacity = std::min<size_t>(
       static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 8, size_t{1} << 22);
 
@@ -182,14 +182,14 @@ Status Simulation::prepare_job() {
         if (!model_.vertex_fixed[v]) mass += model_.vertex_mass[v];
       omega = holder_swing_omega(model_.materials, holding_->geometry.inner_radius, mass);
     }
-    p.drift_damping = in.drift_damping ? *in.drift_damping : 2.0 * omega;
-    p.drift_window = in.drift_window ? *in.drift_window : (omega > 0 ? 3.0 / omega : 0.05);
-    if (p.drift_damping > 0 && (!in.drift_damping || !in.drift_window)) {
+    p.damping.drift = in.drift_damping ? *in.drift_damping : 2.0 * omega;
+    p.damping.drift_window = in.drift_window ? *in.drift_window : (omega > 0 ? 3.0 / omega : 0.05);
+    if (p.damping.drift > 0 && (!in.drift_damping || !in.drift_window)) {
       char line[200];
       std::snprintf(line, sizeof line,
                     "drift damping: %.4g 1/s over a %.3g ms window (the swing on the holder "
                     "estimated at a %.3g ms period)",
-                    p.drift_damping, p.drift_window * 1e3,
+                    p.damping.drift, p.damping.drift_window * 1e3,
                     omega > 0 ? 2e3 * std::numbers::pi / omega : 0.0);
       notes_.push_back(line);
     }
@@ -202,8 +202,8 @@ Status Simulation::prepare_job() {
   const double safety = scene_.integrator.dynamic_mass_safety;
   const ConstitutiveModel law = model_.constitutive;
   if (safety > 0 && law != ConstitutiveModel::kLinear) {
-    p.mass_interval = 24;
-    p.mass_law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
+    p.mass.interval = 24;
+    p.mass.law = static_cast<int32_t>(law == ConstitutiveModel::kStableNeoHookean
                                           ? StiffeningLaw::kStableNeoHookean
                                           : StiffeningLaw::kSvk);
     const size_t nt = model_.tet_count();
@@ -227,7 +227,7 @@ Status Simulation::prepare_job() {
       }
       if (need > 0) gate = std::min(gate, rho / need);
     }
-    p.mass_gate = std::isfinite(gate) ? std::max(1.0, gate) : 1.0;
+    p.mass.gate = std::isfinite(gate) ? std::max(1.0, gate) : 1.0;
   }
   return Status::ok_status();
 }

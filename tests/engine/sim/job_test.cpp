@@ -143,49 +143,49 @@ TEST(PenaltyContact, DamperResistsApproachAndReboundButNeverPulls) {
 
 TEST(PenaltyContact, RimDamperIsAFractionOfCriticalCappedAtMassOverStep) {
   JobParams p;
-  p.rim_pressure_stiffness = 100.0;
+  p.rim.pressure_stiffness = 100.0;
   p.dt = 0.01;
   const double area = 0.5, k = 100.0 * 0.5;
   // A heavy vertex (omega dt = sqrt(k / m) dt = 0.05): the ratio times 2 sqrt(k m).
   const double heavy = 20.0;
-  EXPECT_EQ(rim_damper_coefficient(p, area, heavy), 0.0);  // rim_damping 0: off
-  p.rim_damping = 0.5;
-  EXPECT_NEAR(rim_damper_coefficient(p, area, heavy), 0.5 * 2.0 * std::sqrt(k * heavy), 1e-9);
+  EXPECT_EQ(rim_damper_coefficient(p.rim, p.dt, area, heavy), 0.0);  // rim_damping 0: off
+  p.rim.damping = 0.5;
+  EXPECT_NEAR(rim_damper_coefficient(p.rim, p.dt, area, heavy), 0.5 * 2.0 * std::sqrt(k * heavy), 1e-9);
   // A vertex at the contact's mass raise (m = k dt^2, omega dt = 1): critical would be 2 m / dt,
   // at the explicit damper's stability limit; the cap holds it at m / dt.
-  p.rim_damping = 1.0;
+  p.rim.damping = 1.0;
   const double raised = k * p.dt * p.dt;
-  EXPECT_NEAR(rim_damper_coefficient(p, area, raised), raised / p.dt, 1e-12);
+  EXPECT_NEAR(rim_damper_coefficient(p.rim, p.dt, area, raised), raised / p.dt, 1e-12);
 }
 
 JobParams needle_params() {
   JobParams p;
-  p.has_needle = 1;
-  p.needle_direction = kX;
-  p.needle_radius = 1.0;
-  p.needle_pressure_stiffness = 100.0;
-  p.needle_friction = 0.0;
-  p.needle_speed = 1.0;
+  p.needle.on = 1;
+  p.needle.direction = kX;
+  p.needle.radius = 1.0;
+  p.needle.pressure_stiffness = 100.0;
+  p.needle.friction = 0.0;
+  p.needle.speed = 1.0;
   p.dt = 0.01;
-  p.energy_blowup_factor = 10;
-  p.energy_floor = 1e-12;
+  p.health.energy_blowup_factor = 10;
+  p.health.energy_floor = 1e-12;
   return p;
 }
 
 TEST(ToolVertexForce, NeedleLoadAndSuctionRamp) {
   JobParams p = needle_params();
-  p.has_rim = 1;
-  p.rim_mouth = Vec3d{100, 0, 0};
-  p.rim_axis = kX;
-  p.rim_inner_radius = 1;
-  p.rim_outer_radius = 2;
+  p.rim.on = 1;
+  p.rim.mouth = Vec3d{100, 0, 0};
+  p.rim.axis = kX;
+  p.rim.inner_radius = 1;
+  p.rim.outer_radius = 2;
   ToolPose pose;
   pose.tip = Vec3d{0.5, 0, 0};  // the vertex at the origin is 0.5 inside the hemisphere
   pose.suction_ramp = 0.25;
   ToolVertexInput in = vertex_at({0, 0, 0}, 2.0);
   in.suction = Vec3d{0, 0, 4.0};
   StickAnchor anchors[2];
-  const ToolVertexForce f = tool_vertex_force(p, pose, in, &anchors[0], &anchors[1]);
+  const ToolVertexForce f = tool_vertex_force(p.needle, p.rim, p.dt, pose, in, &anchors[0], &anchors[1]);
   EXPECT_EQ(f.needle_contact, 1);
   EXPECT_EQ(f.rim_contact, 0);
   EXPECT_NEAR(f.needle.x, 100.0 * 0.5 * 2.0, 1e-9);
@@ -195,8 +195,8 @@ TEST(ToolVertexForce, NeedleLoadAndSuctionRamp) {
 
 TEST(JobFinishStep, BlowUpHaltsAndRecordsNoPuncture) {
   JobParams p = needle_params();
-  p.criterion = kJobCriterionEnergy;
-  p.threshold = 1.0;  // met by the runaway energy below
+  p.puncture.criterion = kJobCriterionEnergy;
+  p.puncture.threshold = 1.0;  // met by the runaway energy below
   JobState s;
   JobSums sums;
   sums.tool_work = 0.01;
@@ -228,9 +228,9 @@ TEST(JobFinishStep, NonFiniteHalts) {
 
 TEST(JobFinishStep, NeedleThroughTheSurfaceHaltsBeforePunctureOnly) {
   JobParams p = needle_params();
-  p.needle_breach_depth = 0.5;
-  p.criterion = kJobCriterionForce;
-  p.threshold = 1e9;  // not met
+  p.needle.breach_depth = 0.5;
+  p.puncture.criterion = kJobCriterionForce;
+  p.puncture.threshold = 1e9;  // not met
   JobState s;
   JobSums sums;
   JobStepTotals tot;
@@ -255,10 +255,10 @@ TEST(JobFinishStep, NeedleThroughTheSurfaceHaltsBeforePunctureOnly) {
 
 TEST(JobFinishStep, ForcePunctureFreezesTheTipAndReleasesTheLoad) {
   JobParams p = needle_params();
-  p.criterion = kJobCriterionForce;
-  p.threshold = 2.0;
-  p.force_drop = 0.9;
-  p.drop_time = 0.1;
+  p.puncture.criterion = kJobCriterionForce;
+  p.puncture.threshold = 2.0;
+  p.puncture.force_drop = 0.9;
+  p.puncture.drop_time = 0.1;
   JobState s;
   job_set_pose(p, s);
   JobSums sums;
@@ -300,8 +300,8 @@ TEST(JobFinishStep, ForcePunctureFreezesTheTipAndReleasesTheLoad) {
 // face quadrature, or lumped at the vertices (each with a third of its triangles' areas).
 double plate_load(int n, double depth, bool faces) {
   JobParams p = needle_params();
-  p.needle_direction = Vec3d{0, 0, -1};
-  p.needle_on_faces = faces ? 1 : 0;
+  p.needle.direction = Vec3d{0, 0, -1};
+  p.needle.on_faces = faces ? 1 : 0;
   ToolPose pose;
   // The tip a little off the grid's symmetry, as a real tip is.
   pose.tip = Vec3d{0.013, -0.021, -depth};
@@ -318,7 +318,7 @@ double plate_load(int n, double depth, bool faces) {
           in.x[2] = t ? at(i, j + 1) : at(i + 1, j + 1);
           in.area = 0.5 * h * h;
           StickAnchor anchors[kFacePoints];
-          const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
+          const ToolFaceForce f = needle_face_force(p.needle, pose, in, anchors);
           for (int c = 0; c < 3; ++c) total += f.corner[c].z;
         }
   } else {
@@ -330,7 +330,7 @@ double plate_load(int n, double depth, bool faces) {
         const int edges = (i == 0 || i == n) + (j == 0 || j == n);
         in.area = h * h * (edges == 0 ? 1.0 : (edges == 1 ? 0.5 : 0.25));
         StickAnchor anchors[2];
-        total += tool_vertex_force(p, pose, in, &anchors[0], &anchors[1]).force.z;
+        total += tool_vertex_force(p.needle, p.rim, p.dt, pose, in, &anchors[0], &anchors[1]).force.z;
       }
   }
   return -total;  // the tip pushes the plate down (-z): report the magnitude
@@ -344,7 +344,7 @@ TEST(NeedleFaceForce, PlateLoadIsTheExactIntegralAtEveryResolution) {
   // kappa pi c d^2. The face quadrature gets its integral within 2 % from a grid whose cells are
   // as wide as the tip's radius down to one ten times finer; the vertex lumping misses its own
   // by far more on the coarse grid, and cannot see a tip between vertices.
-  const double depth = 0.3, radius = 1.0, kappa = needle_params().needle_pressure_stiffness;
+  const double depth = 0.3, radius = 1.0, kappa = needle_params().needle.pressure_stiffness;
   const double exact_faces = kappa * M_PI * depth * depth * (radius - 2.0 * depth / 3.0);
   const double exact = kappa * M_PI * (radius - depth) * depth * depth;
   for (int n : {4, 10, 40}) {
@@ -361,8 +361,8 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
   // needle, the quadrature points are. The corner loads push the triangle along -z and, for a
   // tip at the centroid, about equally.
   JobParams p = needle_params();
-  p.needle_direction = Vec3d{0, 0, -1};
-  p.needle_on_faces = 1;
+  p.needle.direction = Vec3d{0, 0, -1};
+  p.needle.on_faces = 1;
   ToolFaceInput in;
   in.x[0] = Vec3d{-3, -2, 0};
   in.x[1] = Vec3d{3, -2, 0};
@@ -371,7 +371,7 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
   ToolPose pose;
   pose.tip = Vec3d{0, 0, -0.2};
   StickAnchor anchors[kFacePoints];
-  const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
+  const ToolFaceForce f = needle_face_force(p.needle, pose, in, anchors);
   EXPECT_GT(f.contacts, 0);
   for (int c = 0; c < 3; ++c) {
     EXPECT_LT(f.corner[c].z, 0);
@@ -379,12 +379,12 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
     ToolVertexInput corner;
     corner.x = in.x[c];
     corner.area = 6;
-    p.needle_on_faces = 0;
+    p.needle.on_faces = 0;
     StickAnchor corner_anchors[2];
-    EXPECT_EQ(tool_vertex_force(p, pose, corner, &corner_anchors[0], &corner_anchors[1])
+    EXPECT_EQ(tool_vertex_force(p.needle, p.rim, p.dt, pose, corner, &corner_anchors[0], &corner_anchors[1])
                   .needle_contact,
               0);
-    p.needle_on_faces = 1;
+    p.needle.on_faces = 1;
   }
   // The deepest point is the one under the tip: 0.2 inside (the triangle lies at z = 0, the
   // apex at z = -0.2), within the quadrature's spacing.
@@ -392,8 +392,8 @@ TEST(NeedleFaceForce, TipBetweenVerticesStillPushesAndLoadsSumToTheTotal) {
   EXPECT_LE(f.depth, 0.2 + 1e-12);
   // Far from the tip: nothing, and no point is evaluated beyond the centroid test.
   pose.tip = Vec3d{0, 0, 20};
-  EXPECT_EQ(needle_face_force(p, pose, in, anchors).contacts, 0);
-  EXPECT_EQ(needle_face_force(p, pose, in, anchors).depth, 0);
+  EXPECT_EQ(needle_face_force(p.needle, pose, in, anchors).contacts, 0);
+  EXPECT_EQ(needle_face_force(p.needle, pose, in, anchors).depth, 0);
 }
 
 TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
@@ -403,8 +403,8 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   // and the total is the pressure integral along -z. A triangle facing the other way (its
   // outward normal away from the tool) keeps the tool's normal.
   JobParams p = needle_params();
-  p.needle_direction = Vec3d{0, 0, -1};
-  p.needle_on_faces = 1;
+  p.needle.direction = Vec3d{0, 0, -1};
+  p.needle.on_faces = 1;
   ToolFaceInput in;
   in.x[0] = Vec3d{0, -0.8, 0};
   in.x[1] = Vec3d{0.9, -0.8, 0};  // counter-clockwise seen from +z: outward normal +z
@@ -413,7 +413,7 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   ToolPose pose;
   pose.tip = Vec3d{0, 0, -0.3};
   StickAnchor anchors[kFacePoints];
-  const ToolFaceForce f = needle_face_force(p, pose, in, anchors);
+  const ToolFaceForce f = needle_face_force(p.needle, pose, in, anchors);
   ASSERT_GT(f.contacts, 4);
   double fz = 0;
   for (int c = 0; c < 3; ++c) {
@@ -424,7 +424,7 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   EXPECT_LT(fz, 0);
   std::swap(in.x[1], in.x[2]);  // now facing -z, towards the cell's inside
   StickAnchor fresh[kFacePoints];
-  const ToolFaceForce g = needle_face_force(p, pose, in, fresh);
+  const ToolFaceForce g = needle_face_force(p.needle, pose, in, fresh);
   double gx = 0;
   for (int c = 0; c < 3; ++c) gx += g.corner[c].x;
   EXPECT_GT(gx, 0);  // the tool's normals lean towards +x over this triangle
@@ -658,10 +658,10 @@ TEST(JobTip, FollowsTheHandedInTipAtMostAtTheSpeedLimit) {
   // it is taken at once.
   JobParams p;
   p.dt = 1e-6;
-  p.needle_start = Vec3d{-1e-6, 0, 0};
-  p.needle_direction = Vec3d{1, 0, 0};
-  p.needle_speed = 1e-3;
-  p.external_tip_max_speed = 0.1;
+  p.needle.start = Vec3d{-1e-6, 0, 0};
+  p.needle.direction = Vec3d{1, 0, 0};
+  p.needle.speed = 1e-3;
+  p.needle.external_tip_max_speed = 0.1;
   JobState s;
   s.time = 2e-6;
   job_follow_tip(p, s);
@@ -675,7 +675,7 @@ TEST(JobTip, FollowsTheHandedInTipAtMostAtTheSpeedLimit) {
   for (int i = 0; i < 20; ++i) job_follow_tip(p, s);
   EXPECT_EQ(s.external_tip_now.x, s.external_tip_value.x);  // reached, not overshot
   JobParams jump = p;
-  jump.external_tip_max_speed = 0;
+  jump.needle.external_tip_max_speed = 0;
   s.external_tip_value = Vec3d{5e-6, 1e-6, 0};
   job_follow_tip(jump, s);
   EXPECT_EQ(s.external_tip_now.x, 5e-6);
@@ -709,8 +709,8 @@ TEST(JobSimulation, AHandedInTipIsFollowedAtTheSpeedLimitStepByStep) {
 TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
   JobParams p;
   p.dt = 1e-4;
-  p.drift_damping = 100;  // [1/s]
-  p.drift_window = 0.01;  // 100 steps: an update every kDriftInterval moves w 8 % of the way
+  p.damping.drift = 100;  // [1/s]
+  p.damping.drift_window = 0.01;  // 100 steps: an update every kDriftInterval moves w 8 % of the way
   JobState s;
   JobStepTotals tot;
   tot.mass = 2.0;
@@ -723,12 +723,12 @@ TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
   // opposes it at nearly the full rate, -c (v - w) with w one update's 8 % of the way there.
   tot.momentum = Vec3d{2.0, 0.2, 0};
   job_drift_update(p, s, tot);
-  const double share = kDriftInterval * p.dt / p.drift_window;
+  const double share = kDriftInterval * p.dt / p.damping.drift_window;
   EXPECT_NEAR(s.drift_accel.y, -100.0 * (0.1 - share * 0.1), 1e-9);
   EXPECT_NEAR(s.drift_accel.x, 0.0, 1e-7);
   // Off: no load, whatever the motion.
   JobParams off = p;
-  off.drift_damping = 0;
+  off.damping.drift = 0;
   JobState quiet;
   job_drift_update(off, quiet, tot);
   EXPECT_EQ(quiet.drift_accel.y, 0.0);
