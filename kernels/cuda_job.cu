@@ -244,7 +244,10 @@ Status CudaJob::start(const JobSetup& setup) {
 
 // The kernels of global step g (buffer roles rotate with g, as in the sub-step graphs), enqueued
 // while a graph is captured: the tool loads (tool_kernel) on a side branch beside the element
-// pass, then everything else of the step in one kernel (job_step_kernel).
+// pass, then everything else of the step in one kernel (job_step_kernel). Stages
+// (engine/sim/step_stage.h): masses = mass_check_kernel + mass_raise_kernel; tools = tool_kernel;
+// elastic = volume_change_kernel (nodal pressure) + tet_pass_kernel; loads, integrate and
+// measure = job_step_kernel; record, commit and puncture = job_record_kernel.
 Status CudaJob::enqueue_step(int64_t g) {
   const VertexParams vp = b_.vertex_params(g);
   const cudaStream_t s = b_.stream_.get();
@@ -260,7 +263,7 @@ Status CudaJob::enqueue_step(int64_t g) {
   };
   const Scatter mode = scatter_of(b_.options_.assembly, b_.options_.warp_aggregate);
   const bool energy = g % kEnergyInterval == 0;
-  // Dynamic mass scaling first: it changes the masses and u_{n-1} that the rim's damper reads.
+  // StepStage::kMasses first: it changes the masses and u_{n-1} that the rim's damper reads.
   if (params_.mass.interval > 0 && g % params_.mass.interval == 0) {
     keep(launch(pdl, mass_check_kernel, tb, s, b_.tp_, vp.u,
                 static_cast<const float*>(d_tet_need_.data()), d_vertex_need_.data(),
@@ -272,7 +275,7 @@ Status CudaJob::enqueue_step(int64_t g) {
                 const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
                 static_cast<int>(b_.nv_)));
   }
-  // Stage 1, every tool load (the needle on the triangles, then the tool vertices): it reads
+  // StepStage::kTools, every tool load (the needle on the triangles, then the tool vertices): it reads
   // only u_n, u_{n-1}, the masses and the pose, so it runs on a branch of its own beside the
   // element pass (at 1k vertices the two are about 10 us each, and one after the other they
   // were the step).
