@@ -275,9 +275,9 @@ Status CudaJob::enqueue_step(int64_t g) {
                 const_cast<double*>(vp.u_prev), d_mass_raises_.data(),
                 static_cast<int>(b_.nv_)));
   }
-  // StepStage::kTools, every tool load (the needle on the triangles, then the tool vertices): it reads
-  // only u_n, u_{n-1}, the masses and the pose, so it runs on a branch of its own beside the
-  // element pass (at 1k vertices the two are about 10 us each, and one after the other they
+  // StepStage::kTools, every tool load (the needle on the triangles, then the tool vertices):
+  // it reads only u_n, u_{n-1}, the masses and the pose, so it runs on a branch of its own
+  // beside the element pass (at 1k vertices the two are about 10 us each, and one after the other they
   // were the step).
   keep(cudaEventRecord(fork_.get(), s));
   keep(cudaStreamWaitEvent(side_.get(), fork_.get(), 0));
