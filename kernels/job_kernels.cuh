@@ -174,8 +174,11 @@ inline constexpr int kFaceLanesSmallMaxFaces = 16384;
 /// loads: 83 us at 1M vertices, 44 % of the memory bandwidth).
 ///
 /// Both parts add their needle and rim sums to the step's (block sums, then atomics).
+// Two blocks per SM (at most 128 registers): the tool kernel runs beside the element pass on a
+// graph branch, and at 153 registers (one block per SM) it took 11 % longer and the 100k job
+// 7 % (ncu and zona bench --job, H200).
 template <int LANES>
-__global__ void __launch_bounds__(kBlock)
+__global__ void __launch_bounds__(kBlock, 2)
     tool_kernel(JobParams p, ToolParams tl, const int4* __restrict__ faces,
                 const double* __restrict__ face_area, VertexParams vp,
                 const JobState* __restrict__ job, StickAnchor* __restrict__ face_anchor,
@@ -439,7 +442,9 @@ __global__ void __launch_bounds__(kBlock)
 /// the vertex kernel's last block the record stage held the whole grid at 128 registers. (On a
 /// branch beside the next step's element pass, with a status per step, it measured slower: the
 /// branch's own cost outweighed what it hid.)
-__global__ void __launch_bounds__(kBlock)
+// One block, so no occupancy to keep: at the default 128-register budget the record stage
+// spilled 284 bytes (its JobState and JobRecord), 0.6 us per step on the critical path.
+__global__ void __launch_bounds__(kBlock, 1)
     job_record_kernel(JobParams p, const JobBlockSums* __restrict__ block_sums, int block_count,
                       const double* __restrict__ u_next, double length_unit, bool fresh_energy,
                       DeviceStatus* st, JobState* job, JobSums* sums, JobCounters* counters,

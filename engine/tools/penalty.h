@@ -70,12 +70,20 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3d penalty_hessian(double k, const ToolSdf& sdf,
 }
 
 /// The friction spring's gradient [N] on d = rel - anchor [m]: k P d, scaled down to length
-/// `cap` [N] where longer (sliding). n the held unit normal, k [N/m].
-ZONA_HOST_DEVICE ZONA_INLINE Vec3d friction_gradient(double k, double cap, Vec3d n, Vec3d d) {
+/// `cap` [N] where longer (sliding; *slid set). n the held unit normal, k [N/m].
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d friction_spring(double k, double cap, Vec3d n, Vec3d d,
+                                                   bool* slid) {
   Vec3d g = k * (d - dot(d, n) * n);
   const double len = norm(g);
-  if (len > cap) g = (len > 0 ? cap / len : 0.0) * g;
+  *slid = len > cap;
+  if (*slid) g = (len > 0 ? cap / len : 0.0) * g;
   return g;
+}
+
+/// friction_spring's gradient alone.
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d friction_gradient(double k, double cap, Vec3d n, Vec3d d) {
+  bool slid;
+  return friction_spring(k, cap, n, d, &slid);
 }
 
 /// The friction spring's energy [J] (the Huber function of the file comment).
@@ -97,14 +105,13 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3d friction_hessian(double k, double cap, Vec3d 
 }
 
 /// Where a contact point's anchor goes when the step is accepted: unchanged while it sticks; a
-/// sliding point's follows it, rel - g / k, so that its spring stays at the Coulomb limit. g the
-/// friction gradient the step used, rel [m].
+/// sliding point's follows it, rel - g / k, so that its spring stays at the Coulomb limit. rel,
+/// anchor [m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_anchor_after(double k, double cap, Vec3d n, Vec3d rel,
                                                         Vec3d anchor) {
-  const Vec3d d = rel - anchor;
-  const Vec3d stick = k * (d - dot(d, n) * n);
-  if (!(norm(stick) > cap)) return anchor;
-  return rel + (1.0 / k) * (-1.0 * friction_gradient(k, cap, n, d));
+  bool slid;
+  const Vec3d g = friction_spring(k, cap, n, rel - anchor, &slid);
+  return slid ? rel + (1.0 / k) * (-1.0 * g) : anchor;
 }
 
 /// One point's contact in the explicit step: the force [N] the tool puts on it and its anchor
@@ -138,10 +145,12 @@ ZONA_HOST_DEVICE ZONA_INLINE PenaltyContact penalty_contact(const ToolSdf& sdf, 
     if (fn < 0) fn = 0;
   }
   const double cap = mu * fn;
-  const Vec3d g = friction_gradient(k, cap, sdf.normal, rel - anchor);
+  bool slid;
+  const Vec3d g = friction_spring(k, cap, sdf.normal, rel - anchor, &slid);
   PenaltyContact out;
   out.force = fn * sdf.normal - g;
-  out.anchor = penalty_anchor_after(k, cap, sdf.normal, rel, anchor);
+  // The anchor after the step (penalty_anchor_after, from the same spring).
+  out.anchor = slid ? rel + (1.0 / k) * (-1.0 * g) : anchor;
   return out;
 }
 

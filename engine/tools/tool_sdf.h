@@ -70,7 +70,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolSdf needle_sdf(Vec3d tip, Vec3d d, double r, bo
   const double s = dot(w, d);
   const Vec3d radial_vec = w - s * d;
   const double rho = norm(radial_vec);
-  const Vec3d radial = rho > 0 ? radial_vec / rho : any_perpendicular(d);
+  Vec3d radial = rho > 0 ? radial_vec / rho : Vec3d{0, 0, 0};
+  if (!(rho > 0)) radial = any_perpendicular(d);  // on the axis: any direction perpendicular to d
   Mat3d h = Mat3d::zero();
   if (!flat) {
     if (s > 0) {
@@ -124,7 +125,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolSdf holding_sdf_sharp(Vec3d mouth, Vec3d axis, 
   const double s = dot(w, axis);
   const Vec3d rv = w - s * axis;
   const double rho = norm(rv);
-  const Vec3d radial = rho > 0 ? rv / rho : any_perpendicular(axis);
+  Vec3d radial = rho > 0 ? rv / rho : Vec3d{0, 0, 0};
+  if (!(rho > 0)) radial = any_perpendicular(axis);
   ToolSdf out;
   const bool inside = s > 0 && rho > a && rho < b;
   if (!inside) {
