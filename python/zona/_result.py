@@ -10,8 +10,9 @@ class Result:
 
     - `columns`: force.csv's columns as numpy arrays (docs/outputs.md), also as attributes of
       the result itself: `result.deformation_m`, `result.force_N`, ...
-    - `summary`: summary.json as a dict; `puncture` (its "puncture"), `quasi_static` (True,
-      False, or None when nothing was judged), `interrupted`.
+    - `summary`: summary.json as a dict; `puncture` (its "puncture": whether and where the
+      membrane gave way), `quasi_static` (True, False, or None when nothing was judged),
+      `interrupted`. (`result.punctured` is force.csv's column, one flag per row.)
     - final state, SI units: `rest_positions` (n x 3), `displacement` (n x 3),
       `deformed_positions`, `stress` (n x 3 x 3, Cauchy, per vertex), `strain` (n x 3 x 3,
       Green-Lagrange), `von_mises` (n), `contact` (n), `tets` (m x 4), `tet_region` (m),
@@ -44,10 +45,6 @@ class Result:
         """summary["puncture"]: punctured, criterion, threshold, and when punctured time_s,
         needle_travel_m, deformation_m, force_N, ..."""
         return self.summary["puncture"]
-
-    @property
-    def punctured(self):
-        return bool(self.summary["puncture"]["punctured"])
 
     @property
     def quasi_static(self):
