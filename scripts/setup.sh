@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Installs what zona needs on Debian 12 (apt). Idempotent: installs only what is missing.
+# Installs what zona needs on Debian 12 (apt), then the project's Python environment .venv
+# (a plain venv of Debian's python3, filled from PyPI with python/requirements.txt: nanobind for
+# the Python module, numpy, pytest, matplotlib). Idempotent: installs only what is missing.
 set -euo pipefail
 
 packages=(
@@ -8,7 +10,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libvulkan-dev glslc libglfw3-dev libstb-dev mesa-vulkan-drivers vulkan-validationlayers
   libimgui-dev fonts-dejavu-core
-  python3 python3-matplotlib python3-numpy
+  python3 python3-matplotlib python3-numpy python3-dev python3-venv
 )
 
 missing=()
@@ -23,5 +25,19 @@ if ((${#missing[@]})); then
   "${sudo_cmd[@]}" apt-get update -qq
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
     "${missing[@]}" >/dev/null
+fi
+
+# The Python environment: Debian's interpreter (not whichever python3 is first on the PATH), no
+# system site packages (PyPI's numpy beside Debian's matplotlib breaks it). Refilled when
+# python/requirements.txt changes.
+cd "$(dirname "$0")/.."
+requirements=python/requirements.txt
+if [ ! -x .venv/bin/python ]; then
+  /usr/bin/python3 -m venv .venv
+fi
+if ! cmp -s "$requirements" .venv/zona-requirements.txt; then
+  echo "zona setup: installing $requirements into .venv" >&2
+  .venv/bin/python -m pip install --quiet --disable-pip-version-check -r "$requirements"
+  cp "$requirements" .venv/zona-requirements.txt
 fi
 echo "zona setup: dependencies present" >&2

@@ -103,6 +103,22 @@ Status write_vtu(const std::string& path, const Mesh& mesh,
                  const std::vector<VtkField>& point_data = {},
                  const std::vector<VtkField>& cell_data = {}, const VtuOptions& options = {});
 
+/// A `.vtu` as the file holds it, with every data array (read_vtu). Nothing is dropped or
+/// renumbered (read_mesh drops unused points), so the point arrays stay aligned with `points`.
+struct VtuFile {
+  std::vector<Vec3d> points;         ///< as written, no scale [file units], (point_count)
+  std::vector<Tet> tets;             ///< point indices, (cell_count)
+  std::vector<Region> regions;       ///< names of region tags, from the "region:NAME" fields
+  std::vector<VtkField> point_data;  ///< in file order, each (point_count x components)
+  std::vector<VtkField> cell_data;   ///< in file order ("region" among them), (cell_count x c)
+  std::vector<VtkField> field_data;  ///< in file order (TimeValue, points_at_rest, region:NAME)
+};
+
+/// Reads a `.vtu` with all its point, cell and field arrays (the files read_mesh reads: one
+/// piece of linear tetrahedra, inline ascii or base64, uncompressed, little-endian). Errors are
+/// one line naming the file and line, as read_mesh's.
+Result<VtuFile> read_vtu(const std::string& path);
+
 /// Writes a mesh choosing the format by extension: `.msh` (Gmsh 4.1 ASCII) or `.vtu`.
 Status write_mesh(const std::string& path, const Mesh& mesh);
 

@@ -46,6 +46,8 @@ Result<RawMesh> parse_tetgen(std::string_view node, std::string_view ele,
 /// VTU parser (engine/mesh/mesh_io_vtu_read.cpp). `deformed`: a zona frame (points at rest and
 /// a displacement array) gives points + displacement.
 Result<RawMesh> parse_vtu(std::string_view data, const std::string& name, bool deformed);
+/// The same file with every data array, for read_vtu.
+Result<VtuFile> parse_vtu_file(std::string_view data, const std::string& name);
 
 /// Writes `data` to `path` (binary mode), reporting open/write/close failures.
 Status write_file(const std::string& path, std::string_view data);

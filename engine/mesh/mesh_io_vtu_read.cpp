@@ -1,7 +1,8 @@
 // VTK XML .vtu reader for the unstructured grids of linear tetrahedra that write_vtu writes:
 // one piece, ascii or inline base64 arrays (UInt32 or UInt64 headers), uncompressed,
 // little-endian. Anything else (appended or compressed data, other cell types, several pieces)
-// is refused with one line naming the file and what is not supported.
+// is refused with one line naming the file and what is not supported. read_vtu keeps every
+// data array as well (the Python module's reader).
 //
 // Not a general XML parser: the file is scanned tag by tag, with comments, processing
 // instructions and unknown elements outside the arrays skipped; array contents are decoded into
@@ -13,6 +14,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <tuple>
 #include <vector>
 
 #include "engine/mesh/mesh_io_internal.h"
@@ -56,7 +58,9 @@ class VtuScanner {
  public:
   VtuScanner(std::string_view data, const std::string& name) : data_(data), name_(name) {}
 
-  Result<RawMesh> parse(bool* points_at_rest, std::vector<double>* displacement);
+  /// `arrays`, when given, also receives every point, cell and field array as read.
+  Result<RawMesh> parse(bool* points_at_rest, std::vector<double>* displacement,
+                        VtuFile* arrays = nullptr);
 
  private:
   // "<file>:<line>: <what>", the line of `offset`.
@@ -339,7 +343,8 @@ bool count_attribute(const Tag& tag, std::string_view key, int64_t* out) {
   return v && parse_int(*v, *out) && *out >= 0;
 }
 
-Result<RawMesh> VtuScanner::parse(bool* points_at_rest, std::vector<double>* displacement) {
+Result<RawMesh> VtuScanner::parse(bool* points_at_rest, std::vector<double>* displacement,
+                                  VtuFile* arrays) {
   std::vector<std::string_view> stack;  // open elements
   std::optional<Array> points, connectivity, offsets, types, region;
   std::vector<Region> regions;
@@ -389,6 +394,14 @@ Result<RawMesh> VtuScanner::parse(bool* points_at_rest, std::vector<double>* dis
       if (!array) return array.error();
       const std::string_view parent = stack.empty() ? std::string_view{} : stack.back();
       Array& a = *array;
+      // Every data array for read_vtu, copied before the mesh's own arrays take theirs.
+      if (arrays) {
+        std::vector<VtkField>* into = parent == "PointData"   ? &arrays->point_data
+                                      : parent == "CellData"  ? &arrays->cell_data
+                                      : parent == "FieldData" ? &arrays->field_data
+                                                              : nullptr;
+        if (into) into->push_back(VtkField{a.name, a.components, a.values});
+      }
       if (parent == "Points") {
         if (a.components != 3)
           return fail(tag.offset, "points have %d components; expected 3", a.components);
@@ -429,6 +442,15 @@ Result<RawMesh> VtuScanner::parse(bool* points_at_rest, std::vector<double>* dis
   if (!displacement->empty() && displacement->size() != 3 * np)
     return fail(pos_, "point array 'displacement' has %zu values for %zu points",
                 displacement->size(), np);
+  // read_vtu's arrays hold one tuple per point or per cell.
+  if (arrays) {
+    for (const auto& [fields, count, kind] :
+         {std::tuple{&arrays->point_data, np, "point"}, std::tuple{&arrays->cell_data, nc, "cell"}})
+      for (const VtkField& f : *fields)
+        if (f.values.size() != count * static_cast<size_t>(f.components))
+          return fail(pos_, "%s array '%s' has %zu values for %zu %ss of %d component(s)", kind,
+                      excerpt(f.name).c_str(), f.values.size(), count, kind, f.components);
+  }
   RawMesh raw;
   raw.points.resize(np);
   for (size_t i = 0; i < np; ++i)
@@ -474,4 +496,27 @@ Result<RawMesh> parse_vtu(std::string_view data, const std::string& name, bool d
   return raw;
 }
 
+Result<VtuFile> parse_vtu_file(std::string_view data, const std::string& name) {
+  VtuScanner scanner(data, name);
+  bool at_rest = false;
+  std::vector<double> displacement;
+  VtuFile file;
+  Result<RawMesh> raw = scanner.parse(&at_rest, &displacement, &file);
+  if (!raw) return raw.error();
+  file.points = std::move(raw->points);
+  file.tets = std::move(raw->tets);
+  file.regions = std::move(raw->regions);
+  return file;
+}
+
 }  // namespace zona::io_detail
+
+namespace zona {
+
+Result<VtuFile> read_vtu(const std::string& path) {
+  Result<std::string> data = io_detail::read_file(path);
+  if (!data) return data.error();
+  return io_detail::parse_vtu_file(*data, path);
+}
+
+}  // namespace zona

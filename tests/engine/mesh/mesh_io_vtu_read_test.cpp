@@ -3,6 +3,7 @@
 // other formats (convert through Gmsh), and files it does not support refused in one line.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -214,6 +215,68 @@ TEST(MeshIoVtuRead, UnsupportedFilesAreRefusedInOneLine) {
       EXPECT_EQ(m.error().message.find('\n'), std::string::npos);
     }
   }
+}
+
+}  // namespace
+}  // namespace zona
+
+namespace zona {
+namespace {
+
+TEST(MeshIoVtuRead, ReadVtuKeepsEveryArray) {
+  // read_vtu gives back every point, cell and field array bit for bit (base64 and ascii),
+  // with the points and tetrahedra as written.
+  const std::string dir = temp_dir();
+  const Mesh m = test_mesh();
+  std::vector<double> stress(9 * m.vertex_count()), mises(m.tet_count());
+  for (size_t i = 0; i < stress.size(); ++i) stress[i] = 1.0 / static_cast<double>(i + 3);
+  for (size_t t = 0; t < mises.size(); ++t) mises[t] = 1e3 * static_cast<double>(t) + 0.1;
+  for (bool binary : {false, true}) {
+    SCOPED_TRACE(binary ? "binary" : "ascii");
+    VtuOptions options;
+    options.binary = binary;
+    options.field_data = {{"TimeValue", 1, {0.125}}, {"points_at_rest", 1, {1.0}}};
+    const std::string path = dir + (binary ? "/b.vtu" : "/a.vtu");
+    ASSERT_TRUE(
+        write_vtu(path, m, {{"stress", 9, stress}}, {{"von_mises_stress", 1, mises}}, options).ok());
+    Result<VtuFile> f = read_vtu(path);
+    ASSERT_TRUE(f.ok()) << f.error().message;
+    ASSERT_EQ(f->points.size(), m.vertex_count());
+    for (size_t v = 0; v < m.vertex_count(); ++v) EXPECT_EQ(f->points[v].y, m.rest_positions[v].y);
+    EXPECT_EQ(f->tets, m.tets);
+    ASSERT_EQ(f->point_data.size(), 1u);
+    EXPECT_EQ(f->point_data[0].name, "stress");
+    EXPECT_EQ(f->point_data[0].components, 9);
+    EXPECT_EQ(f->point_data[0].values, stress);
+    ASSERT_EQ(f->cell_data.size(), 2u);  // the writer's "region" and ours
+    bool seen = false;
+    for (const VtkField& c : f->cell_data)
+      if (c.name == "von_mises_stress") {
+        seen = true;
+        EXPECT_EQ(c.values, mises);
+      }
+    EXPECT_TRUE(seen);
+    std::vector<std::string> fields;
+    for (const VtkField& c : f->field_data) fields.push_back(c.name);
+    EXPECT_NE(std::find(fields.begin(), fields.end(), "TimeValue"), fields.end());
+    EXPECT_EQ(f->regions.size(), m.regions.size());
+  }
+}
+
+TEST(MeshIoVtuRead, ReadVtuRefusesAnArrayOfTheWrongLength) {
+  const std::string dir = temp_dir();
+  std::string text = one_tet();
+  text.replace(text.find("</Piece>"), 0,
+               "<PointData><DataArray type=\"Float64\" Name=\"p\" format=\"ascii\">1 2 3"
+               "</DataArray></PointData>\n");
+  spit(dir + "/short.vtu", text);
+  Result<VtuFile> f = read_vtu(dir + "/short.vtu");
+  ASSERT_FALSE(f.ok());
+  EXPECT_NE(f.error().message.find("short.vtu:"), std::string::npos) << f.error().message;
+  EXPECT_NE(f.error().message.find("point array 'p' has 3 values for 4 points"), std::string::npos)
+      << f.error().message;
+  EXPECT_EQ(f.error().message.find('\n'), std::string::npos);
+  EXPECT_FALSE(read_vtu(dir + "/missing.vtu").ok());
 }
 
 }  // namespace
