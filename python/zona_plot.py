@@ -101,10 +101,14 @@ def number(path, row_number, cells, index, name):
 
 
 def close_branch(curve):
-    """The puncture point closes the loading branch (the force the criterion fired at)."""
+    """The puncture point closes the loading branch (the force the criterion fired at) and
+    opens the branch after it (at zero travel past puncture)."""
     if curve.puncture is not None:
         curve.load_d.append(curve.puncture[0])
         curve.load_f.append(curve.puncture[1])
+        if curve.post_f:
+            curve.post_travel.insert(0, 0.0)
+            curve.post_f.insert(0, curve.puncture[1])
 
 
 def read_run(spec):
