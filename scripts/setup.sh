@@ -8,7 +8,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libvulkan-dev glslc libglfw3-dev libstb-dev mesa-vulkan-drivers vulkan-validationlayers
   libimgui-dev fonts-dejavu-core
-  python3 python3-matplotlib python3-numpy
+  python3 python3-venv
 )
 
 missing=()
@@ -24,4 +24,10 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
     "${missing[@]}" >/dev/null
 fi
+# The plots' Python (python/zona_plot.py, docs/plots.md): the project environment .venv, with
+# matplotlib from PyPI (python/plot_requirements.txt).
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+[ -x "$root/.venv/bin/python" ] || python3 -m venv "$root/.venv"
+"$root/.venv/bin/python" -c 'import matplotlib' 2>/dev/null ||
+  "$root/.venv/bin/pip" install -q -r "$root/python/plot_requirements.txt"
 echo "zona setup: dependencies present" >&2
