@@ -85,6 +85,36 @@ TEST(Docs, ReferenceAnchorsAreDefined) {
   }
 }
 
+TEST(Docs, SourcesCiteThePapersByAuthor) {
+  // Code comments, help texts and scene notes name the papers as the pages do (docs/references.md)
+  // and cite no DESIGN.md, which is not in the project. bench/results holds measured files,
+  // whose header lines are rewritten when a benchmark is run again.
+  const std::regex seed(R"(\b[Ss]eeds? ?00[0-2]\b)");
+  int files = 0;
+  for (const char* folder : {"engine", "kernels", "apps", "render", "shaders", "bench", "tests",
+                             "scenes", "python", "scripts"}) {
+    if (!fs::exists(kRoot / folder)) continue;
+    for (const fs::directory_entry& e : fs::recursive_directory_iterator(kRoot / folder)) {
+      const std::string ext = e.path().extension().string();
+      if (!e.is_regular_file() || e.path().string().find("/bench/results/") != std::string::npos ||
+          e.path().filename() == "docs_test.cpp")
+        continue;
+      if (ext != ".h" && ext != ".cpp" && ext != ".cu" && ext != ".cuh" && ext != ".json" &&
+          ext != ".py" && ext != ".sh" && ext != ".comp" && ext != ".vert" && ext != ".frag")
+        continue;
+      ++files;
+      const std::string text = slurp(e.path());
+      const std::string name = e.path().lexically_relative(kRoot).string();
+      EXPECT_EQ(text.find("DESIGN.md"), std::string::npos) << name << ": cites DESIGN.md";
+      std::smatch m;
+      if (std::regex_search(text, m, seed))
+        ADD_FAILURE() << name << ":" << line_of(text, static_cast<size_t>(m.position(0)))
+                      << ": names a paper '" << m.str(0) << "' (docs/references.md has its authors)";
+    }
+  }
+  EXPECT_GT(files, 100);
+}
+
 TEST(Docs, ScenesPageQuotesEveryShippedScenesOwnValues) {
   // Each shipped scene has a row in docs/scenes.md's table, and the row's E, diameter and
   // needle speed are the scene file's (a calibrated E changed in the scene shows up here).
