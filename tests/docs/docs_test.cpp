@@ -3,7 +3,10 @@
 // own values (E, diameter, needle speed), so that a newcomer meets no contradiction.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -113,6 +116,26 @@ TEST(Docs, SourcesCiteThePapersByAuthor) {
     }
   }
   EXPECT_GT(files, 100);
+}
+
+TEST(Docs, ReadmeHasARowForEveryCommand) {
+  // The subcommands `zona --help` lists; each has a row in README's command table.
+  const std::string out = (fs::temp_directory_path() / ("zona_docs_help_" + std::to_string(::getpid()))).string();
+  ASSERT_EQ(std::system((std::string(ZONA_CLI_PATH) + " --help >" + out).c_str()), 0);
+  const std::string help = slurp(out);
+  fs::remove(out);
+  const size_t list = help.find("Subcommands:");
+  ASSERT_NE(list, std::string::npos) << help;
+  const std::string readme = slurp(kRoot / "README.md");
+  const std::regex name(R"(\n  ([a-z]+) )");
+  int commands = 0;
+  const std::string tail = help.substr(list);
+  for (std::sregex_iterator it(tail.begin(), tail.end(), name), end; it != end; ++it) {
+    ++commands;
+    EXPECT_NE(readme.find("| `zona " + (*it)[1].str()), std::string::npos)
+        << "README.md's command table has no row for zona " << (*it)[1];
+  }
+  EXPECT_GE(commands, 12);
 }
 
 TEST(Docs, ScenesPageQuotesEveryShippedScenesOwnValues) {
