@@ -261,9 +261,9 @@ def figure(title, curves, measured, references, stem):
     plt.rcParams.update({"svg.fonttype": "none", "svg.hashsalt": "zona", "font.size": 10})
     after = any(c.post_f for c in curves)
     if after:
-        fig, (ax, ax_after) = plt.subplots(1, 2, figsize=(9.5, 5.0), sharey=True,
+        fig, (ax, ax_after) = plt.subplots(1, 2, figsize=(10.0, 5.0), sharey=True,
                                            layout="constrained",
-                                           gridspec_kw={"width_ratios": [3, 1]})
+                                           gridspec_kw={"width_ratios": [2.6, 1.4]})
     else:
         fig, ax = plt.subplots(figsize=(7.5, 5.0), layout="constrained")
         ax_after = None

@@ -417,7 +417,7 @@ TEST(CmdRun, PlotsThePunctureInPngAndSvgOrFallsBackWithoutPython) {
     std::snprintf(label, sizeof label, ">puncture %.1f um, %.2f uN<",
                   p["deformation_m"].get<double>() * 1e6, p["force_N"].get<double>() * 1e6);
     const std::string svg = zona::test::read_text(out / "force_deformation.svg");
-    for (const std::string text : {std::string(label), std::string(">tiny_injection<"),
+    for (const std::string& text : {std::string(label), std::string(">tiny_injection<"),
                                    std::string(">this run (svk)<"), std::string(">deformation [um]<"),
                                    std::string(">needle force [uN]<")})
       EXPECT_NE(svg.find(text), std::string::npos) << text;
