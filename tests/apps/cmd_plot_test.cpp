@@ -76,7 +76,7 @@ TEST(CmdPlot, OverlaysRunsAndMeasuredDataWithErrorBars) {
   const fs::path stem = dir.path / "fig";
   const CliRun r = run_zona("plot " + (dir.path / "soft").string() + ":soft " +
                                 (dir.path / "stiff" / "force.csv").string() + " --data " +
-                                measured.string() + ":two cells --reference 19,1.2:paper --title "
+                                "'" + measured.string() + ":two cells' --reference 19,1.2:paper --title "
                                 "overlay --out " + stem.string() + ".png",
                             dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
