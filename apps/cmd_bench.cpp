@@ -213,7 +213,7 @@ void add_bench_command(CLI::App& app) {
                   "gradient, tensor_rebuilt, tensor_stored, all, or a comma list")
       ->capture_default_str();
   cmd->add_option("--vertices", args->vertices,
-                  "Comma list of vertex counts (1093,1e6), 'table2' (the seed's twelve sizes) or "
+                  "Comma list of vertex counts (1093,1e6), 'table2' (Ladjal et al. Table II's twelve sizes) or "
                   "'sweep' (powers of two from 128 to --max-vertices or what fits in memory)")
       ->capture_default_str();
   cmd->add_option("--max-vertices", args->max_vertices, "Largest size of a sweep (e.g. 1e6)");

@@ -100,7 +100,7 @@ void add_forces_command(CLI::App& app) {
       ->check(CLI::IsMember({"svk", "linear", "neohookean"}))
       ->capture_default_str();
   cmd->add_option("--formulation", args->formulation,
-                  "Evaluation: deformation gradient, or the seed's mass tensors")
+                  "Evaluation: deformation gradient, or Ladjal et al.'s mass tensors")
       ->check(CLI::IsMember({"gradient", "tensor_stored", "tensor_rebuilt"}))
       ->capture_default_str();
   cmd->add_option("--young", args->young, "Young's modulus [Pa]")->capture_default_str();

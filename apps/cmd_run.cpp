@@ -1,5 +1,5 @@
 // `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
-// run goes), summary.json, VTU frames and a force-deformation plot; SIGINT / SIGTERM end the
+// run goes), summary.json, VTU frames and the force-deformation plot (PNG and SVG); SIGINT / SIGTERM end the
 // run at the next step with its outputs written.
 #include <signal.h>
 #include <unistd.h>
@@ -11,12 +11,14 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <utility>
 
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
+#include "apps/plot_script.h"
 #include "engine/analysis/plot.h"
 #include "engine/sim/recorder.h"
 #include "engine/scene/scene.h"
@@ -171,24 +173,24 @@ Result<PlotSeries> read_reference(const std::string& spec, uint32_t rgb) {
   return PlotSeries{label.empty() ? values : label, {d}, {f}, rgb, 0, 7};
 }
 
-// The force-deformation plot: the curve up to puncture, the rest lighter, the puncture marked,
-// then any compared curves and reference points.
-Status write_force_plot(const std::string& path, const Simulation& sim, const RunResult& run,
-                        const RunArgs& args) {
+// The built-in PNG writer's plot (no Python or matplotlib): the loading branch up to the
+// puncture, the puncture marked, then any compared curves and reference points. The branch
+// after puncture is left out: drawn against deformation it would run back over the loading
+// curve (python/zona_plot.py draws it in a panel of its own).
+Status write_builtin_force_plot(const std::string& path, const Simulation& sim,
+                                const RunResult& run, const RunArgs& args) {
   PlotSpec spec;
-  spec.title = sim.scene().name + ": needle force vs membrane deformation";
-  spec.x_label = "deformation at the tip [um]";
-  spec.y_label = "axial needle force [uN]";
+  spec.title = sim.scene().name + ": needle force vs deformation";
+  spec.x_label = "deformation [um]";
+  spec.y_label = "needle force [uN]";
   const std::string model = model_name(sim.scene().model);
   PlotSeries before{"this run (" + model + ")", {}, {}, 0x1f77b4, 2.0, 0};
-  PlotSeries after{"this run, after puncture", {}, {}, 0xaec7e8, 1.5, 0};
   for (const ForceSample& s : run.samples) {
-    PlotSeries& series = s.punctured ? after : before;
-    series.x.push_back(s.deformation * 1e6);
-    series.y.push_back(s.force * 1e6);
+    if (s.punctured) break;
+    before.x.push_back(s.deformation * 1e6);
+    before.y.push_back(s.force * 1e6);
   }
   spec.series.push_back(before);
-  if (!after.x.empty()) spec.series.push_back(after);
   if (run.puncture.punctured) {
     char label[96];
     std::snprintf(label, sizeof label, "puncture %.1f um, %.2f uN", run.puncture.deformation * 1e6,
@@ -208,8 +210,45 @@ Status write_force_plot(const std::string& path, const Simulation& sim, const Ru
     if (!point.ok()) return point.error();
     spec.series.push_back(*point);
   }
+  // The deformation axis starts at the data (not at the tick below it).
+  double x_min = std::numeric_limits<double>::infinity();
+  for (const PlotSeries& series : spec.series)
+    for (const double x : series.x)
+      if (std::isfinite(x)) x_min = std::min(x_min, x);
+  if (std::isfinite(x_min)) spec.x_min = x_min;
   spec.y_min = 0;
   return write_plot_png(path, spec);
+}
+
+// The force-deformation plot: force_deformation.png and .svg by python/zona_plot.py, from the
+// force.csv and summary.json just written; without Python or matplotlib (or when the script
+// fails), the built-in writer's PNG and a note saying why. The run has succeeded either way:
+// a plot that cannot be drawn is a warning. Returns the files written.
+std::vector<std::string> write_force_plots(const std::string& out, const Simulation& sim,
+                                           const RunResult& run, const RunArgs& args) {
+  namespace fs = std::filesystem;
+  const std::string stem = (fs::path(out) / "force_deformation").string();
+  std::vector<std::string> words = {
+      "force", "--run", out + ":this run (" + model_name(sim.scene().model) + ")",
+      "--title", sim.scene().name, "--out", stem};
+  for (const std::string& c : args.compare) words.insert(words.end(), {"--run", c});
+  for (const std::string& r : args.references) words.insert(words.end(), {"--reference", r});
+  const Status drawn = run_plot_script(words);
+  if (drawn) return plot_files(stem);
+  if (!plot_png_available()) {
+    std::fprintf(stderr, "zona run: warning: plot: %s; no plot written\n",
+                 drawn.error().message.c_str());
+    return {};
+  }
+  std::fprintf(stderr,
+               "zona run: note: plot: %s; force_deformation.png drawn by the built-in writer "
+               "(no SVG)\n",
+               drawn.error().message.c_str());
+  if (Status s = write_builtin_force_plot(stem + ".png", sim, run, args); !s) {
+    std::fprintf(stderr, "zona run: warning: plot: %s\n", s.error().message.c_str());
+    return {};
+  }
+  return {stem + ".png"};
 }
 
 void run_command(const RunArgs& args) {
@@ -319,6 +358,9 @@ void run_command(const RunArgs& args) {
   // frames.pvd that --no-frames would leave) would sit beside this run's: they go first; any
   // other file in the folder stays.
   if (Status s = remove_run_outputs(out); !s) return fail(s.error().message);
+  // The plot's SVG is a run output too (remove_run_outputs, engine/sim/recorder.cpp, does not
+  // list it yet).
+  fs::remove(fs::path(out) / "force_deformation.svg", ec);
   if (Status s = write_file_atomic((fs::path(out) / "scene.json").string(),
                                    scene_to_json(*scene).dump(2) + "\n");
       !s)
@@ -367,12 +409,7 @@ void run_command(const RunArgs& args) {
                                    summary.dump(2) + "\n");
       !s)
     return fail(s.error().message);
-  const std::string plot = (fs::path(out) / "force_deformation.png").string();
-  if (!plot_png_available()) {
-    std::fprintf(stderr, "zona run: notice: this build has no PNG writer; plot skipped\n");
-  } else if (Status s = write_force_plot(plot, sim, run, args); !s) {
-    std::fprintf(stderr, "zona run: warning: plot: %s\n", s.error().message.c_str());
-  }
+  const std::vector<std::string> plots = write_force_plots(out, sim, run, args);
 
   // What happened, on stdout.
   std::printf("scene: %s (%s)\n", scene->name.c_str(), path->c_str());
@@ -391,8 +428,10 @@ void run_command(const RunArgs& args) {
     for (const std::string& name : step_flag_names(run.status)) flags += (flags.empty() ? "" : ", ") + name;
     std::printf("step flags seen: %s\n", flags.c_str());
   }
+  std::string plot_names;
+  for (const std::string& p : plots) plot_names += ", " + fs::path(p).filename().string();
   std::printf("wrote %s/{force.csv, summary.json, scene.json%s%s}\n", out.c_str(),
-              frames ? ", frames.pvd" : "", plot_png_available() ? ", force_deformation.png" : "");
+              frames ? ", frames.pvd" : "", plot_names.c_str());
   if (run.stopped_early) return fail("run stopped early: " + run.stop_reason);
   if (run.quasi_limits.enforce && !run.quasi_static()) {
     char line[400];
@@ -452,7 +491,7 @@ void add_run_command(CLI::App& app) {
                 "Simulate the scene's whole integrator.duration, also when it lasts long past the "
                 "needle's end (by default such a run ends with the needle, with a notice)");
   cmd->add_option("--compare", args->compare,
-                  "Draw another run's force.csv (loading part) in the plot: FILE[:label]");
+                  "Draw another run's force.csv (or its folder) in the plot: FILE[:label]");
   cmd->add_option("--reference", args->references,
                   "Mark a reference point in the plot: DEFORMATION_UM,FORCE_UN[:label]");
   cmd->callback([args] { run_command(*args); });

@@ -16,6 +16,7 @@
 
 #include "apps/commands.h"
 #include "engine/analysis/convergence_study.h"
+#include "apps/plot_script.h"
 #include "engine/analysis/plot.h"
 #include "bench/scaling/scaling_bench.h"
 #include "engine/scene/scene.h"
@@ -122,7 +123,7 @@ class Progress {
   double next_line_ = 30.0;
 };
 
-// The three files, from the runs so far (rewritten after every size, so that a long study
+// The two CSV files, from the runs so far (rewritten after every size, so that a long study
 // leaves its finished sizes on disk).
 Status write_outputs(const std::filesystem::path& out, ConvergenceStudy study,
                      const std::vector<std::string>& comments) {
@@ -151,13 +152,32 @@ Status write_outputs(const std::filesystem::path& out, ConvergenceStudy study,
                             convergence_summary_csv(study, summary_comments));
       !s)
     return s;
-  // The plot is a convenience: a build without PNG support, or no curve yet, skips it.
-  if (!plot_png_available()) return Status::ok_status();
-  const PlotSpec spec = convergence_plot(study);
-  if (spec.series.empty()) return Status::ok_status();
-  if (Status s = write_plot_png((out / "convergence.png").string(), spec); !s)
-    std::fprintf(stderr, "zona study: warning: plot: %s\n", s.error().message.c_str());
   return Status::ok_status();
+}
+
+// The curves' plot, convergence.png and .svg, by python/zona_plot.py from the CSVs just
+// written; without Python or matplotlib, the built-in writer's PNG (no SVG) and a note, given
+// once per study (`noted`). A convenience: no curve yet, or a plot that fails, leaves the CSVs.
+// Returns the files written.
+std::vector<std::string> write_plot(const std::filesystem::path& out, const ConvergenceStudy& study,
+                                    bool* noted) {
+  const PlotSpec spec = convergence_plot(study);
+  if (spec.series.empty()) return {};
+  const std::string stem = (out / "convergence").string();
+  const Status drawn = run_plot_script(
+      {"convergence", "--study", out.string(), "--title", study.scene_name, "--out", stem});
+  if (drawn) return plot_files(stem);
+  if (!*noted)
+    std::fprintf(stderr, "zona study: note: plot: %s; %s\n", drawn.error().message.c_str(),
+                 plot_png_available() ? "convergence.png drawn by the built-in writer (no SVG)"
+                                      : "no plot written");
+  *noted = true;
+  if (!plot_png_available()) return {};
+  if (Status s = write_plot_png(stem + ".png", spec); !s) {
+    std::fprintf(stderr, "zona study: warning: plot: %s\n", s.error().message.c_str());
+    return {};
+  }
+  return {stem + ".png"};
 }
 
 void convergence_command(const ConvergenceArgs& args) {
@@ -256,6 +276,7 @@ void convergence_command(const ConvergenceArgs& args) {
                    static_cast<long long>(scene.mesh.generate.target_vertices));
   };
   bool write_warned = false;
+  bool plot_noted = false;
   ConvergenceStudy so_far;
   so_far.scene_name = scenes->front().name;
   so_far.deformations = *deformations;
@@ -281,13 +302,18 @@ void convergence_command(const ConvergenceArgs& args) {
     if (Status s = write_outputs(out, so_far, comments); !s && !write_warned) {
       std::fprintf(stderr, "zona study: warning: %s\n", s.error().message.c_str());
       write_warned = true;
+    } else if (s) {
+      write_plot(out, so_far, &plot_noted);
     }
   };
 
   const ConvergenceStudy study = run_convergence_study(*scenes, *deformations, options);
   if (Status s = write_outputs(out, study, comments); !s) return fail(s.error().message);
+  std::string plot_names;
+  for (const std::string& p : write_plot(out, study, &plot_noted))
+    plot_names += ", " + fs::path(p).filename().string();
   std::printf("wrote %s/{convergence.csv, convergence_summary.csv%s}\n", out.c_str(),
-              plot_png_available() ? ", convergence.png" : "");
+              plot_names.c_str());
 }
 
 }  // namespace

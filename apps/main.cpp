@@ -105,6 +105,7 @@ int main(int argc, char** argv) {
   zona::cli::add_analytic_commands(app);
   zona::cli::add_calibrate_command(app);
   zona::cli::add_study_commands(app);
+  zona::cli::add_plot_command(app);
   // A group (mesh, analytic, study) without its subcommand lists them, checked after parsing:
   // CLI11's own "A subcommand is required" does not say which.
   for (CLI::App* group : app.get_subcommands([](CLI::App* c) { return !all_subcommands(*c).empty(); }))

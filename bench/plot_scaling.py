@@ -4,10 +4,9 @@ series (backend, model, formulation, threads), Ladjal et al. Table II's points, 
 with their exponents in the legend and on stdout, the haptic (1 kHz) and visual (30 Hz) budgets
 and, when CPU and GPU rows are both given, the crossover size.
 
-    python3 bench/plot_scaling.py bench/results/cpu-xeon-2c/sweep.csv [bench/results/h100/sweep.csv ...] --out plot.png
+    .venv/bin/python bench/plot_scaling.py bench/results/cpu-xeon-2c/sweep.csv [bench/results/h100/sweep.csv ...] --out plot.png
 
-Needs matplotlib (Debian python3-matplotlib, in scripts/setup.sh). Under pyenv, run it with
-/usr/bin/python3 if the pyenv interpreter has no matplotlib.
+Needs matplotlib: scripts/setup.sh installs it from PyPI into the project environment .venv.
 """
 
 import argparse

@@ -1,4 +1,4 @@
-// The particle model (seed 001) on the GPU: the same per-spring / per-triangle functions as the
+// The particle model (Asgari et al.) on the GPU: the same per-spring / per-triangle functions as the
 // CPU reference (engine/particles/particle_element.h) in thin kernels, float64 throughout. One sub-step is
 // six launches in stream order: triangle volume partials, the volume and pressure, the membrane
 // pass (forces gathered per particle in CSR order, then the update), the centre particle (its

@@ -1,4 +1,4 @@
-// The particle model's (seed 001) compute backends and the factory that picks one, as
+// The particle model's (Asgari et al.) compute backends and the factory that picks one, as
 // kernels/backend_factory.h does for the FEM: `--backend auto|cpu|cuda`.
 #pragma once
 

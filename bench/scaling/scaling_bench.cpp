@@ -2,7 +2,7 @@
 // stepped through the Backend interface in timed blocks, bytes per step, copy bandwidth, hash,
 // and the CSV text.
 // (About 800 lines: the benchmark's meshes, its timing loops per backend and formulation, the
-// seed's Table II and the CSV are one measurement; kept together.)
+// Ladjal et al.'s Table II and the CSV are one measurement; kept together.)
 #include "bench/scaling/scaling_bench.h"
 
 #include <algorithm>

@@ -1,6 +1,6 @@
 // The vertices-versus-time scaling benchmark (issue 5, Ladjal et al. Table II): for each backend,
 // constitutive model, formulation, thread count and mesh size, the precompute time and the
-// median step time on the seed's cell meshes (refined at the puncture point), with the bytes a
+// median step time on Ladjal et al.'s cell meshes (refined at the puncture point), with the bytes a
 // step must move, the floor they set at the machine's measured copy bandwidth, and a hash of
 // the final displacements so that runs on different machines and commits can be compared.
 //
@@ -149,7 +149,7 @@ struct ScalingBenchHooks {
 
 // --- Arguments ----------------------------------------------------------------------------
 
-/// The sizes of `--vertices`: "table2" (the seed's twelve counts), "sweep" (powers of two from
+/// The sizes of `--vertices`: "table2" (Ladjal et al. Table II's twelve counts), "sweep" (powers of two from
 /// 2^7 up to `max_vertices`) or a comma list of counts ("1000,10000" or "1e3,1e4"), each in
 /// [kMinBenchVertices, max_vertices]. Errors name the bad entry.
 Result<std::vector<int64_t>> parse_vertex_list(std::string_view text, int64_t max_vertices);

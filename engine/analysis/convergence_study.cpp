@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <memory>
 
 #include "engine/mesh/mesh_generate.h"
@@ -355,9 +356,10 @@ PlotSpec convergence_plot(const ConvergenceStudy& study) {
                                           0x8c564b, 0xe377c2, 0x7f7f7f, 0xbcbd22, 0x17becf};
   PlotSpec spec;
   spec.title = study.scene_name + ": mesh convergence (discs: puncture)";
-  spec.x_label = "deformation at the entry point [um]";
-  spec.y_label = "axial needle force [uN]";
+  spec.x_label = "deformation [um]";
+  spec.y_label = "needle force [uN]";
   size_t colour = 0;
+  double x_min = std::numeric_limits<double>::infinity();
   for (const ConvergenceRun& r : study.runs) {
     if (r.vertices <= 0) continue;  // setup failed: nothing to draw
     const uint32_t rgb = kColours[colour++ % std::size(kColours)];
@@ -371,11 +373,14 @@ PlotSpec convergence_plot(const ConvergenceStudy& study) {
       curve.y.push_back(p.force * 1e6);
     }
     if (curve.x.empty()) continue;
+    x_min = std::min(x_min, *std::min_element(curve.x.begin(), curve.x.end()));
     spec.series.push_back(std::move(curve));
     if (r.punctured)
       spec.series.push_back(
           PlotSeries{"", {r.puncture_deformation * 1e6}, {r.puncture_force * 1e6}, rgb, 0, 5});
   }
+  // The deformation axis starts at the data (not at the tick below it).
+  if (std::isfinite(x_min)) spec.x_min = x_min;
   spec.y_min = 0;
   return spec;
 }

@@ -154,8 +154,10 @@ std::string convergence_csv(const ConvergenceStudy& study, std::span<const std::
 std::string convergence_summary_csv(const ConvergenceStudy& study,
                                     std::span<const std::string> comments);
 
-/// The plot: every size's loading branch (deformation [um] against force [uN]), one colour per
-/// size with its vertex count in the legend, puncture points as discs of the same colour.
+/// The built-in writer's plot (python/zona_plot.py draws the same curves when Python and
+/// matplotlib are there): every size's loading branch (deformation [um] against force [uN]),
+/// one colour per size with its vertex count in the legend, puncture points as discs of the
+/// same colour, the deformation axis from the smallest deformation drawn.
 PlotSpec convergence_plot(const ConvergenceStudy& study);
 
 }  // namespace zona

@@ -20,10 +20,10 @@ enum class ElementKind : int32_t {
   kSvkGradientClamped =
       1,                ///< same with the inversion-safe clamp (InversionHandling::kClampStretch)
   kLinearGradient = 2,  ///< small strain
-  kSvkRebuilt = 3,      ///< seed's contraction, B C D rebuilt in registers
-  kLinearRebuilt = 4,   ///< seed's contraction, K rebuilt in registers
-  kSvkStored = 5,       ///< seed's contraction, B C D read from memory (592 numbers)
-  kLinearStored = 6,    ///< seed's contraction, K read from memory (144 numbers)
+  kSvkRebuilt = 3,      ///< Ladjal et al.'s contraction, B C D rebuilt in registers
+  kLinearRebuilt = 4,   ///< Ladjal et al.'s contraction, K rebuilt in registers
+  kSvkStored = 5,       ///< Ladjal et al.'s contraction, B C D read from memory (592 numbers)
+  kLinearStored = 6,    ///< Ladjal et al.'s contraction, K read from memory (144 numbers)
   kSnhGradient = 7,     ///< stable neo-Hookean, F and cof F (gradient form only)
 };
 

@@ -1,6 +1,6 @@
 // Per-tetrahedron elasticity for the CPU loop and the CUDA kernels alike: shape gradients,
 // St Venant-Kirchhoff (SVK), stable neo-Hookean (SNH) and linear energy, nodal forces and 12x12
-// stiffness in the deformation-gradient form, and the seed's mass-tensor form (SVK and linear,
+// stiffness in the deformation-gradient form, and Ladjal et al.'s mass-tensor form (SVK and linear,
 // stored or rebuilt in registers).
 // (Over 800 lines: every law's element math is here so that the CPU passes and the CUDA kernels
 // include one header and cannot drift; split by law if it grows further.)
@@ -9,10 +9,10 @@
 // plain data (four shape gradients and the rest volume, four displacements) and never reads a
 // thread index, never allocates and never throws: one element function, two backends.
 //
-// Conventions (docs/physics.md, DESIGN.md section 3):
+// Conventions (docs/physics.md):
 //   grad[j]  gradient of the linear shape function N_j on the rest tetrahedron [1/m]
 //   m_j      = 6 V grad N_j, the INWARD normal of the face opposite vertex j, of length twice
-//            that face's area [m^2]; the seed's "unit outward normal" is wrong.
+//            that face's area [m^2]; Ladjal et al.'s "unit outward normal" is wrong.
 //   H        = sum_j u_j grad_j^T, displacement gradient; F = I + H
 //   E        = (H + H^T + H^T H) / 2, Green strain (written with H, not F^T F - I, so that small
 //            strains keep their digits in float32)
@@ -42,8 +42,8 @@ enum class ConstitutiveModel : int32_t {
 /// How the internal force is evaluated; all three give the same numbers to rounding.
 enum class Formulation : int32_t {
   kGradient = 0,       ///< F, Green strain, S: 13 numbers per tetrahedron, fewest operations
-  kTensorStored = 1,   ///< the seed's method: B, C, D (or K) precomputed and stored per tet
-  kTensorRebuilt = 2,  ///< the seed's contraction with the tensors rebuilt from m_j and V
+  kTensorStored = 1,   ///< Ladjal et al.'s method: B, C, D (or K) precomputed and stored per tet
+  kTensorRebuilt = 2,  ///< Ladjal et al.'s contraction with the tensors rebuilt from m_j and V
 };
 
 /// Per-element health bits (OR-ed into step status by the integrator).
@@ -251,7 +251,7 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_linear_forces(const TetShape<T>& s, T lambda,
 }
 
 /// Linear element stiffness K [N/m], 12 x 12 row-major in k[144] (row 3a+i, column 3b+k):
-/// K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I), seed 000 eq. 3.
+/// K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I), Ladjal et al. eq. 3.
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE void tet_linear_stiffness(const TetShape<T>& s, T lambda, T mu,
                                                       T k[144]) {
@@ -555,7 +555,7 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_stiffening(const TetShape<T>& s, const Mat3<T
 }
 
 // ---------------------------------------------------------------------------------------------
-// Mass-tensor form (seed 000 eqs. 3-6, DESIGN.md section 3). Per tetrahedron:
+// Mass-tensor form (Ladjal et al. eqs. 3-6; docs/physics.md section 2). Per tetrahedron:
 //   B_jk   = (lambda m_j m_k^T + mu m_k m_j^T + mu (m_j.m_k) I) / (72 V)      (K = 2 B)
 //   C_jkl  = (lambda (m_j.m_k) m_l + mu (m_k.m_l) m_j + mu (m_j.m_l) m_k) / (432 V^2)
 //   D_jklm = (lambda (m_j.m_k)(m_l.m_m) + 2 mu (m_j.m_l)(m_k.m_m)) / (10368 V^3)
@@ -616,7 +616,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void linear_mass_tensor(const TetShape<T>& s, T lam
     }
 }
 
-/// Linear mass-tensor force f_j = -sum_k K_jk u_k [N] (seed 000 eq. 4); energy u^T K u / 2 [J].
+/// Linear mass-tensor force f_j = -sum_k K_jk u_k [N] (Ladjal et al. eq. 4); energy u^T K u / 2 [J].
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE T tet_linear_forces_tensor(const T* k, const Vec3<T> u[4],
                                                        Vec3<T> f[4]) {
@@ -635,7 +635,7 @@ ZONA_HOST_DEVICE ZONA_INLINE T tet_linear_forces_tensor(const T* k, const Vec3<T
   return w;
 }
 
-/// The SVK mass-tensor contraction (seed 000 eqs. 3-6, DESIGN.md section 3) with the tensors
+/// The SVK mass-tensor contraction (Ladjal et al. eqs. 3-6; docs/physics.md section 2) with the tensors
 /// given by a source: src.b(j, k, &bu, &btu) gives B_jk u_k and B_jk^T u_j, src.c(j, k, l) the
 /// vector C_jkl, src.d(j, k, l, m) the number D_jklm. Forces f[4] [N] written, energy [J]
 /// returned. The stored tensors (SvkStoredTensors) and the ones rebuilt in registers from the
@@ -715,7 +715,7 @@ struct SvkStoredTensors {
   }
 };
 
-/// SVK mass-tensor force f_p = -dW/du_p [N] from stored tensors t[kSvkTensorSize] (seed 000
+/// SVK mass-tensor force f_p = -dW/du_p [N] from stored tensors t[kSvkTensorSize] (Ladjal et al.
 /// eqs. 5-6, with the derivative taken of the energy as written, no symmetry assumed); energy
 /// [J] returned.
 template <class T>

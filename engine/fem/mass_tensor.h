@@ -1,6 +1,6 @@
-// The off-line phase of seed 000 (its Table II, column 3): per-tetrahedron rest geometry (shape
+// The off-line phase of Ladjal et al.'s method (its Table II, column 3): per-tetrahedron rest geometry (shape
 // gradients and volume, what the gradient form needs) and the stored mass tensors K (linear)
-// or B, C, D (SVK), what the seed's contraction needs.
+// or B, C, D (SVK), what Ladjal et al.'s contraction needs.
 #pragma once
 
 #include <cstdint>

@@ -11,11 +11,11 @@ namespace zona {
 
 /// An isotropic elastic material as a scene or a user gives it (SI units).
 struct Material {
-  double young = 17.9e3;  ///< Young's modulus E [Pa] (seed 000 Table I, mouse zona pellucida)
+  double young = 17.9e3;  ///< Young's modulus E [Pa] (Ladjal et al. Table I, mouse zona pellucida)
   double poisson = 0.49;  ///< Poisson's ratio nu [-], in [0, 0.5)
   double density = 1000;  ///< mass density rho [kg/m^3] (water-like cytoplasm)
   /// Mass-proportional damping coefficient alpha [1/s]: the damping force on a vertex is
-  /// -alpha M v (seed 000 eq. 7 with gamma = alpha M). 0 is undamped.
+  /// -alpha M v (Ladjal et al. eq. 7 with gamma = alpha M). 0 is undamped.
   double damping = 0;
 };
 

@@ -49,14 +49,14 @@ struct RegionMaterial {
 };
 
 /// Everything build_model needs besides the mesh. Defaults give a usable SVK model of the
-/// mouse zona pellucida (seed 000 Table I) with an automatic stable step.
+/// mouse zona pellucida (Ladjal et al. Table I) with an automatic stable step.
 struct ModelDesc {
   /// Material of every tetrahedron whose region has no entry in `region_materials`.
   Material material{};
   /// Per-region overrides.
   std::vector<RegionMaterial> region_materials;
   /// Lumped vertex mass [kg]: 0 derives masses from the densities (rho V / 4 per tetrahedron
-  /// corner); > 0 gives every vertex this mass (the seed's choice: 0.07995e-5 mg = 7.995e-13 kg).
+  /// corner); > 0 gives every vertex this mass (Ladjal et al.'s choice: 0.07995e-5 mg = 7.995e-13 kg).
   double vertex_mass = 0;
   ConstitutiveModel constitutive = ConstitutiveModel::kSvk;
   Formulation formulation = Formulation::kGradient;
@@ -105,7 +105,7 @@ inline constexpr int kCpuTetBatchStrideF32 = 96;
 inline constexpr int kCpuTetOffsetStride = 32;
 
 /// Integration coefficients of one vertex for the centred-difference update
-/// u+ = a u - b u- + c f (DESIGN.md section 3), with gamma = alpha M:
+/// u+ = a u - b u- + c f (docs/physics.md section 3), with gamma = alpha M:
 /// a = 2M / (M + gamma dt/2), b = (M - gamma dt/2) / (M + gamma dt/2), c = dt^2 / (M + gamma dt/2).
 struct VertexCoefficients {
   double a = 0;  ///< [-]
@@ -180,7 +180,7 @@ struct Model {
   /// Energies below this are noise [J]: mu * total volume * (1e-8)^2.
   double energy_floor = 0;
 
-  // Precompute timings (seed 000 Table II column 3).
+  // Precompute timings (Ladjal et al. Table II column 3).
   double precompute_seconds = 0;         ///< whole build_model [s]
   double tensor_precompute_seconds = 0;  ///< stored tensors alone, 0 when not stored [s]
 

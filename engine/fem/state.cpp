@@ -170,7 +170,7 @@ int64_t assembly_segment_count(const Model& model) {
   // sum per later segment, whose rounding depends on where the segments are cut, so the cut
   // must not depend on the thread count. A power of two (an even split for two, four, eight
   // threads) with segments of at least 256k tetrahedra: two below 1M tetrahedra (~180k
-  // vertices; seed 000's Table II sizes included: 0.18 late slots per vertex at 1101
+  // vertices; Ladjal et al.'s Table II sizes included: 0.18 late slots per vertex at 1101
   // vertices), 16 at 1M vertices (0.19 per vertex; 64 segments there would leave 0.76, and the
   // two-thread step measured ~5 % slower with them, the one-thread one no faster), at most 64.
   int64_t segments = 2;

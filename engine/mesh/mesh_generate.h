@@ -83,7 +83,7 @@ struct CellMeshReport {
 /// (names in Mesh::regions), and every vertex is used. Errors name the offending field.
 Result<Mesh> generate_cell_mesh(const CellMeshSpec& spec, CellMeshReport* report = nullptr);
 
-/// The seed's Table II meshes (Ladjal et al.: 115 to 1093 vertices): a 56 um ball refined at its
+/// Ladjal et al.'s Table II meshes (115 to 1093 vertices): a 56 um ball refined at its
 /// north pole (0, 0, r) where the needle enters, with about `vertices` vertices (+-10 % for 100
 /// to 1e7 vertices). The spec uses target_vertices, so generate_cell_mesh does the search.
 CellMeshSpec table2_spec(int64_t vertices);

@@ -332,7 +332,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
       {"samples", run.samples.size()}};
   if (run.stopped_early) j["numerics"]["stop_reason"] = run.stop_reason;
   if (const ParticleModel* pm = sim.particle_model()) {
-    // Particle model (seed 001): how well eq. 6 kept the volume, and the model's size.
+    // Particle model (Asgari et al.): how well eq. 6 kept the volume, and the model's size.
     j["volume_change_max_rel"] = sim.volume_change_max_rel();
     j["particles"] = {{"membrane_particles", pm->membrane_count},
                       {"springs", pm->spring_count()},

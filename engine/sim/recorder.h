@@ -1,6 +1,6 @@
 // What a run leaves behind: force.csv (the recorded curve), summary.json (model, puncture, peak
 // force, training metrics, numerics, provenance), and VTU frames (rest positions with the
-// displacement, strain and stress at the vertices and per tetrahedron; seed 002 Fig. 14) in a
+// displacement, strain and stress at the vertices and per tetrahedron; Hajiyavand et al. 2019 Fig. 14) in a
 // ParaView .pvd series; and the clean-up of an earlier run's outputs in the same folder.
 #pragma once
 
@@ -23,13 +23,13 @@ namespace zona {
 /// column or key changes meaning or goes; new columns and keys come at the end and raise it too.
 inline constexpr int kOutputSchemaVersion = 3;
 
-/// Training metrics of one insertion (seed 002's measures).
+/// Training metrics of one insertion (Hajiyavand et al. 2019's measures).
 struct TrainingMetrics {
   /// Mean needle speed from the start to puncture (or the end of the run) [m/s].
   double mean_insertion_speed = 0;
   /// Deformation at puncture over the cell diameter along the needle axis [%]; 0 without puncture.
   double deformation_percent = 0;
-  /// Seed 002's maximum force amplitude ratio (MFAR) [%]: the largest deviation of the force
+  /// Hajiyavand et al. 2019's maximum force amplitude ratio (MFAR) [%]: the largest deviation of the force
   /// from its moving average over the loading phase (first contact to puncture), over the peak
   /// force. The window is `fluctuation_window` of the loading phase's duration.
   double force_fluctuation_percent = 0;

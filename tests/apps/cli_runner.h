@@ -66,6 +66,24 @@ inline CliRun run_zona(const std::string& args, const std::filesystem::path& dir
   return run_zona_after("", args, dir);
 }
 
+/// True when the Python that `zona` draws its plots with (apps/plot_script.h: $ZONA_PYTHON, the
+/// source tree's .venv, python3) imports matplotlib. Plot tests that need it skip without it.
+inline bool plot_python_available() {
+  std::string python = "python3";
+  if (const char* env = std::getenv("ZONA_PYTHON"); env && *env)
+    python = env;
+  else if (std::filesystem::exists(std::string(ZONA_SOURCE_DIR) + "/.venv/bin/python"))
+    python = std::string(ZONA_SOURCE_DIR) + "/.venv/bin/python";
+  const std::string cmd = "'" + python + "' -c 'import matplotlib' >/dev/null 2>&1";
+  return std::system(cmd.c_str()) == 0;
+}
+
+/// The whole of a file ("" when it cannot be read).
+inline std::string read_text(const std::filesystem::path& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+}
+
 /// A `zona` started in the background, for tests that watch its files or signal it.
 struct CliProcess {
   pid_t pid = -1;

@@ -16,6 +16,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "engine/analysis/plot.h"
 #include "tests/apps/cli_runner.h"
 
 namespace {
@@ -395,6 +396,39 @@ TEST(CmdRun, PngFramesDuringTheRun) {
                                  dir.path);
   EXPECT_EQ(bad.exit_code, 1);
   EXPECT_NE(bad.err.find("--frame-count"), std::string::npos) << bad.err;
+}
+
+// The plot: PNG and SVG drawn by python/zona_plot.py from the run's files (the scene's name,
+// the run's puncture); without Python the built-in PNG, a note, no SVG, and the run succeeds.
+TEST(CmdRun, PlotsThePunctureInPngAndSvgOrFallsBackWithoutPython) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const std::string args = "run " + scene.string() + " --quiet --no-frames --out " + out.string();
+  if (zona::test::plot_python_available()) {
+    const CliRun r = run_zona(args, dir.path);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.out.find("force_deformation.png, force_deformation.svg}"), std::string::npos) << r.out;
+    std::ifstream js(out / "summary.json");
+    const nlohmann::json p = nlohmann::json::parse(js)["puncture"];
+    ASSERT_TRUE(p["punctured"].get<bool>());
+    char label[96];
+    std::snprintf(label, sizeof label, ">puncture %.1f um, %.2f uN<",
+                  p["deformation_m"].get<double>() * 1e6, p["force_N"].get<double>() * 1e6);
+    const std::string svg = zona::test::read_text(out / "force_deformation.svg");
+    for (const std::string& text : {std::string(label), std::string(">tiny_injection<"),
+                                   std::string(">this run (svk)<"), std::string(">deformation [um]<"),
+                                   std::string(">needle force [uN]<")})
+      EXPECT_NE(svg.find(text), std::string::npos) << text;
+  }
+  // Without Python: the built-in writer, and the earlier run's SVG goes with its other outputs.
+  const CliRun r = zona::test::run_zona_after("ZONA_PYTHON=/nonexistent/python3", args, dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("plot: ZONA_PYTHON=/nonexistent/python3: no such file"), std::string::npos)
+      << r.err;
+  EXPECT_EQ(fs::exists(out / "force_deformation.png"), zona::plot_png_available());
+  EXPECT_FALSE(fs::exists(out / "force_deformation.svg"));
 }
 
 }  // namespace

@@ -122,7 +122,15 @@ TEST(CmdStudy, ConvergenceWritesBothCsvsAndThePlot) {
   }
   EXPECT_EQ(std::stod(summary.rows[1].at("rel_diff_at_2.5um")), 0.0);  // the finest
   EXPECT_FALSE(summary.rows[0].at("rel_diff_at_2.5um").empty());
-  if (zona::plot_png_available()) {
+  // The plot: PNG and SVG with a curve per size (matplotlib), else the built-in PNG.
+  if (zona::test::plot_python_available()) {
+    const std::string svg = zona::test::read_text(out / "convergence.svg");
+    for (const auto& row : summary.rows)
+      EXPECT_NE(svg.find(">" + row.at("vertices") + " vertices<"), std::string::npos)
+          << row.at("vertices");
+    EXPECT_NE(r.out.find("convergence.png, convergence.svg}"), std::string::npos) << r.out;
+  }
+  if (zona::plot_png_available() || zona::test::plot_python_available()) {
     EXPECT_TRUE(fs::exists(out / "convergence.png"));
   }
 }

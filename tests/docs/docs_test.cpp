@@ -3,7 +3,10 @@
 // own values (E, diameter, needle speed), so that a newcomer meets no contradiction.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -83,6 +86,56 @@ TEST(Docs, ReferenceAnchorsAreDefined) {
     // The papers go by their authors, not by the project's internal file numbers.
     EXPECT_FALSE(std::regex_search(text, std::regex(R"(\b[Ss]eeds? ?00[0-2]\b)"))) << page;
   }
+}
+
+TEST(Docs, SourcesCiteThePapersByAuthor) {
+  // Code comments, help texts and scene notes name the papers as the pages do (docs/references.md)
+  // and cite no DESIGN.md, which is not in the project. bench/results holds measured files,
+  // whose header lines are rewritten when a benchmark is run again.
+  const std::regex seed(R"(\b[Ss]eeds? ?00[0-2]\b)");
+  int files = 0;
+  for (const char* folder : {"engine", "kernels", "apps", "render", "shaders", "bench", "tests",
+                             "scenes", "python", "scripts"}) {
+    if (!fs::exists(kRoot / folder)) continue;
+    for (const fs::directory_entry& e : fs::recursive_directory_iterator(kRoot / folder)) {
+      const std::string ext = e.path().extension().string();
+      if (!e.is_regular_file() || e.path().string().find("/bench/results/") != std::string::npos ||
+          e.path().filename() == "docs_test.cpp")
+        continue;
+      if (ext != ".h" && ext != ".cpp" && ext != ".cu" && ext != ".cuh" && ext != ".json" &&
+          ext != ".py" && ext != ".sh" && ext != ".comp" && ext != ".vert" && ext != ".frag")
+        continue;
+      ++files;
+      const std::string text = slurp(e.path());
+      const std::string name = e.path().lexically_relative(kRoot).string();
+      EXPECT_EQ(text.find("DESIGN.md"), std::string::npos) << name << ": cites DESIGN.md";
+      std::smatch m;
+      if (std::regex_search(text, m, seed))
+        ADD_FAILURE() << name << ":" << line_of(text, static_cast<size_t>(m.position(0)))
+                      << ": names a paper '" << m.str(0) << "' (docs/references.md has its authors)";
+    }
+  }
+  EXPECT_GT(files, 100);
+}
+
+TEST(Docs, ReadmeHasARowForEveryCommand) {
+  // The subcommands `zona --help` lists; each has a row in README's command table.
+  const std::string out = (fs::temp_directory_path() / ("zona_docs_help_" + std::to_string(::getpid()))).string();
+  ASSERT_EQ(std::system((std::string(ZONA_CLI_PATH) + " --help >" + out).c_str()), 0);
+  const std::string help = slurp(out);
+  fs::remove(out);
+  const size_t list = help.find("Subcommands:");
+  ASSERT_NE(list, std::string::npos) << help;
+  const std::string readme = slurp(kRoot / "README.md");
+  const std::regex name(R"(\n  ([a-z]+) )");
+  int commands = 0;
+  const std::string tail = help.substr(list);
+  for (std::sregex_iterator it(tail.begin(), tail.end(), name), end; it != end; ++it) {
+    ++commands;
+    EXPECT_NE(readme.find("| `zona " + (*it)[1].str()), std::string::npos)
+        << "README.md's command table has no row for zona " << (*it)[1];
+  }
+  EXPECT_GE(commands, 12);
 }
 
 TEST(Docs, ScenesPageQuotesEveryShippedScenesOwnValues) {
