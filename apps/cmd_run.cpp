@@ -292,22 +292,16 @@ void run_command(const RunArgs& args) {
   } else if (!args.png_frames.empty() && scene->output.frames <= 0 && !scene->output.frame_interval) {
     scene->output.frames = 50;
   }
-  // A scene made for the haptic loop gives integrator.duration as long as a hand may need
-  // (mouse_oocyte_haptic: 3600 s); scripted, its needle stops after max_travel / speed, and the
-  // rest would be an hour of a resting cell. The run ends with the needle unless asked.
-  const NeedleDef& needle = scene->needle;
-  const double needle_end = needle.enabled && needle.trajectory.empty() && needle.max_travel > 0 &&
-                                    needle.speed > 0
-                                ? needle.max_travel / needle.speed
-                                : 0.0;
-  const double duration = scene->integrator.duration;
-  if (!args.full_duration && needle_end > 0 && duration > 2 * needle_end && duration > needle_end + 1.0) {
-    std::fprintf(stderr,
-                 "zona run: notice: integrator.duration is %.4g s but the needle stops at %.4g s "
-                 "(needle.max_travel / needle.speed): the run ends with the needle "
-                 "(--full-duration simulates all %.4g s)\n",
-                 duration, needle_end, duration);
-    scene->integrator.duration = 0;  // 0: the run ends when the needle's script does
+  // A haptic scene's hour-long duration: the run ends with the needle unless asked
+  // (end_run_with_needle, engine/scene/scene.h).
+  if (!args.full_duration) {
+    const double duration = scene->integrator.duration;
+    if (const double needle_end = end_run_with_needle(*scene); needle_end > 0)
+      std::fprintf(stderr,
+                   "zona run: notice: integrator.duration is %.4g s but the needle stops at %.4g s "
+                   "(needle.max_travel / needle.speed): the run ends with the needle "
+                   "(--full-duration simulates all %.4g s)\n",
+                   duration, needle_end, duration);
   }
   const auto setup_start = std::chrono::steady_clock::now();
   Result<std::unique_ptr<Simulation>> created = Simulation::create(*scene, options.simulation);
@@ -358,9 +352,6 @@ void run_command(const RunArgs& args) {
   // frames.pvd that --no-frames would leave) would sit beside this run's: they go first; any
   // other file in the folder stays.
   if (Status s = remove_run_outputs(out); !s) return fail(s.error().message);
-  // The plot's SVG is a run output too (remove_run_outputs, engine/sim/recorder.cpp, does not
-  // list it yet).
-  fs::remove(fs::path(out) / "force_deformation.svg", ec);
   if (Status s = write_file_atomic((fs::path(out) / "scene.json").string(),
                                    scene_to_json(*scene).dump(2) + "\n");
       !s)

@@ -156,20 +156,15 @@ nb::dict run(const RunArgs& a) {
     scene.output.frames = a.frames;
     scene.output.frame_interval.reset();
   }
-  // As `zona run` (apps/cmd_run.cpp): a scene made for the haptic loop lasts as long as a hand
-  // may need; scripted, the run ends with the needle unless full_duration.
-  const NeedleDef& needle = scene.needle;
-  const double needle_end = needle.enabled && needle.trajectory.empty() && needle.max_travel > 0 &&
-                                    needle.speed > 0
-                                ? needle.max_travel / needle.speed
-                                : 0.0;
-  const double duration = scene.integrator.duration;
+  // As `zona run`: a haptic scene's hour-long duration ends with the needle unless
+  // full_duration (end_run_with_needle, engine/scene/scene.h).
   std::vector<std::string> notes;
-  if (!a.full_duration && needle_end > 0 && duration > 2 * needle_end && duration > needle_end + 1.0) {
-    notes.push_back("integrator.duration is " + std::to_string(duration) +
-                    " s but the needle stops at " + std::to_string(needle_end) +
-                    " s: the run ends with the needle (full_duration=True simulates it all)");
-    scene.integrator.duration = 0;
+  if (!a.full_duration) {
+    const double duration = scene.integrator.duration;
+    if (const double needle_end = end_run_with_needle(scene); needle_end > 0)
+      notes.push_back("integrator.duration is " + std::to_string(duration) +
+                      " s but the needle stops at " + std::to_string(needle_end) +
+                      " s: the run ends with the needle (full_duration=True simulates it all)");
   }
 
   auto hold = std::make_shared<RunHold>();

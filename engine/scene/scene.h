@@ -421,6 +421,14 @@ const MaterialDef* find_material(const Scene& scene, const std::string& region);
 /// reads back to the same Scene; used to record the resolved scene next to a run's results.
 nlohmann::json scene_to_json(const Scene& scene);
 
+/// A scene made for the haptic loop gives integrator.duration as long as a hand may need
+/// (mouse_oocyte_haptic: 3600 s); scripted, its needle stops after max_travel / speed and the rest
+/// would be a resting cell. When the duration is over twice the needle's end and over a second
+/// past it, this sets it to 0 (the run ends with the needle's script) and returns the needle's
+/// end time [s]; otherwise it changes nothing and returns 0. `zona run` and the Python module
+/// call it unless asked for the full duration.
+double end_run_with_needle(Scene& scene);
+
 /// Name of a model ("svk", "linear", "neohookean", "particles") as written in scene files.
 const char* model_name(ModelKind model);
 

@@ -259,4 +259,16 @@ json scene_to_json(const Scene& scene) {
   return j;
 }
 
+double end_run_with_needle(Scene& scene) {
+  const NeedleDef& needle = scene.needle;
+  const double needle_end = needle.enabled && needle.trajectory.empty() && needle.max_travel > 0 &&
+                                    needle.speed > 0
+                                ? needle.max_travel / needle.speed
+                                : 0.0;
+  const double duration = scene.integrator.duration;
+  if (!(needle_end > 0) || !(duration > 2 * needle_end) || !(duration > needle_end + 1.0)) return 0;
+  scene.integrator.duration = 0;  // 0: the run ends when the needle's script does
+  return needle_end;
+}
+
 }  // namespace zona

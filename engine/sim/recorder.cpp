@@ -358,7 +358,8 @@ Status FrameRecorder::write(const Simulation& sim) {
 
 bool is_run_output(const std::string& file_name) {
   static constexpr const char* kNames[] = {"force.csv", "summary.json", "scene.json",
-                                           "frames.pvd", "force_deformation.png"};
+                                           "frames.pvd", "force_deformation.png",
+                                           "force_deformation.svg"};
   for (const char* name : kNames) {
     const std::string n = name;
     if (file_name == n || file_name == n + ".tmp") return true;

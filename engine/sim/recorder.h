@@ -160,7 +160,7 @@ class FrameRecorder {
 };
 
 /// Whether `file_name` (no folder) is one of the outputs `zona run` writes into its output
-/// folder: force.csv, summary.json, scene.json, force_deformation.png, frames.pvd,
+/// folder: force.csv, summary.json, scene.json, force_deformation.png and .svg, frames.pvd,
 /// frames_<digits>.vtu, or the ".tmp" of one of them (atomic writes).
 bool is_run_output(const std::string& file_name);
 

@@ -76,5 +76,24 @@ TEST(SceneWrite, DisabledToolsAndDefaultsReadBack) {
   EXPECT_EQ(scene_to_json(*back), j);
 }
 
+// A duration far past the needle's scripted end ends with the needle; one that is not, or a needle
+// without an end, is left alone.
+TEST(SceneWrite, EndRunWithNeedleOnlyCutsADurationFarPastTheNeedle) {
+  Scene scene;
+  scene.needle.enabled = true;
+  scene.needle.speed = 1e-3;
+  scene.needle.max_travel = 20e-6;  // ends at 0.02 s
+  scene.integrator.duration = 3600;
+  EXPECT_DOUBLE_EQ(end_run_with_needle(scene), 0.02);
+  EXPECT_EQ(scene.integrator.duration, 0);
+  scene.integrator.duration = 0.5;  // over twice the end but not a second past it
+  EXPECT_EQ(end_run_with_needle(scene), 0);
+  EXPECT_EQ(scene.integrator.duration, 0.5);
+  scene.integrator.duration = 3600;
+  scene.needle.max_travel = 0;  // no scripted end
+  EXPECT_EQ(end_run_with_needle(scene), 0);
+  EXPECT_EQ(scene.integrator.duration, 3600);
+}
+
 }  // namespace
 }  // namespace zona

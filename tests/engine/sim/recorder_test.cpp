@@ -249,8 +249,8 @@ TEST(Recorder, ProvenanceOfThisMachine) {
 
 TEST(Recorder, RunOutputNames) {
   for (const char* name : {"force.csv", "summary.json", "summary.json.tmp", "scene.json",
-                           "force_deformation.png", "frames.pvd", "frames.pvd.tmp",
-                           "frames_000000.vtu", "frames_1234567.vtu"})
+                           "force_deformation.png", "force_deformation.svg", "frames.pvd",
+                           "frames.pvd.tmp", "frames_000000.vtu", "frames_1234567.vtu"})
     EXPECT_TRUE(is_run_output(name)) << name;
   for (const char* name : {"notes.txt", "force.csv.bak", "my_force.csv", "frames_.vtu",
                            "frames_12a.vtu", "frames_000001.vtu.bak", "frames_000001.vtk",
