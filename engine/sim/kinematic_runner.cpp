@@ -56,9 +56,19 @@ class KinematicRunner final : public JobRunner {
     const int64_t target = advanced_ + steps;
     advanced_ = target;
     while (!halted_ && sim_.state().step_count < target) {
+      const int64_t before = sim_.state().step_count;
       sim_.step1();
       if (has_tip_) sim_.set_needle_tip(tip_);
       sim_.step2();
+      // A step that did not advance the state (it failed its check, or the scene's end was
+      // reached) ends the advance: asking again would not move it either.
+      if (sim_.state().step_count == before) {
+        latest_ = kinematic_record(sim_);
+        has_latest_ = true;
+        halted_ = true;
+        latest_.halted = 1;
+        break;
+      }
       latest_ = kinematic_record(sim_);
       seen_status_ |= latest_.status;
       has_latest_ = true;
