@@ -77,20 +77,12 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLa
     }
     default: {
       if (!law.nodal) return snh_stress_differential(h, law.lambda, law.mu, df);
-      // The element part: snh_stress_differential with lambda_s = mu, plus the held pressure's
-      // pressure x d cof(F)[dF].
+      // The element part: the law with lambda_s = mu (a material lambda of 0), plus the held
+      // pressure's pressure x d cof(F)[dF].
       Mat3<T> f = h;
       for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
-      const Mat3<T> cof = snh_cofactor_of_f(h);
-      const Mat3<T> dcof = cofactor_differential(f, df);
-      const T jm1 = snh_volume_change(h);
-      const T dj = frobenius_dot(cof, df);
-      const T k = law.mu * jm1 + law.pressure;
-      Mat3<T> dp;
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c)
-          dp.m[r][c] = law.mu * (df.m[r][c] - dcof.m[r][c] + dj * cof.m[r][c]) + k * dcof.m[r][c];
-      return dp;
+      return snh_stress_differential(h, T(0), law.mu, df) +
+             law.pressure * cofactor_differential(f, df);
     }
   }
 }

@@ -20,8 +20,7 @@ namespace {
 class CpuJobRunner final : public JobRunner {
  public:
   CpuJobRunner(Model& model, State& state, const JobSetup& setup)
-      : model_(model), state_(state), setup_(setup) {
-    samples_.reserve(setup.sample_capacity);
+      : model_(model), state_(state), setup_(setup), records_(setup.sample_capacity) {
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
@@ -49,19 +48,8 @@ class CpuJobRunner final : public JobRunner {
     return {};
   }
 
-  bool latest(JobRecord* out) override {
-    if (!has_latest_) return false;
-    *out = latest_;
-    return true;
-  }
-
-  bool take_samples(std::vector<JobRecord>& out) override {
-    out.insert(out.end(), samples_.begin(), samples_.end());
-    samples_.clear();
-    const bool ok = !lost_;
-    lost_ = false;
-    return ok;
-  }
+  bool latest(JobRecord* out) override { return records_.latest(out); }
+  bool take_samples(std::vector<JobRecord>& out) override { return records_.take(out); }
 
   Status finish() override { return {}; }
   Status download(State&) override { return {}; }  // the state is the simulation's own
@@ -331,14 +319,9 @@ class CpuJobRunner final : public JobRunner {
 
   // StepStage::kRecord, kCommit and kPuncture (job_finish_step), and the sample.
   void record(const JobSums& sums, const JobStepTotals& tot) {
-    const bool sample = job_finish_step(setup_.params, job_, sums, tot, &latest_);
-    has_latest_ = true;
-    if (sample) {
-      if (samples_.size() < samples_.capacity())
-        samples_.push_back(latest_);
-      else
-        lost_ = true;
-    }
+    JobRecord r;
+    const bool sample = job_finish_step(setup_.params, job_, sums, tot, &r);
+    records_.publish(r, sample, r);
   }
 
   Model& model_;
@@ -365,9 +348,7 @@ class CpuJobRunner final : public JobRunner {
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;
   int64_t mass_raises_ = 0;     // vertex mass raises by the dynamic scaling
-  std::vector<JobRecord> samples_;
-  JobRecord latest_;
-  bool has_latest_ = false, lost_ = false;
+  HostRecords records_;
   int64_t advanced_ = 0;
 };
 

@@ -36,6 +36,44 @@ struct JobSetup {
   size_t sample_capacity = 1 << 16;
 };
 
+/// The records a host-side runner (the CPU job's, the kinematic step's) keeps for the run
+/// driver between its reads: the newest step's record and the samples, in a buffer sized once (a
+/// full buffer is reported by take, never grown).
+class HostRecords {
+ public:
+  explicit HostRecords(size_t capacity) { samples_.reserve(capacity); }
+  /// Publishes a step's record, and keeps `sample` as a sample when `keep` (usually the record
+  /// itself).
+  void publish(const JobRecord& record, bool keep, const JobRecord& sample) {
+    latest_ = record;
+    has_latest_ = true;
+    if (!keep) return;
+    if (samples_.size() < samples_.capacity())
+      samples_.push_back(sample);
+    else
+      lost_ = true;
+  }
+  /// JobRunner::latest.
+  bool latest(JobRecord* out) const {
+    if (!has_latest_) return false;
+    *out = latest_;
+    return true;
+  }
+  /// JobRunner::take_samples.
+  bool take(std::vector<JobRecord>& out) {
+    out.insert(out.end(), samples_.begin(), samples_.end());
+    samples_.clear();
+    const bool ok = !lost_;
+    lost_ = false;
+    return ok;
+  }
+
+ private:
+  std::vector<JobRecord> samples_;
+  JobRecord latest_;
+  bool has_latest_ = false, lost_ = false;
+};
+
 /// Runs the step's stages where the state lives. Nothing on the step path allocates.
 class JobRunner {
  public:

@@ -46,8 +46,7 @@ namespace {
 
 class KinematicRunner final : public JobRunner {
  public:
-  KinematicRunner(Simulation& sim, size_t capacity) : sim_(sim) {
-    samples_.reserve(capacity);
+  KinematicRunner(Simulation& sim, size_t capacity) : sim_(sim), records_(capacity) {
     const double interval = sim.scene().output.sample_interval;
     interval_ = interval > 0 ? interval : 0;
   }
@@ -63,48 +62,34 @@ class KinematicRunner final : public JobRunner {
       // A step that did not advance the state (it failed its check, or the scene's end was
       // reached) ends the advance: asking again would not move it either.
       if (sim_.state().step_count == before) {
-        latest_ = kinematic_record(sim_);
-        has_latest_ = true;
+        JobRecord r = kinematic_record(sim_);
+        r.halted = 1;
         halted_ = true;
-        latest_.halted = 1;
+        records_.publish(r, true, r);
         break;
       }
-      latest_ = kinematic_record(sim_);
-      seen_status_ |= latest_.status;
-      has_latest_ = true;
-      halted_ = latest_.halted != 0;
+      const JobRecord r = kinematic_record(sim_);
+      seen_status_ |= r.status;
+      halted_ = r.halted != 0;
       // Sampled as the job's record stage samples (job_sample_due): the step whose time
       // reaches the next sample time, and a failed step. Its status carries every flag seen
       // since the last sample, so that a flag between samples is not lost.
       const double dt = sim_.model().dt;
-      if (latest_.time >= next_sample_ - 0.5 * dt || halted_) {
+      const bool due = r.time >= next_sample_ - 0.5 * dt || halted_;
+      JobRecord sample = r;
+      if (due) {
         next_sample_ += interval_ > 0 ? interval_ : dt;
-        if (next_sample_ < latest_.time) next_sample_ = latest_.time + interval_;
-        JobRecord sample = latest_;
+        if (next_sample_ < r.time) next_sample_ = r.time + interval_;
         sample.status = seen_status_;
         seen_status_ = 0;
-        if (samples_.size() < samples_.capacity())
-          samples_.push_back(sample);
-        else
-          lost_ = true;
       }
+      records_.publish(r, due, sample);
     }
     return {};
   }
 
-  bool latest(JobRecord* out) override {
-    if (!has_latest_) return false;
-    *out = latest_;
-    return true;
-  }
-
-  bool take_samples(std::vector<JobRecord>& out) override {
-    out.insert(out.end(), samples_.begin(), samples_.end());
-    samples_.clear();
-    const bool ok = !lost_;
-    lost_ = false;
-    return ok;
-  }
+  bool latest(JobRecord* out) override { return records_.latest(out); }
+  bool take_samples(std::vector<JobRecord>& out) override { return records_.take(out); }
 
   Status finish() override { return {}; }
   Status download(State&) override { return {}; }  // the state is the simulation's own
@@ -121,9 +106,8 @@ class KinematicRunner final : public JobRunner {
 
  private:
   Simulation& sim_;
-  std::vector<JobRecord> samples_;
-  JobRecord latest_;
-  bool has_latest_ = false, halted_ = false, lost_ = false, has_tip_ = false;
+  HostRecords records_;
+  bool halted_ = false, has_tip_ = false;
   Vec3d tip_{0, 0, 0};
   int64_t advanced_ = 0;
   double interval_ = 0, next_sample_ = 0;
