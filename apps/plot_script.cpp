@@ -19,13 +19,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// The running program's folder ("" when /proc is not there).
-fs::path program_dir() {
-  std::error_code ec;
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  return ec ? fs::path() : exe.parent_path();
-}
-
 // The last non-empty line of the child's output, without the script's "zona plot: " prefix;
 // `own` tells whether the line had it (the script's message, not a Python traceback's end).
 std::string last_line(const std::string& output, bool* own) {
@@ -51,7 +44,7 @@ Result<PlotScript> find_plot_script() {
   // The script: the installed copy beside the installed scenes (relative to the binary, as
   // apps/CMakeLists.txt installs it), else the source tree's.
   const fs::path installed = fs::path(ZONA_INSTALLED_PLOT_SCRIPT);
-  const fs::path base = program_dir();
+  const fs::path base = zona::program_dir();
   const fs::path source = fs::path(ZONA_SOURCE_DIR) / "python" / "zona_plot.py";
   if (!base.empty() && fs::is_regular_file(base / installed, ec))
     tool.script = (base / installed).lexically_normal().string();

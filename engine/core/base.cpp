@@ -71,4 +71,10 @@ Error make_error(const char* format, ...) {
   return Error{std::move(text)};
 }
 
+std::string program_dir() {
+  std::error_code ec;
+  const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  return ec ? std::string() : exe.parent_path().string();
+}
+
 }  // namespace zona

@@ -94,6 +94,10 @@ const char* file_kind(const std::string& path);
 /// file (KIND)" with file_kind's word. For readers of files named by a user, before opening.
 Status check_regular_file(const std::string& path);
 
+/// The running program's folder (from /proc/self/exe; "" where that is not there): where an
+/// installed zona finds its data relative to itself.
+std::string program_dir();
+
 /// Builds an Error from printf-style arguments.
 #if defined(__GNUC__)
 __attribute__((format(printf, 1, 2)))

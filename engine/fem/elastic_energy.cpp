@@ -70,12 +70,11 @@ double ElasticEnergy::energy(std::span<const Vec3d> u) {
   for (size_t t = 0; t < m.tet_count(); ++t) {
     Vec3d ue[4];
     corners(u, t, ue);
-    ElementLaw<double> l = law(t);
-    l.pressure = 0;  // the pressure's energy is the vertices'
+    // The element part (element_stress leaves the pressure's energy to the vertices' sum).
     Mat3d p;
     double jm1;
     w += m.tet_shape[t].volume *
-         element_stress(l, tet_displacement_gradient(m.tet_shape[t], ue), &p, &jm1);
+         element_stress(law(t), tet_displacement_gradient(m.tet_shape[t], ue), &p, &jm1);
   }
   return w;
 }

@@ -9,18 +9,7 @@
 #include "engine/scene/scene.h"
 
 namespace zona {
-namespace {
-
 namespace fs = std::filesystem;
-
-// The running program's folder ("" when /proc is not there).
-fs::path program_dir() {
-  std::error_code ec;
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  return ec ? fs::path() : exe.parent_path();
-}
-
-}  // namespace
 
 std::vector<std::string> scene_search_dirs(const std::string& installed_dir,
                                            const std::string& source_dir) {
@@ -30,7 +19,7 @@ std::vector<std::string> scene_search_dirs(const std::string& installed_dir,
   if (!installed_dir.empty()) {
     fs::path installed(installed_dir);
     if (installed.is_relative()) {
-      const fs::path base = program_dir();
+      const fs::path base = zona::program_dir();
       if (!base.empty()) dirs.push_back((base / installed).lexically_normal().string());
     } else {
       dirs.push_back(installed.string());

@@ -22,21 +22,4 @@ enum class StepStage : int32_t {
   kCount
 };
 
-/// The stage's name as the docs write it ("tools", "elastic", ...).
-constexpr const char* step_stage_name(StepStage stage) {
-  switch (stage) {
-    case StepStage::kMasses: return "masses";
-    case StepStage::kLoads: return "loads";
-    case StepStage::kTools: return "tools";
-    case StepStage::kElastic: return "elastic";
-    case StepStage::kIntegrate: return "integrate";
-    case StepStage::kMeasure: return "measure";
-    case StepStage::kRecord: return "record";
-    case StepStage::kCommit: return "commit";
-    case StepStage::kPuncture: return "puncture";
-    case StepStage::kCount: break;
-  }
-  return "?";
-}
-
 }  // namespace zona
