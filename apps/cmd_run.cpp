@@ -35,6 +35,7 @@ struct RunArgs {
   bool headless = false;
   std::string out;
   std::vector<std::string> sets;
+  std::string solver;
   std::string backend = "cpu";
   int threads = 0;
   double stop_after_puncture = -1;
@@ -258,10 +259,11 @@ void run_command(const RunArgs& args) {
   provenance.command = invocation();
   Result<std::string> path = find_scene_file(args.scene);
   if (!path.ok()) return fail(path.error().message);
-  Result<Scene> scene = load_scene(*path, args.sets);
+  Result<Scene> scene = load_scene(*path, with_solver(args.sets, args.solver));
   if (!scene.ok()) return fail(scene.error().message);
   Result<BackendKind> kind = parse_backend_kind(args.backend);
   if (!kind.ok()) return fail(kind.error().message);
+  if (Status st = static_backend(*scene, &*kind); !st) return fail(st.error().message);
 
   const std::string out = args.out.empty() ? "zona_run_" + scene->name : args.out;
   std::error_code ec;
@@ -315,10 +317,14 @@ void run_command(const RunArgs& args) {
     const std::string model_line = sim.particle_model() ? describe_particle_model(*sim.particle_model())
                                                         : describe_model(sim.model());
     std::fprintf(stderr, "zona run: %s\n", model_line.c_str());
-    std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
-                 sim.backend_description().c_str(),
-                 static_cast<long long>(std::ceil(sim.end_time() / sim.model().dt)), sim.end_time(),
-                 setup_seconds);
+    if (scene->solver.method == SolverMethod::kStatic)
+      std::fprintf(stderr, "zona run: static solver on the CPU (docs/static.md); setup %.2f s\n",
+                   setup_seconds);
+    else
+      std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
+                   sim.backend_description().c_str(),
+                   static_cast<long long>(std::ceil(sim.end_time() / sim.model().dt)),
+                   sim.end_time(), setup_seconds);
     for (const std::string& note : sim.notes()) std::fprintf(stderr, "zona run: note: %s\n", note.c_str());
   }
 
@@ -462,6 +468,7 @@ void add_run_command(CLI::App& app) {
   cmd->add_flag("--headless", args->headless, "No window (the renderer comes later; always on now)");
   cmd->add_option("--out", args->out, "Output folder (default: zona_run_<scene name>)");
   cmd->add_option("--set", args->sets, "Override a scene key: key.path=value (repeatable)");
+  add_solver_option(cmd, &args->solver);
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();

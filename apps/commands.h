@@ -4,11 +4,14 @@
 #include <CLI/CLI.hpp>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "engine/core/base.h"
 
 namespace zona {
 class Simulation;
+struct Scene;
+enum class BackendKind : int32_t;
 }
 
 namespace zona::cli {
@@ -24,6 +27,15 @@ std::string source_commit();
 /// The command line this process was started with, words joined by spaces and single-quoted
 /// where the shell would split or expand them (summary.json's provenance).
 const std::string& invocation();
+
+/// `--solver explicit|static` (the scene key solver.method; docs/static.md) on a command.
+void add_solver_option(CLI::App* cmd, std::string* solver);
+/// The overrides with solver.method=SOLVER appended when SOLVER is set.
+std::vector<std::string> with_solver(std::vector<std::string> sets, const std::string& solver);
+/// For a static scene: the backend it runs on (the CPU; "auto" becomes "cpu", "cuda" is
+/// refused: the static solver's GPU path is not built) and whether the scene can run static
+/// (engine/solver/static_run.h, check_static_scene).
+zona::Status static_backend(const zona::Scene& scene, zona::BackendKind* kind);
 
 /// The scene file a command's SCENE argument names, looked up as every command looks it up: a
 /// path as given, then ./scenes, $ZONA_SCENES_DIR, the installed scenes, the source tree's

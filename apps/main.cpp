@@ -7,6 +7,8 @@
 
 #include "apps/commands.h"
 #include "engine/scene/scene.h"
+#include "engine/sim/backend.h"
+#include "engine/solver/static_run.h"
 #include "build_commit.h"  // generated: ZONA_BUILD_COMMIT
 
 namespace zona::cli {
@@ -29,6 +31,28 @@ Result<std::string> find_scene_file(const std::string& name) {
   std::error_code ec;
   const std::filesystem::path absolute = std::filesystem::absolute(*path, ec);
   return ec ? *path : absolute.lexically_normal().string();
+}
+
+void add_solver_option(CLI::App* cmd, std::string* solver) {
+  cmd->add_option("--solver", *solver,
+                  "explicit (dynamics) or static (equilibrium per needle position; "
+                  "docs/static.md); default: the scene's solver.method")
+      ->check(CLI::IsMember({"explicit", "static"}));
+}
+
+std::vector<std::string> with_solver(std::vector<std::string> sets, const std::string& solver) {
+  if (!solver.empty()) sets.push_back("solver.method=" + solver);
+  return sets;
+}
+
+Status static_backend(const Scene& scene, BackendKind* kind) {
+  if (scene.solver.method != SolverMethod::kStatic) return {};
+  if (Status st = check_static_scene(scene); !st) return st;
+  if (*kind == BackendKind::kCuda)
+    return make_error("solver.method \"static\" runs on the CPU (its GPU path is not built "
+                      "yet): use --backend cpu, or the explicit solver on the GPU");
+  *kind = BackendKind::kCpu;
+  return {};
 }
 
 std::string source_commit() {

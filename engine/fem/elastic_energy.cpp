@@ -2,6 +2,10 @@
 #include "engine/fem/elastic_energy.h"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Dense>
 
 namespace zona {
 
@@ -36,6 +40,10 @@ ElementLaw<double> ElasticEnergy::law(size_t t) const {
     double p = 0;
     for (int c = 0; c < 4; ++c) p += pressure_[static_cast<size_t>(model_->tets[t][c])];
     law.pressure = 0.25 * p;
+  }
+  if (barrier_volume_ > 0 && law.model == ConstitutiveModel::kStableNeoHookean) {
+    law.barrier_volume = barrier_volume_;
+    law.barrier_stiffness = lame.mu;
   }
   return law;
 }
@@ -178,6 +186,126 @@ void ElasticEnergy::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat
       Mat3d& block = d[static_cast<size_t>(who[i])];
       block = block + c * outer(part[i], part[i]);
     }
+  }
+}
+
+double ElasticEnergy::min_volume_ratio(std::span<const Vec3d> u) const {
+  const Model& m = *model_;
+  double lo = std::numeric_limits<double>::infinity();
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4];
+    corners(u, t, ue);
+    lo = std::min(lo, 1.0 + snh_volume_change(tet_displacement_gradient(m.tet_shape[t], ue)));
+  }
+  return lo;
+}
+
+BlockSparseMatrix ElasticEnergy::hessian_pattern(const Model& m) {
+  const size_t n = m.vertex_count();
+  // The star of each vertex: the corners of its elements.
+  std::vector<std::vector<int32_t>> star(n);
+  for (size_t v = 0; v < n; ++v) {
+    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k)
+      for (int32_t w : m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])])
+        star[v].push_back(w);
+    std::sort(star[v].begin(), star[v].end());
+    star[v].erase(std::unique(star[v].begin(), star[v].end()), star[v].end());
+  }
+  if (!m.nodal_pressure) return BlockSparseMatrix(star);
+  // Vertex v's rank-one term couples every pair of its star: row w gets the stars of the
+  // vertices in w's star.
+  std::vector<std::vector<int32_t>> rows(n);
+  for (size_t w = 0; w < n; ++w) {
+    for (int32_t v : star[w]) {
+      const std::vector<int32_t>& s = star[static_cast<size_t>(v)];
+      rows[w].insert(rows[w].end(), s.begin(), s.end());
+    }
+    std::sort(rows[w].begin(), rows[w].end());
+    rows[w].erase(std::unique(rows[w].begin(), rows[w].end()), rows[w].end());
+  }
+  return BlockSparseMatrix(rows);
+}
+
+namespace {
+
+// The 9 x 9 matrix d^2 Psi / dF^2 of a law at h (row and column k = 3 r + c for F's entry
+// (r, c)), symmetrised, with its negative eigenvalues clamped to zero.
+Eigen::Matrix<double, 9, 9> projected_stress_tangent(const ElementLaw<double>& law,
+                                                     const Mat3d& h) {
+  Eigen::Matrix<double, 9, 9> q;
+  for (int k = 0; k < 9; ++k) {
+    Mat3d df = Mat3d::zero();
+    df.m[k / 3][k % 3] = 1;
+    const Mat3d dp = element_stress_differential(law, h, df);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
+  }
+  q = 0.5 * (q + q.transpose()).eval();
+  // Most elements are near rest, where the tangent is positive definite: a Cholesky factor
+  // says so for a fraction of an eigendecomposition's cost.
+  Eigen::LLT<Eigen::Matrix<double, 9, 9>> llt(q);
+  if (llt.info() == Eigen::Success) return q;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(q);
+  Eigen::Matrix<double, 9, 1> d = eig.eigenvalues().cwiseMax(0.0);
+  return eig.eigenvectors() * d.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+}  // namespace
+
+void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm) {
+  const Model& m = *model_;
+  ZONA_ASSERT(u.size() == m.vertex_count() && hm.rows() == u.size());
+  if (m.nodal_pressure) vertex_pressures(u);
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    Vec3d ue[4];
+    corners(u, t, ue);
+    const TetShape<double>& s = m.tet_shape[t];
+    const Eigen::Matrix<double, 9, 9> q =
+        projected_stress_tangent(law(t), tet_displacement_gradient(s, ue));
+    // dF = sum_a v_a grad_a^T: F's entry (r, c) moves by grad_a[c] per unit of u_a[r], so block
+    // (a, b) is V sum_{c, d} grad_a[c] q(3 r + c, 3 s + d) grad_b[d] for rows r, columns s.
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b) {
+        Mat3d block;
+        for (int r = 0; r < 3; ++r)
+          for (int c2 = 0; c2 < 3; ++c2) {
+            double sum = 0;
+            for (int c = 0; c < 3; ++c)
+              for (int d = 0; d < 3; ++d)
+                sum += s.grad[a][c] * q(3 * r + c, 3 * c2 + d) * s.grad[b][d];
+            block.m[r][c2] = s.volume * sum;
+          }
+        hm.add(m.tets[t][a], m.tets[t][b], block);
+      }
+  }
+  if (!m.nodal_pressure) return;
+  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v gathered over v's elements as in
+  // add_hessian_diagonal.
+  constexpr int kMaxNeighbors = 256;
+  int32_t who[kMaxNeighbors];
+  Vec3d part[kMaxNeighbors];
+  for (size_t v = 0; v < m.vertex_count(); ++v) {
+    int count = 0;
+    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
+      const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
+      Vec3d ue[4], dj[4];
+      corners(u, t, ue);
+      tet_volume_gradient(m.tet_shape[t], ue, dj);
+      for (int c = 0; c < 4; ++c) {
+        const int32_t w = m.tets[t][c];
+        int slot = 0;
+        while (slot < count && who[slot] != w) ++slot;
+        if (slot == count) {
+          ZONA_ASSERT(count < kMaxNeighbors);
+          who[count] = w;
+          part[count++] = Vec3d{0, 0, 0};
+        }
+        part[slot] += (0.25 * m.tet_shape[t].volume) * dj[c];
+      }
+    }
+    const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
+    for (int i = 0; i < count; ++i)
+      for (int j = 0; j < count; ++j) hm.add(who[i], who[j], c * outer(part[i], part[j]));
   }
 }
 

@@ -39,6 +39,18 @@ class ElasticEnergy final : public EnergyTerm {
                            std::span<Vec3d> y) override;
   /// Adds the Hessian's 3 x 3 diagonal blocks to d [N/m].
   void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
+  /// The element parts' 12 x 12 Hessians, each projected to positive semi-definite (its 9 x 9
+  /// d^2 Psi / dF^2 clamped at zero eigenvalues), plus nodal pressure's rank-one vertex terms
+  /// exact (they are positive semi-definite).
+  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h) override;
+  /// The pattern of the Hessian: vertices sharing an element and, with nodal pressure, vertices
+  /// sharing a vertex's elements (the rank-one terms couple a vertex's whole star).
+  static BlockSparseMatrix hessian_pattern(const Model& model);
+  /// The volume barrier (elastic_term.h's volume_barrier) below volume ratio j0, of stiffness mu
+  /// per element, on the stable neo-Hookean law; 0: off.
+  void set_barrier(double j0) { barrier_volume_ = j0; }
+  /// The smallest element volume ratio J at u (inf on an empty model).
+  double min_volume_ratio(std::span<const Vec3d> u) const;
 
  private:
   explicit ElasticEnergy(const Model& model);
@@ -52,6 +64,7 @@ class ElasticEnergy final : public EnergyTerm {
   const Model* model_;
   std::vector<double> pressure_;  // [Pa], (vertex_count)
   std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
+  double barrier_volume_ = 0;
 };
 
 }  // namespace zona

@@ -33,7 +33,39 @@ struct ElementLaw {
   T lambda = 0, mu = 0;  ///< the material's Lame constants [Pa]
   bool nodal = false;    ///< stable neo-Hookean with the volumetric term at the vertices
   T pressure = 0;        ///< [Pa]
+  /// The volume barrier (volume_barrier below): active below J = barrier_volume [-], of
+  /// stiffness barrier_stiffness [Pa]; 0: none.
+  T barrier_volume = 0;
+  T barrier_stiffness = 0;
 };
+
+/// The volume barrier's energy density [J/m^3] and its first two derivatives in J, at volume
+/// ratio j: with s = j / j0 (j0 = barrier_volume), k the stiffness,
+///   psi_b = -k (s - 1)^2 ln s   for 0 < s < 1,   0 for s >= 1,   +infinity for j <= 0,
+/// which is C^2 at s = 1 (value, slope and curvature vanish there) and grows without bound as
+/// an element collapses, so an energy minimiser never inverts an element (docs/physics.md, "The
+/// volume barrier"). The stable neo-Hookean law alone is finite at J <= 0.
+template <class T>
+struct BarrierValue {
+  T psi = 0, d1 = 0, d2 = 0;  ///< psi_b [J/m^3], dpsi/dJ [Pa], d^2 psi/dJ^2 [Pa]
+};
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE BarrierValue<T> volume_barrier(T j, T j0, T k) {
+  BarrierValue<T> b;
+  if (!(j0 > T(0)) || j >= j0) return b;
+  if (!(j > T(0))) {
+    b.psi = T(INFINITY);
+    return b;
+  }
+  const T s = j / j0, sm1 = s - T(1), ls = log(s);
+  b.psi = -k * sm1 * sm1 * ls;
+  // d/ds and d^2/ds^2, then the chain rule's 1 / j0 and 1 / j0^2.
+  const T ds = -k * (T(2) * sm1 * ls + sm1 * sm1 / s);
+  const T dss = -k * (T(2) * ls + T(4) * sm1 / s - sm1 * sm1 / (s * s));
+  b.d1 = ds / j0;
+  b.d2 = dss / (j0 * j0);
+  return b;
+}
 
 /// First Piola-Kirchhoff stress P [Pa] of the law at displacement gradient h, to *p; the element
 /// part of the energy density [J/m^3] returned (with nodal pressure: without the vertices'
@@ -48,9 +80,19 @@ ZONA_HOST_DEVICE ZONA_INLINE T element_stress(const ElementLaw<T>& law, const Ma
     case ConstitutiveModel::kSvk:
       *j_minus_one = snh_volume_change(h);
       return svk_first_piola(h, law.lambda, law.mu, p);
-    default:
-      if (law.nodal) return snh_first_piola_nodal(h, law.mu, law.pressure, p, j_minus_one);
-      return snh_first_piola(h, law.lambda, law.mu, p, j_minus_one);
+    default: {
+      T psi = law.nodal ? snh_first_piola_nodal(h, law.mu, law.pressure, p, j_minus_one)
+                        : snh_first_piola(h, law.lambda, law.mu, p, j_minus_one);
+      if (law.barrier_volume > T(0)) {
+        const BarrierValue<T> b =
+            volume_barrier(T(1) + *j_minus_one, law.barrier_volume, law.barrier_stiffness);
+        if (b.psi != T(0)) {
+          psi += b.psi;
+          *p = *p + b.d1 * snh_cofactor_of_f(h);
+        }
+      }
+      return psi;
+    }
   }
 }
 
@@ -76,13 +118,26 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLa
       return df * s + f * isotropic_stress(de, law.lambda, law.mu, &unused);
     }
     default: {
-      if (!law.nodal) return snh_stress_differential(h, law.lambda, law.mu, df);
-      // The element part: the law with lambda_s = mu (a material lambda of 0), plus the held
-      // pressure's pressure x d cof(F)[dF].
       Mat3<T> f = h;
       for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
-      return snh_stress_differential(h, T(0), law.mu, df) +
-             law.pressure * cofactor_differential(f, df);
+      // With nodal pressure, the element part: the law with lambda_s = mu (a material lambda
+      // of 0), plus the held pressure's pressure x d cof(F)[dF].
+      Mat3<T> dp = law.nodal ? snh_stress_differential(h, T(0), law.mu, df) +
+                                   law.pressure * cofactor_differential(f, df)
+                             : snh_stress_differential(h, law.lambda, law.mu, df);
+      if (law.barrier_volume > T(0)) {
+        // d (psi_b'(J) cof F) = psi_b''(J) (cof F : dF) cof F + psi_b'(J) d cof(F)[dF].
+        const BarrierValue<T> b = volume_barrier(T(1) + snh_volume_change(h), law.barrier_volume,
+                                                 law.barrier_stiffness);
+        if (b.d1 != T(0) || b.d2 != T(0)) {
+          const Mat3<T> cof = snh_cofactor_of_f(h);
+          T cdf = T(0);
+          for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) cdf += cof.m[r][c] * df.m[r][c];
+          dp = dp + (b.d2 * cdf) * cof + b.d1 * cofactor_differential(f, df);
+        }
+      }
+      return dp;
     }
   }
 }

@@ -239,6 +239,33 @@ void read_integrator(Reader& root, Scene& scene) {
   r.quantity("duration", dim::kTime, &in.duration, Range::non_negative());
 }
 
+void read_solver(Reader& root, Scene& scene) {
+  Reader r = root.object("solver", {"method", "note", "travel_step", "min_travel_step",
+                                    "tolerance", "linear", "barrier_volume", "medium_viscosity",
+                                    "puncture_tolerance", "suction_steps"});
+  if (!r.present()) return;
+  SolverDef& s = scene.solver;
+  r.choice("method",
+           {Choice<SolverMethod>{"explicit", SolverMethod::kExplicit},
+            Choice<SolverMethod>{"static", SolverMethod::kStatic}},
+           &s.method);
+  r.quantity("travel_step", dim::kLength, &s.travel_step, Range::positive());
+  r.quantity("min_travel_step", dim::kLength, &s.min_travel_step, Range::positive());
+  r.number("tolerance", &s.tolerance, Range::open_closed(0.0, 1.0));
+  r.choice("linear",
+           {Choice<LinearSolverKind>{"direct", LinearSolverKind::kDirect},
+            Choice<LinearSolverKind>{"cg", LinearSolverKind::kCg}},
+           &s.linear);
+  r.number("barrier_volume", &s.barrier_volume,
+           Range{0.0, 1.0, false, true, "0 switches the barrier off; below 1 (rest)"});
+  r.quantity("medium_viscosity", dim::kPressure * dim::kTime, &s.medium_viscosity,
+             Range::non_negative());
+  r.quantity("puncture_tolerance", dim::kLength, &s.puncture_tolerance, Range::positive());
+  int64_t steps = s.suction_steps;
+  if (r.integer("suction_steps", &steps, 1, 1000)) s.suction_steps = static_cast<int>(steps);
+  if (s.min_travel_step > s.travel_step) r.fail("min_travel_step", "larger than travel_step");
+}
+
 // The particle model (Asgari et al.): only with "model": "particles".
 void read_particles(Reader& root, Scene& scene) {
   Reader r = root.object("particles", {"layout", "particles", "pole_axis", "membrane_modulus",
@@ -849,7 +876,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
               {"version", "name", "description", "mesh", "model", "volumetric", "materials",
                "integrator",
                "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
-               "output", "particles", "experiment", "quasi_static"});
+               "output", "particles", "experiment", "quasi_static", "solver"});
   int64_t version = 1;
   root.integer("version", &version, 1, 1);
   root.string("name", &scene.name);
@@ -865,6 +892,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);
+  read_solver(root, scene);
   read_particles(root, scene);
   read_boundary(root, scene);
   read_puncture(root, scene);

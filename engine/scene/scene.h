@@ -103,6 +103,31 @@ enum class MassScalingMode {
   kSelective,  ///< each vertex only as much as its smallest element needs (engine/fem/mass_scaling.h)
 };
 
+/// How the cell's state follows the needle: explicit dynamics (the integrator section) or
+/// static equilibrium per needle position (docs/static.md).
+enum class SolverMethod { kExplicit, kStatic };
+/// The static solver's linear solves: a sparse direct factorisation (the exact oracle) or CG.
+enum class LinearSolverKind { kDirect, kCg };
+
+/// The static solver (solver.method "static"; docs/static.md).
+struct SolverDef {
+  SolverMethod method = SolverMethod::kExplicit;
+  double travel_step = 2e-6;        ///< largest load step in needle travel [m]
+  double min_travel_step = 1e-9;    ///< a load step that fails below this ends the run [m]
+  /// Converged: the largest vertex force imbalance at most this fraction of the force scale,
+  /// max(needle axial force, E_max tip_radius^2) [-].
+  double tolerance = 1e-6;
+  LinearSolverKind linear = LinearSolverKind::kCg;
+  /// The volume barrier acts below this element volume ratio [-] (docs/physics.md).
+  double barrier_volume = 0.1;
+  /// The medium's viscosity for the regulariser's drag [Pa s] (water at 25 C).
+  double medium_viscosity = 0.89e-3;
+  /// The puncture is bracketed in travel to this width [m].
+  double puncture_tolerance = 10e-9;
+  /// Suction is ramped in over this many load steps before the needle moves.
+  int suction_steps = 4;
+};
+
 /// Time stepping (explicit centred difference, Ladjal et al. eq. 7).
 struct IntegratorDef {
   std::optional<double> dt;   ///< time step [s]; nullopt: auto = dt_safety * critical step
@@ -357,6 +382,7 @@ struct Scene {
   ParticlesDef particles;  ///< used when model is kParticles
   std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
   IntegratorDef integrator;
+  SolverDef solver;
   std::vector<BoundaryDef> boundary;      ///< in file order
   NeedleDef needle;
   PunctureDef puncture;

@@ -135,6 +135,19 @@ json scene_to_json(const Scene& scene) {
   integrator["duration"] = quantity_json(in.duration, kTime);
   j["integrator"] = integrator;
 
+  const SolverDef& sv = scene.solver;
+  json solver = json::object();
+  solver["method"] = sv.method == SolverMethod::kStatic ? "static" : "explicit";
+  solver["travel_step"] = quantity_json(sv.travel_step, kLength);
+  solver["min_travel_step"] = quantity_json(sv.min_travel_step, kLength);
+  solver["tolerance"] = sv.tolerance;
+  solver["linear"] = sv.linear == LinearSolverKind::kDirect ? "direct" : "cg";
+  solver["barrier_volume"] = sv.barrier_volume;
+  solver["medium_viscosity"] = quantity_json(sv.medium_viscosity, kPressure * kTime);
+  solver["puncture_tolerance"] = quantity_json(sv.puncture_tolerance, kLength);
+  solver["suction_steps"] = sv.suction_steps;
+  j["solver"] = solver;
+
   json boundary = json::array();
   for (const BoundaryDef& b : scene.boundary) {
     json e = json::object();

@@ -214,12 +214,6 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const NeedleParam
   return out;
 }
 
-/// Subdivisions per edge of the needle's surface quadrature: each triangle is cut into
-/// kFaceSubdivisions^2 equal sub-triangles whose centroids are the quadrature points (weights
-/// 1 / kFaceSubdivisions^2). With 4, a triangle stretched to twice the tip's radius still has
-/// points half a radius apart.
-inline constexpr int kFaceSubdivisions = 4;
-
 /// One surface triangle of the needle stage: its corners' positions rest + u_n [m] and its rest
 /// area [m^2].
 struct ToolFaceInput {
@@ -254,32 +248,6 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_may_touch(const NeedleParams& need
   }
   return needle_sdf(pose.tip, needle.direction, needle.radius, needle.flat != 0, centroid)
              .distance < std::sqrt(reach);
-}
-
-/// Quadrature points per triangle.
-inline constexpr int kFacePoints = kFaceSubdivisions * kFaceSubdivisions;
-
-/// Barycentric weights of corners 1 and 2 of quadrature point q in [0, kFacePoints): the
-/// centroids of the sub-triangles, row by row (row i: n - i upward, then n - i - 1 downward).
-ZONA_HOST_DEVICE ZONA_INLINE void face_point_weights(int q, double* b1, double* b2) {
-  constexpr int n = kFaceSubdivisions;
-  int i = 0;
-  while (q >= 2 * (n - i) - 1) {
-    q -= 2 * (n - i) - 1;
-    ++i;
-  }
-  const bool down = q >= n - i;
-  const int j = down ? q - (n - i) : q;
-  const double off = down ? 2.0 / 3.0 : 1.0 / 3.0;
-  *b1 = (i + off) / n;
-  *b2 = (j + off) / n;
-}
-
-/// Quadrature point q of a triangle with corners x[3] [m], and its barycentric weights b[3].
-ZONA_HOST_DEVICE ZONA_INLINE Vec3d face_point(const Vec3d x[3], int q, double b[3]) {
-  face_point_weights(q, &b[1], &b[2]);
-  b[0] = 1.0 - b[1] - b[2];
-  return b[0] * x[0] + b[1] * x[1] + b[2] * x[2];
 }
 
 /// The needle's load [N] at quadrature point q of a triangle and how deep the point is inside

@@ -8,6 +8,7 @@
 #include <cstdio>
 
 #include "engine/sim/simulation.h"
+#include "engine/solver/static_run.h"
 
 namespace zona {
 
@@ -97,6 +98,7 @@ std::string element_place(const Simulation& sim, size_t t, Vec3d tip) {
 }  // namespace
 
 RunResult run_simulation(Simulation& sim, const RunOptions& options) {
+  if (sim.scene().solver.method == SolverMethod::kStatic) return run_static(sim, options);
   RunResult result;
   const auto wall_start = std::chrono::steady_clock::now();
   auto wall = [&] {

@@ -20,6 +20,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -211,6 +212,10 @@ class Simulation {
   }
   /// The job's setup (tool vertices, parameters); empty on the kinematic path.
   const JobSetup& job_setup() const { return job_setup_; }
+  /// The static solver (engine/solver/static_run.h) publishes its accepted state: the host
+  /// state's displacement and time, the report and the puncture, for frames and outputs.
+  void publish_static_state(std::span<const Vec3d> u, const NeedleReport& report,
+                            const PunctureRecord& puncture);
   /// Makes state() current: on the job path waits for the steps in flight and downloads the
   /// state from where it lives (a frame, a test); otherwise nothing to do. Not on the step path.
   Status sync_state();
@@ -338,6 +343,11 @@ struct ForceSample {
   double imbalance = 0;
   /// Kinetic / (kinetic + elastic) energy at the sampled step, 0 while not judged [-].
   double kinetic_share = 0;
+  /// The static solver's row: its Newton and CG iterations and the force imbalance it
+  /// converged to [N] (docs/static.md, "Converged"); 0 on the explicit path.
+  int32_t newton_iterations = 0;
+  int64_t krylov_iterations = 0;
+  double residual = 0;
 };
 
 /// Progress of a run, passed to RunOptions::progress.

@@ -1,58 +1,109 @@
 // The tools' energy terms (tool_terms.h): penalty.h's per-point laws summed over surface points.
 #include "engine/tools/tool_terms.h"
 
+#include <algorithm>
+
+#include "engine/fem/fem_element.h"
+
 namespace zona {
+
+std::vector<ContactPoint> vertex_contact_points(std::span<const int32_t> vertex,
+                                                std::span<const double> area) {
+  ZONA_ASSERT(vertex.size() == area.size());
+  std::vector<ContactPoint> points(vertex.size());
+  for (size_t i = 0; i < vertex.size(); ++i) {
+    points[i].vertex[0] = points[i].vertex[1] = points[i].vertex[2] = vertex[i];
+    points[i].area = area[i];
+  }
+  return points;
+}
+
+std::vector<ContactPoint> face_contact_points(std::span<const std::array<int32_t, 3>> faces,
+                                              std::span<const double> area) {
+  ZONA_ASSERT(faces.size() == area.size());
+  std::vector<ContactPoint> points;
+  points.reserve(faces.size() * kFacePoints);
+  for (size_t f = 0; f < faces.size(); ++f)
+    for (int q = 0; q < kFacePoints; ++q) {
+      ContactPoint p;
+      face_point_weights(q, &p.weight[1], &p.weight[2]);
+      p.weight[0] = 1.0 - p.weight[1] - p.weight[2];
+      for (int c = 0; c < 3; ++c) p.vertex[c] = faces[f][static_cast<size_t>(c)];
+      p.area = area[f] / kFacePoints;
+      points.push_back(p);
+    }
+  return points;
+}
 
 PenaltyContactTerm::PenaltyContactTerm(const char* name, ToolField field,
                                        std::span<const Vec3d> rest,
-                                       std::span<const int32_t> vertex,
-                                       std::span<const double> area, double kappa, double mu)
+                                       std::vector<ContactPoint> points, double kappa, double mu)
     : name_(name),
       field_(field),
       rest_(rest),
-      vertex_(vertex),
-      area_(area),
+      points_(std::move(points)),
       kappa_(kappa),
       mu_(mu),
-      lagged_(vertex.size()),
-      anchor_(vertex.size()) {
-  ZONA_ASSERT(vertex.size() == area.size());
-}
+      lagged_(points_.size()),
+      anchor_(points_.size()) {}
 
 Vec3d PenaltyContactTerm::position(std::span<const Vec3d> u, size_t i) const {
-  const size_t v = static_cast<size_t>(vertex_[i]);
-  return rest_[v] + u[v];
+  const ContactPoint& p = points_[i];
+  Vec3d x{0, 0, 0};
+  for (int c = 0; c < 3; ++c) {
+    if (p.weight[c] == 0) continue;
+    const size_t v = static_cast<size_t>(p.vertex[c]);
+    x += p.weight[c] * (rest_[v] + u[v]);
+  }
+  return x;
 }
 
 double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
   double e = 0;
-  for (size_t i = 0; i < vertex_.size(); ++i) {
+  for (size_t i = 0; i < points_.size(); ++i) {
     const Vec3d x = position(u, i);
     const double k = stiffness(i);
     e += penalty_energy(k, field_.eval(x).distance);
     const Lagged& l = lagged_[i];
     if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
   }
-  return e;
+  return scale_ * e;
+}
+
+Vec3d PenaltyContactTerm::point_gradient(std::span<const Vec3d> u, size_t i) const {
+  const Vec3d x = position(u, i);
+  const double k = stiffness(i);
+  Vec3d g = penalty_gradient(k, field_.eval(x));
+  const Lagged& l = lagged_[i];
+  if (l.cap > 0) g += friction_gradient(k, l.cap, l.normal, x - field_.origin - l.anchor);
+  return g;
 }
 
 void PenaltyContactTerm::add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
-  for (size_t i = 0; i < vertex_.size(); ++i) {
-    const Vec3d x = position(u, i);
-    const double k = stiffness(i);
-    Vec3d gi = penalty_gradient(k, field_.eval(x));
-    const Lagged& l = lagged_[i];
-    if (l.cap > 0) gi += friction_gradient(k, l.cap, l.normal, x - field_.origin - l.anchor);
-    g[static_cast<size_t>(vertex_[i])] += gi;
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const Vec3d gi = point_gradient(u, i);
+    if (gi.x == 0 && gi.y == 0 && gi.z == 0) continue;
+    const ContactPoint& p = points_[i];
+    for (int c = 0; c < 3; ++c)
+      if (p.weight[c] != 0) g[static_cast<size_t>(p.vertex[c])] += (scale_ * p.weight[c]) * gi;
   }
 }
 
-Mat3d PenaltyContactTerm::point_hessian(std::span<const Vec3d> u, size_t i) const {
+Mat3d PenaltyContactTerm::point_hessian(std::span<const Vec3d> u, size_t i, bool project) const {
   const Vec3d x = position(u, i);
   const double k = stiffness(i);
   Mat3d hess_phi;
   const ToolSdf sdf = field_.eval(x, &hess_phi);
   Mat3d h = penalty_hessian(k, sdf, hess_phi);
+  if (project && sdf.distance < 0) {
+    // phi hess(phi) bends with the tool's surface: negative semi-definite on a convex tool.
+    double ev[3];
+    Mat3d q;
+    symmetric_eigen3(h, ev, &q);
+    Mat3d d = Mat3d::zero();
+    for (int a = 0; a < 3; ++a) d.m[a][a] = ev[a] > 0 ? ev[a] : 0.0;
+    h = q * d * transpose(q);
+  }
   const Lagged& l = lagged_[i];
   if (l.cap > 0) h = h + friction_hessian(k, l.cap, l.normal, x - field_.origin - l.anchor);
   return h;
@@ -60,22 +111,46 @@ Mat3d PenaltyContactTerm::point_hessian(std::span<const Vec3d> u, size_t i) cons
 
 void PenaltyContactTerm::add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
                                              std::span<Vec3d> y) {
-  for (size_t i = 0; i < vertex_.size(); ++i) {
-    const size_t w = static_cast<size_t>(vertex_[i]);
-    y[w] += point_hessian(u, i) * v[w];
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const ContactPoint& p = points_[i];
+    Vec3d vp{0, 0, 0};
+    for (int c = 0; c < 3; ++c)
+      if (p.weight[c] != 0) vp += p.weight[c] * v[static_cast<size_t>(p.vertex[c])];
+    const Vec3d hv = point_hessian(u, i, false) * vp;
+    for (int c = 0; c < 3; ++c)
+      if (p.weight[c] != 0) y[static_cast<size_t>(p.vertex[c])] += (scale_ * p.weight[c]) * hv;
   }
 }
 
 void PenaltyContactTerm::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) {
-  for (size_t i = 0; i < vertex_.size(); ++i) {
-    Mat3d& block = d[static_cast<size_t>(vertex_[i])];
-    block = block + point_hessian(u, i);
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const ContactPoint& p = points_[i];
+    const Mat3d h = point_hessian(u, i, false);
+    // Corners that name the same vertex (a vertex point) add their weights' products.
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) {
+        if (p.weight[a] == 0 || p.weight[b] == 0 || p.vertex[a] != p.vertex[b]) continue;
+        Mat3d& block = d[static_cast<size_t>(p.vertex[a])];
+        block = block + (scale_ * p.weight[a] * p.weight[b]) * h;
+      }
+  }
+}
+
+void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm) {
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const ContactPoint& p = points_[i];
+    if (!(field_.eval(position(u, i)).distance < 0) && !(lagged_[i].cap > 0)) continue;
+    const Mat3d h = point_hessian(u, i, true);
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b)
+        if (p.weight[a] != 0 && p.weight[b] != 0)
+          hm.add(p.vertex[a], p.vertex[b], (scale_ * p.weight[a] * p.weight[b]) * h);
   }
 }
 
 void PenaltyContactTerm::lag(std::span<const Vec3d> u, int64_t step) {
   step_ = step;
-  for (size_t i = 0; i < vertex_.size(); ++i) {
+  for (size_t i = 0; i < points_.size(); ++i) {
     const Vec3d x = position(u, i);
     const ToolSdf sdf = field_.eval(x);
     Lagged& l = lagged_[i];
@@ -89,20 +164,37 @@ void PenaltyContactTerm::lag(std::span<const Vec3d> u, int64_t step) {
   }
 }
 
-void PenaltyContactTerm::commit(std::span<const Vec3d> u) {
-  for (size_t i = 0; i < vertex_.size(); ++i) {
+int64_t PenaltyContactTerm::commit(std::span<const Vec3d> u) {
+  int64_t slid = 0;
+  for (size_t i = 0; i < points_.size(); ++i) {
     const Lagged& l = lagged_[i];
     if (!(l.cap > 0)) continue;
     const Vec3d rel = position(u, i) - field_.origin;
-    anchor_[i] = stick_anchor_commit(
-        penalty_anchor_after(stiffness(i), l.cap, l.normal, rel, l.anchor), step_);
+    const Vec3d after = penalty_anchor_after(stiffness(i), l.cap, l.normal, rel, l.anchor);
+    if (!(after.x == l.anchor.x && after.y == l.anchor.y && after.z == l.anchor.z)) ++slid;
+    anchor_[i] = stick_anchor_commit(after, step_);
   }
+  return slid;
 }
 
 int64_t PenaltyContactTerm::lagged_contacts() const {
   int64_t n = 0;
   for (const Lagged& l : lagged_) n += l.cap > 0 ? 1 : 0;
   return n;
+}
+
+PenaltyContactTerm::Load PenaltyContactTerm::load(std::span<const Vec3d> u) const {
+  Load out;
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const Vec3d x = position(u, i);
+    const double phi = field_.eval(x).distance;
+    if (phi < 0) {
+      ++out.contacts;
+      out.depth = std::max(out.depth, -phi);
+    }
+    out.force -= scale_ * point_gradient(u, i);
+  }
+  return out;
 }
 
 SuctionTerm::SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load)

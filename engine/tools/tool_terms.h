@@ -9,6 +9,7 @@
 // explicit step's friction force.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -36,16 +37,42 @@ struct ToolField {
   }
 };
 
+/// A contact point on the cell's surface: a vertex, or a point of a surface triangle (its
+/// corners' barycentric combination), with its share of the rest area.
+struct ContactPoint {
+  int32_t vertex[3] = {0, 0, 0};  ///< model vertex indices; unused corners have weight 0
+  double weight[3] = {1, 0, 0};   ///< barycentric weights [-]
+  double area = 0;                ///< rest area the point carries [m^2]
+};
+
+/// Contact points at vertices (weight 1 each), of rest areas `area` [m^2].
+std::vector<ContactPoint> vertex_contact_points(std::span<const int32_t> vertex,
+                                                std::span<const double> area);
+/// The needle's face quadrature (penalty.h's kFacePoints per triangle): triangles by model
+/// vertex indices and rest areas [m^2].
+std::vector<ContactPoint> face_contact_points(std::span<const std::array<int32_t, 3>> faces,
+                                              std::span<const double> area);
+
 /// Penalty contact of a tool on surface points, with Coulomb friction as an incremental
 /// potential. Per point: energy k phi^2 / 2 inside the tool (k = kappa x area) plus, where the
-/// lagged state was in contact, the friction potential about its anchor.
+/// lagged state was in contact, the friction potential about its anchor; a face point's
+/// energy is that of its position, so its gradient reaches the corners by their weights. Every
+/// value is scaled by set_scale (the needle's release after a puncture).
+///
+/// (The explicit step's face law pushes along the triangle's normal where the triangle faces
+/// away from the tool, which is no gradient; here the load follows the distance field's normal,
+/// the one conservative choice: docs/static.md.)
 class PenaltyContactTerm final : public EnergyTerm {
  public:
-  /// `rest`: rest positions [m], (vertex_count); `vertex`, `area`: the points' model indices and
-  /// rest areas [m^2]; kappa [Pa/m]; mu [-]. The spans must outlive the term.
+  /// `rest`: rest positions [m], (vertex_count), which must outlive the term; kappa [Pa/m];
+  /// mu [-].
+  PenaltyContactTerm(const char* name, ToolField field, std::span<const Vec3d> rest,
+                     std::vector<ContactPoint> points, double kappa, double mu);
+  /// At vertices (vertex_contact_points).
   PenaltyContactTerm(const char* name, ToolField field, std::span<const Vec3d> rest,
                      std::span<const int32_t> vertex, std::span<const double> area, double kappa,
-                     double mu);
+                     double mu)
+      : PenaltyContactTerm(name, field, rest, vertex_contact_points(vertex, area), kappa, mu) {}
 
   const char* name() const override { return name_; }
   double energy(std::span<const Vec3d> u) override;
@@ -53,17 +80,30 @@ class PenaltyContactTerm final : public EnergyTerm {
   void add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
                            std::span<Vec3d> y) override;
   void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
+  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h) override;
 
   /// The tool's pose for the coming step.
   void set_field(const ToolField& field) { field_ = field; }
   const ToolField& field() const { return field_; }
+  /// Scales the term (energy, gradient, Hessian) by s >= 0.
+  void set_scale(double s) { scale_ = s; }
   /// Holds the friction's normal, cap and anchor of each point from the accepted state u for
   /// the coming step `step` (a point out of contact there gets none).
   void lag(std::span<const Vec3d> u, int64_t step);
-  /// After the step is accepted at u: the anchors of the points that slid follow them.
-  void commit(std::span<const Vec3d> u);
+  /// After the step is accepted at u: the anchors of the points that slid follow them. Returns
+  /// how many of the lagged contacts slid.
+  int64_t commit(std::span<const Vec3d> u);
   /// Points in contact in the lagged state.
   int64_t lagged_contacts() const;
+
+  /// What the tool does at u: the force it applies to the cell [N] (minus the gradient's sum),
+  /// the points inside it and the deepest one's depth [m].
+  struct Load {
+    Vec3d force{0, 0, 0};
+    int64_t contacts = 0;
+    double depth = 0;
+  };
+  Load load(std::span<const Vec3d> u) const;
 
  private:
   struct Lagged {
@@ -71,20 +111,20 @@ class PenaltyContactTerm final : public EnergyTerm {
     double cap = 0;  // mu x normal force [N]; 0: no friction this step
     Vec3d anchor{0, 0, 0};
   };
-  // Point i's position, its distance field and the penalty stiffness.
   Vec3d position(std::span<const Vec3d> u, size_t i) const;
-  double stiffness(size_t i) const { return kappa_ * area_[i]; }
-  // The point's Hessian block (normal and friction).
-  Mat3d point_hessian(std::span<const Vec3d> u, size_t i) const;
+  double stiffness(size_t i) const { return kappa_ * points_[i].area; }
+  // The point's gradient and Hessian block (normal and friction), unscaled.
+  Vec3d point_gradient(std::span<const Vec3d> u, size_t i) const;
+  Mat3d point_hessian(std::span<const Vec3d> u, size_t i, bool project) const;
 
   const char* name_;
   ToolField field_;
   std::span<const Vec3d> rest_;
-  std::span<const int32_t> vertex_;
-  std::span<const double> area_;
+  std::vector<ContactPoint> points_;
   double kappa_, mu_;
+  double scale_ = 1;
   int64_t step_ = 0;
-  std::vector<Lagged> lagged_;      // (point count)
+  std::vector<Lagged> lagged_;       // (point count)
   std::vector<StickAnchor> anchor_;  // committed anchors, (point count)
 };
 
@@ -99,6 +139,7 @@ class SuctionTerm final : public EnergyTerm {
   void add_hessian_product(std::span<const Vec3d>, std::span<const Vec3d>,
                            std::span<Vec3d>) override {}
   void add_hessian_diagonal(std::span<const Vec3d>, std::span<Mat3d>) override {}
+  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix&) override {}
   void set_ramp(double ramp) { ramp_ = ramp; }
 
  private:

@@ -141,6 +141,30 @@ TEST_P(ElasticEnergyTest, HessianIsSymmetricAndItsDiagonalIsTheProducts) {
   }
 }
 
+// The assembled Hessian (the projected Newton's matrix) is the Hessian-vector product's operator
+// where no element needs projecting (small strains, where every law's tangent is positive
+// definite), and positive semi-definite at large strains, where it differs from the product.
+TEST_P(ElasticEnergyTest, AssembledHessianIsTheProductAndPositive) {
+  const Model model = build(mesh_, GetParam());
+  ElasticEnergy term = ElasticEnergy::create(model).value();
+  for (double strain : {0.002, 0.4}) {
+    const std::vector<Vec3d> u = wavy(mesh_, strain, 0.3);
+    BlockSparseMatrix h = ElasticEnergy::hessian_pattern(model);
+    term.add_hessian(u, h);
+    for (double phase : {1.7, -0.9, 0.4}) {
+      const std::vector<Vec3d> a = wavy(mesh_, 1.0, phase);
+      std::vector<Vec3d> ha(u.size()), pa(u.size(), Vec3d{0, 0, 0});
+      h.multiply(a, ha);
+      EXPECT_GE(dot_all(a, ha), -1e-12 * std::abs(dot_all(a, ha))) << "strain " << strain;
+      if (strain > 0.01) continue;
+      term.add_hessian_product(u, a, pa);
+      const double scale = largest(pa);
+      for (size_t v = 0; v < u.size(); ++v)
+        EXPECT_LE(norm(ha[v] - pa[v]), 1e-9 * scale) << "vertex " << v;
+    }
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Laws, ElasticEnergyTest, ::testing::ValuesIn(kLaws),
                          [](const ::testing::TestParamInfo<LawCase>& param_info) {
                            return std::string(param_info.param.name);

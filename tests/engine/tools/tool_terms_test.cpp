@@ -147,3 +147,96 @@ TEST(ToolTerms, SuctionIsADeadLoad) {
 
 }  // namespace
 }  // namespace zona
+
+namespace zona {
+namespace {
+
+// The patch's grid as triangles (7 x 7 points, counter-clockwise seen from +x).
+std::vector<std::array<int32_t, 3>> patch_faces(std::vector<double>* area) {
+  std::vector<std::array<int32_t, 3>> faces;
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j) {
+      const int32_t a = 7 * i + j, b = a + 7, c = a + 1, d = a + 8;
+      faces.push_back({a, b, c});
+      faces.push_back({c, b, d});
+      area->push_back(0.2 + 0.01 * i);
+      area->push_back(0.25 - 0.01 * j);
+    }
+  return faces;
+}
+
+// Central differences of the energy and the gradient, for terms whose Hessian couples points.
+void expect_fd(EnergyTerm& term, const std::vector<Vec3d>& u) {
+  std::vector<Vec3d> dir(u.size());
+  for (size_t i = 0; i < u.size(); ++i) {
+    const double t = static_cast<double>(i);
+    dir[i] = Vec3d{std::sin(3.0 * t), std::cos(2.0 * t + 1), std::sin(0.7 * t + 2)};
+  }
+  const double h = 1e-7;
+  std::vector<Vec3d> g(u.size(), Vec3d{0, 0, 0});
+  term.add_gradient(u, g);
+  double gd = 0;
+  for (size_t i = 0; i < u.size(); ++i) gd += dot(g[i], dir[i]);
+  const double slope = (term.energy(axpy(u, h, dir)) - term.energy(axpy(u, -h, dir))) / (2 * h);
+  EXPECT_NEAR(gd, slope, 1e-6 * (std::abs(slope) + 1e-3)) << term.name();
+  std::vector<Vec3d> gp(u.size(), Vec3d{0, 0, 0}), gm(u.size(), Vec3d{0, 0, 0}),
+      hv(u.size(), Vec3d{0, 0, 0});
+  term.add_gradient(axpy(u, h, dir), gp);
+  term.add_gradient(axpy(u, -h, dir), gm);
+  term.add_hessian_product(u, dir, hv);
+  for (size_t i = 0; i < u.size(); ++i)
+    EXPECT_LE(norm((1.0 / (2 * h)) * (gp[i] - gm[i]) - hv[i]), 1e-5 * (1 + norm(hv[i])))
+        << term.name() << " point " << i;
+}
+
+TEST(ToolTerms, FaceQuadratureContactMatchesCentralDifferencesAndAssemblesPositive) {
+  Patch p = patch();
+  std::vector<double> area;
+  const std::vector<std::array<int32_t, 3>> faces = patch_faces(&area);
+  for (bool flat : {false, true}) {
+    ToolField f = needle();
+    f.flat = flat;
+    PenaltyContactTerm term("needle contact", f, p.rest, face_contact_points(faces, area), 50.0,
+                            0.3);
+    // Friction lagged at a nearby state, so that some points stick and some slide.
+    std::vector<Vec3d> lag_state = p.u;
+    for (size_t i = 0; i < lag_state.size(); ++i)
+      lag_state[i] += Vec3d{0.01, 0.003 * static_cast<double>(i % 5), 0};
+    term.lag(lag_state, 0);
+    term.commit(lag_state);
+    term.lag(lag_state, 1);
+    ASSERT_GT(term.lagged_contacts(), 10);
+    const PenaltyContactTerm::Load load = term.load(p.u);
+    ASSERT_GT(load.contacts, 10);
+    expect_fd(term, p.u);
+    // The assembled Hessian: positive semi-definite, and above the exact one (the projection
+    // only raises the curvature term's negative eigenvalues to zero): v^T H v >= v^T (H_exact) v.
+    std::vector<std::vector<int32_t>> rows(p.rest.size());
+    for (const auto& t : faces)
+      for (int32_t a : t)
+        for (int32_t b : t) rows[static_cast<size_t>(a)].push_back(b);
+    BlockSparseMatrix h(rows);
+    term.add_hessian(p.u, h);
+    for (double phase : {0.3, 1.1, 2.9}) {
+      std::vector<Vec3d> v(p.u.size()), hv(p.u.size()), pv(p.u.size(), Vec3d{0, 0, 0});
+      for (size_t i = 0; i < v.size(); ++i) {
+        const double t = static_cast<double>(i);
+        v[i] = Vec3d{std::sin(phase * t), std::cos(2 * phase * t), 0.5};
+      }
+      h.multiply(v, hv);
+      term.add_hessian_product(p.u, v, pv);
+      double vhv = 0, vpv = 0;
+      for (size_t i = 0; i < v.size(); ++i) {
+        vhv += dot(v[i], hv[i]);
+        vpv += dot(v[i], pv[i]);
+      }
+      EXPECT_GT(vhv, 0.0);
+      EXPECT_GE(vhv, vpv - 1e-12 * std::abs(vhv));
+      // The curvature term is a few percent of the normal stiffness here: the two are close.
+      EXPECT_NEAR(vhv, vpv, 0.2 * vhv) << "flat " << flat;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace zona

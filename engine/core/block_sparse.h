@@ -1,0 +1,64 @@
+// A symmetric matrix of 3 x 3 blocks on a fixed sparsity pattern (block CSR, every row holding
+// its own diagonal block and both triangles stored): the assembled Hessian a Newton solver
+// factors, multiplies and builds its preconditioner from. The pattern is made once; each
+// evaluation zeroes the values and adds into them (add() finds a block by binary search in its
+// row, which is a few dozen columns long).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/SparseCore>
+
+#include "engine/core/base.h"
+#include "engine/core/vec.h"
+
+namespace zona {
+
+class BlockSparseMatrix {
+ public:
+  BlockSparseMatrix() = default;
+  /// From each row's columns (any order, duplicates allowed; the diagonal is added).
+  explicit BlockSparseMatrix(const std::vector<std::vector<int32_t>>& rows);
+  /// From CSR arrays: offsets (rows + 1), sorted unique columns per row, each with its diagonal.
+  BlockSparseMatrix(std::vector<int64_t> offsets, std::vector<int32_t> cols);
+
+  size_t rows() const { return offsets_.empty() ? 0 : offsets_.size() - 1; }
+  size_t block_count() const { return cols_.size(); }
+  std::span<const int64_t> offsets() const { return offsets_; }
+  std::span<const int32_t> cols() const { return cols_; }
+  std::span<Mat3d> values() { return values_; }
+  std::span<const Mat3d> values() const { return values_; }
+
+  void set_zero();
+  /// The block (i, j), or nullptr where the pattern has none.
+  Mat3d* find(int32_t i, int32_t j);
+  const Mat3d* find(int32_t i, int32_t j) const;
+  /// Adds b to block (i, j); the pattern must hold it.
+  void add(int32_t i, int32_t j, const Mat3d& b) {
+    Mat3d* p = find(i, j);
+    ZONA_ASSERT(p != nullptr);
+    *p = *p + b;
+  }
+  /// y = A x, (rows).
+  void multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const;
+  /// The diagonal blocks, (rows).
+  void diagonal(std::vector<Mat3d>& out) const;
+  /// Rows and columns of the vertices with mask[v] != 0 replaced by the identity (fixed
+  /// vertices: the solution there is the right-hand side).
+  void apply_mask(std::span<const uint8_t> mask);
+  /// The scalar matrix (3 rows) x (3 rows), both triangles.
+  Eigen::SparseMatrix<double> to_eigen() const;
+  /// Writes the scalar matrix as a Matrix Market file (coordinate real symmetric: the lower
+  /// triangle, 1-based).
+  Status write_matrix_market(const std::string& path) const;
+
+ private:
+  std::vector<int64_t> offsets_;
+  std::vector<int32_t> cols_;
+  std::vector<Mat3d> values_;
+};
+
+}  // namespace zona

@@ -1,0 +1,169 @@
+// The linear solvers of a Newton step (linear_solver.h).
+#include "engine/solver/linear_solver.h"
+
+#include <cmath>
+
+#include <Eigen/SparseCholesky>
+
+namespace zona {
+namespace {
+
+double dot_all(std::span<const Vec3d> a, std::span<const Vec3d> b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += dot(a[i], b[i]);
+  return s;
+}
+
+Mat3d inverse3(const Mat3d& a) {
+  const double c00 = a.m[1][1] * a.m[2][2] - a.m[1][2] * a.m[2][1];
+  const double c01 = a.m[1][2] * a.m[2][0] - a.m[1][0] * a.m[2][2];
+  const double c02 = a.m[1][0] * a.m[2][1] - a.m[1][1] * a.m[2][0];
+  const double det = a.m[0][0] * c00 + a.m[0][1] * c01 + a.m[0][2] * c02;
+  Mat3d inv;
+  const double s = 1.0 / det;
+  inv.m[0][0] = s * c00;
+  inv.m[1][0] = s * c01;
+  inv.m[2][0] = s * c02;
+  inv.m[0][1] = s * (a.m[0][2] * a.m[2][1] - a.m[0][1] * a.m[2][2]);
+  inv.m[1][1] = s * (a.m[0][0] * a.m[2][2] - a.m[0][2] * a.m[2][0]);
+  inv.m[2][1] = s * (a.m[0][1] * a.m[2][0] - a.m[0][0] * a.m[2][1]);
+  inv.m[0][2] = s * (a.m[0][1] * a.m[1][2] - a.m[0][2] * a.m[1][1]);
+  inv.m[1][2] = s * (a.m[0][2] * a.m[1][0] - a.m[0][0] * a.m[1][2]);
+  inv.m[2][2] = s * (a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0]);
+  return inv;
+}
+
+class BlockJacobi final : public Preconditioner {
+ public:
+  const char* name() const override { return "block Jacobi"; }
+  Status setup(const BlockSparseMatrix& a) override {
+    a.diagonal(inverse_);
+    for (size_t i = 0; i < inverse_.size(); ++i) {
+      inverse_[i] = inverse3(inverse_[i]);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          if (!std::isfinite(inverse_[i].m[r][c]))
+            return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
+    }
+    return {};
+  }
+  void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {
+    for (size_t i = 0; i < r.size(); ++i) z[i] = inverse_[i] * r[i];
+  }
+
+ private:
+  std::vector<Mat3d> inverse_;
+};
+
+class DirectSolver final : public LinearSolver {
+ public:
+  const char* name() const override { return "direct (LDL^T)"; }
+  Status setup(const BlockSparseMatrix& a) override {
+    matrix_ = a.to_eigen();
+    if (!analysed_) {
+      ldlt_.analyzePattern(matrix_);
+      analysed_ = true;
+    }
+    ldlt_.factorize(matrix_);
+    if (ldlt_.info() != Eigen::Success)
+      return make_error("the direct solver could not factor the Hessian (%zu unknowns)",
+                        static_cast<size_t>(matrix_.rows()));
+    return {};
+  }
+  Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
+                                 double) override {
+    const Eigen::Index n = matrix_.rows();
+    Eigen::Map<const Eigen::VectorXd> rhs(&b[0].x, n);
+    Eigen::VectorXd x = ldlt_.solve(rhs);
+    if (ldlt_.info() != Eigen::Success || !x.allFinite())
+      return make_error("the direct solve of the Newton step failed");
+    Eigen::Map<Eigen::VectorXd>(&d[0].x, n) = x;
+    LinearSolveStats stats;
+    const double bn = rhs.norm();
+    stats.relative_residual = bn > 0 ? (matrix_ * x - rhs).norm() / bn : 0.0;
+    return stats;
+  }
+
+ private:
+  Eigen::SparseMatrix<double> matrix_;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> ldlt_;
+  bool analysed_ = false;
+};
+
+class CgSolver final : public LinearSolver {
+ public:
+  CgSolver(std::unique_ptr<Preconditioner> p, int64_t max_iterations)
+      : preconditioner_(std::move(p)), max_iterations_(max_iterations) {
+    name_ = std::string("CG, ") + preconditioner_->name();
+  }
+  const char* name() const override { return name_.c_str(); }
+  Status setup(const BlockSparseMatrix& a) override {
+    a_ = &a;
+    const size_t n = a.rows();
+    r_.resize(n);
+    z_.resize(n);
+    p_.resize(n);
+    q_.resize(n);
+    return preconditioner_->setup(a);
+  }
+  Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> x,
+                                 double tolerance) override {
+    const size_t n = b.size();
+    a_->multiply(x, q_);
+    for (size_t i = 0; i < n; ++i) r_[i] = b[i] - q_[i];
+    const double bn = std::sqrt(dot_all(b, b));
+    LinearSolveStats stats;
+    if (!(bn > 0)) {
+      for (size_t i = 0; i < n; ++i) x[i] = Vec3d{0, 0, 0};
+      return stats;
+    }
+    preconditioner_->apply(r_, z_);
+    p_ = z_;
+    double rz = dot_all(r_, z_);
+    double rn = std::sqrt(dot_all(r_, r_));
+    while (rn > tolerance * bn) {
+      if (stats.iterations >= max_iterations_)
+        return make_error("CG (%s) did not reach a relative residual of %.3g in %lld iterations "
+                          "(%.3g)",
+                          preconditioner_->name(), tolerance,
+                          static_cast<long long>(max_iterations_), rn / bn);
+      a_->multiply(p_, q_);
+      const double pq = dot_all(p_, q_);
+      if (!(pq > 0)) return make_error("CG met a direction of non-positive curvature (%.3g)", pq);
+      const double alpha = rz / pq;
+      for (size_t i = 0; i < n; ++i) {
+        x[i] += alpha * p_[i];
+        r_[i] -= alpha * q_[i];
+      }
+      preconditioner_->apply(r_, z_);
+      const double rz_next = dot_all(r_, z_);
+      const double beta = rz_next / rz;
+      rz = rz_next;
+      for (size_t i = 0; i < n; ++i) p_[i] = z_[i] + beta * p_[i];
+      rn = std::sqrt(dot_all(r_, r_));
+      ++stats.iterations;
+    }
+    stats.relative_residual = rn / bn;
+    return stats;
+  }
+
+ private:
+  std::unique_ptr<Preconditioner> preconditioner_;
+  int64_t max_iterations_;
+  std::string name_;
+  const BlockSparseMatrix* a_ = nullptr;
+  std::vector<Vec3d> r_, z_, p_, q_;
+};
+
+}  // namespace
+
+std::unique_ptr<Preconditioner> make_block_jacobi() { return std::make_unique<BlockJacobi>(); }
+
+std::unique_ptr<LinearSolver> make_direct_solver() { return std::make_unique<DirectSolver>(); }
+
+std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,
+                                             int64_t max_iterations) {
+  return std::make_unique<CgSolver>(std::move(preconditioner), max_iterations);
+}
+
+}  // namespace zona

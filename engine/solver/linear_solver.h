@@ -1,0 +1,55 @@
+// The linear solves of a Newton step, H d = -g on the assembled projected Hessian
+// (block_sparse.h): a sparse direct factorisation (the exact oracle) or the preconditioned
+// conjugate gradient (the fast path), its preconditioner behind an interface so that the
+// multigrid chosen in docs/static.md drops in beside the block Jacobi one.
+#pragma once
+
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "engine/core/base.h"
+#include "engine/core/block_sparse.h"
+
+namespace zona {
+
+/// z = M^-1 r for a symmetric positive definite approximation M of the matrix given to setup.
+class Preconditioner {
+ public:
+  virtual ~Preconditioner() = default;
+  virtual const char* name() const = 0;
+  /// Builds from the matrix (after its mask); called once per Newton iteration.
+  virtual Status setup(const BlockSparseMatrix& a) = 0;
+  virtual void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const = 0;
+};
+
+/// The inverse of each vertex's 3 x 3 diagonal block.
+std::unique_ptr<Preconditioner> make_block_jacobi();
+
+/// How a solve ended.
+struct LinearSolveStats {
+  int64_t iterations = 0;      ///< CG iterations (0 for the direct solver)
+  double relative_residual = 0;  ///< |H d + g| / |g| reached
+};
+
+/// Solves a d = b.
+class LinearSolver {
+ public:
+  virtual ~LinearSolver() = default;
+  virtual const char* name() const = 0;
+  /// Takes the matrix of this Newton iteration (masked; kept by reference until the solve).
+  virtual Status setup(const BlockSparseMatrix& a) = 0;
+  /// Solves to a relative residual `tolerance` (the direct solver ignores it); d is the
+  /// starting guess on entry (CG), the solution on exit.
+  virtual Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
+                                         double tolerance) = 0;
+};
+
+/// Eigen's simplicial LDL^T with AMD ordering (the pattern analysed once).
+std::unique_ptr<LinearSolver> make_direct_solver();
+/// CG preconditioned by `preconditioner`, at most max_iterations.
+std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,
+                                             int64_t max_iterations);
+
+}  // namespace zona

@@ -1,0 +1,154 @@
+// Projected Newton (newton.h).
+#include "engine/solver/newton.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+
+namespace zona {
+
+static_assert(sizeof(Vec3d) == 3 * sizeof(double), "Vec3d arrays are read as double arrays");
+
+NewtonSolver::NewtonSolver(std::vector<EnergyTerm*> terms, BlockSparseMatrix pattern,
+                           std::vector<uint8_t> fixed, std::unique_ptr<LinearSolver> linear,
+                           NewtonOptions options)
+    : terms_(std::move(terms)),
+      h_(std::move(pattern)),
+      fixed_(std::move(fixed)),
+      linear_(std::move(linear)),
+      options_(options) {
+  ZONA_ASSERT(fixed_.size() == h_.rows());
+  const size_t n = h_.rows();
+  g_.resize(n);
+  d_.resize(n);
+  trial_.resize(n);
+  rhs_.resize(n);
+}
+
+double NewtonSolver::evaluate(std::span<const Vec3d> u, std::span<Vec3d> g) {
+  double e = 0;
+  if (!g.empty()) std::fill(g.begin(), g.end(), Vec3d{0, 0, 0});
+  for (EnergyTerm* t : terms_) {
+    e += t->energy(u);
+    if (!g.empty()) t->add_gradient(u, g);
+  }
+  if (!g.empty())
+    for (size_t i = 0; i < g.size(); ++i)
+      if (fixed_[i]) g[i] = Vec3d{0, 0, 0};
+  return e;
+}
+
+const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u) {
+  h_.set_zero();
+  for (EnergyTerm* t : terms_) t->add_hessian(u, h_);
+  h_.apply_mask(fixed_);
+  return h_;
+}
+
+double NewtonSolver::max_imbalance(std::span<const Vec3d> g) const {
+  double r = 0;
+  for (const Vec3d& v : g) r = std::max(r, norm(v));
+  return r;
+}
+
+NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
+  NewtonStats stats;
+  const size_t n = u.size();
+  ZONA_ASSERT(n == h_.rows());
+  double e = evaluate(u, g_);
+  if (!std::isfinite(e)) {
+    stats.failure = "the starting state has an infinite energy (a collapsed element)";
+    return stats;
+  }
+  double gnorm = 0;
+  for (const Vec3d& v : g_) gnorm += dot(v, v);
+  gnorm = std::sqrt(gnorm);
+  double gnorm_prev = 0, eta = options_.forcing_max;
+  stats.residual = max_imbalance(g_);
+  stats.energy = e;
+  while (stats.residual > tolerance) {
+    if (stats.iterations >= options_.max_iterations) {
+      char line[200];
+      std::snprintf(line, sizeof line,
+                    "Newton did not converge in %d iterations (force imbalance %.3g N, "
+                    "tolerance %.3g N)",
+                    options_.max_iterations, stats.residual, tolerance);
+      stats.failure = line;
+      return stats;
+    }
+    // Forcing term: loose far from the answer, tight near it.
+    if (stats.iterations > 0)
+      eta = std::clamp(options_.forcing_gamma * std::pow(gnorm / gnorm_prev, options_.forcing_alpha),
+                       options_.forcing_min, options_.forcing_max);
+    const BlockSparseMatrix& h = hessian(u);
+    if (on_hessian) on_hessian(h, u, g_);
+    if (Status s = linear_->setup(h); !s) {
+      stats.failure = s.error().message;
+      return stats;
+    }
+    for (size_t i = 0; i < n; ++i) {
+      rhs_[i] = -1.0 * g_[i];
+      d_[i] = Vec3d{0, 0, 0};
+    }
+    Result<LinearSolveStats> ls = linear_->solve(rhs_, d_, eta);
+    if (!ls.ok()) {
+      stats.failure = ls.error().message;
+      return stats;
+    }
+    stats.krylov += ls->iterations;
+    double slope = 0;
+    for (size_t i = 0; i < n; ++i) slope += dot(g_[i], d_[i]);
+    if (!(slope < 0)) {
+      stats.failure = "the Newton direction does not descend (the projected Hessian is not "
+                      "positive definite)";
+      return stats;
+    }
+    if (std::getenv("ZONA_NEWTON_TRACE"))
+      std::fprintf(stderr, "newton %d: E %.17g |g|max %.3g slope %.3g cg %lld eta %.2g\n",
+                   stats.iterations, e, stats.residual, slope,
+                   static_cast<long long>(ls->iterations), eta);
+    // Backtracking: halve until the energy falls enough, from the capped step.
+    double alpha = 1, e_trial = 0;
+    if (options_.max_displacement > 0) {
+      double longest = 0;
+      for (const Vec3d& v : d_) longest = std::max(longest, norm(v));
+      if (longest > options_.max_displacement) alpha = options_.max_displacement / longest;
+    }
+    const double alpha_start = alpha;
+    for (;;) {
+      for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + alpha * d_[i];
+      e_trial = evaluate(trial_, {});
+      if (std::isfinite(e_trial) && e_trial <= e + options_.armijo * alpha * slope) break;
+      // At round-off the energy cannot tell; a full step that does not raise it is taken.
+      if (alpha == alpha_start && std::isfinite(e_trial) &&
+          std::fabs(e_trial - e) <= 1e-13 * std::fabs(e) + 1e-300)
+        break;
+      alpha *= 0.5;
+      if (alpha < options_.min_step * alpha_start) {
+        char line[200];
+        std::snprintf(line, sizeof line,
+                      "the line search found no lower energy along the Newton direction "
+                      "(force imbalance %.3g N)",
+                      stats.residual);
+        stats.failure = line;
+        return stats;
+      }
+    }
+    if (std::getenv("ZONA_NEWTON_TRACE"))
+      std::fprintf(stderr, "   alpha %.3g of %.3g\n", alpha, alpha_start);
+    u.swap(trial_);
+    e = evaluate(u, g_);
+    gnorm_prev = gnorm;
+    gnorm = 0;
+    for (const Vec3d& v : g_) gnorm += dot(v, v);
+    gnorm = std::sqrt(gnorm);
+    stats.residual = max_imbalance(g_);
+    stats.energy = e;
+    ++stats.iterations;
+  }
+  stats.converged = true;
+  return stats;
+}
+
+}  // namespace zona
