@@ -40,6 +40,7 @@ struct RunArgs {
   int threads = 0;
   double stop_after_puncture = -1;
   bool no_frames = false;
+  bool no_plot = false;     // --no-plot: no force_deformation.png / .svg (sweeps, calibration)
   std::string png_frames;   // --frames DIR: numbered PNG frames from the renderer
   std::string frame_color = "displacement";
   int frame_count = 0;      // 0: the scene's output.frames (or 50 when it has none)
@@ -406,7 +407,8 @@ void run_command(const RunArgs& args) {
                                    summary.dump(2) + "\n");
       !s)
     return fail(s.error().message);
-  const std::vector<std::string> plots = write_force_plots(out, sim, run, args);
+  const std::vector<std::string> plots =
+      args.no_plot ? std::vector<std::string>() : write_force_plots(out, sim, run, args);
 
   // What happened, on stdout.
   std::printf("scene: %s (%s)\n", scene->name.c_str(), path->c_str());
@@ -475,6 +477,8 @@ void add_run_command(CLI::App& app) {
   cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
                   "Stop this many simulated seconds after puncture (default: run to the end)");
   cmd->add_flag("--no-frames", args->no_frames, "Write no VTU frames");
+  cmd->add_flag("--no-plot", args->no_plot,
+                "Draw no force-deformation plot (what zona sweep and zona calibrate run)");
   cmd->add_option("--frames", args->png_frames,
                   "Also render numbered PNG frames into this folder (Vulkan renderer, headless)");
   cmd->add_option("--frame-color", args->frame_color,

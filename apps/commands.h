@@ -54,6 +54,7 @@ void add_analytic_commands(CLI::App& app);
 void add_calibrate_command(CLI::App& app);
 void add_study_commands(CLI::App& app);
 void add_plot_command(CLI::App& app);
+void add_sweep_command(CLI::App& app);
 
 /// Writes one PNG frame of a simulation (DIR/frame_00000.png, ...), for `zona run --frames DIR`.
 using PngFrameWriter = std::function<zona::Status(const zona::Simulation&)>;

@@ -130,6 +130,7 @@ int main(int argc, char** argv) {
   zona::cli::add_calibrate_command(app);
   zona::cli::add_study_commands(app);
   zona::cli::add_plot_command(app);
+  zona::cli::add_sweep_command(app);
   // A group (mesh, analytic, study) without its subcommand lists them, checked after parsing:
   // CLI11's own "A subcommand is required" does not say which.
   for (CLI::App* group : app.get_subcommands([](CLI::App* c) { return !all_subcommands(*c).empty(); }))
@@ -154,6 +155,9 @@ int main(int argc, char** argv) {
   for (const CLI::App* group : app.get_subcommands()) {
     const std::vector<const CLI::App*> choices = all_subcommands(*group);
     if (choices.empty() || !group->get_subcommands().empty()) continue;
+    // A command that runs on its own and has a subcommand besides (`zona sweep SCENE`, `zona
+    // sweep collect DIR`) is not a group.
+    if (!group->get_options([](const CLI::Option* o) { return o->get_positional(); }).empty()) continue;
     std::string names;
     for (const CLI::App* c : choices) names += (names.empty() ? "" : ", ") + c->get_name();
     std::fprintf(stderr, "zona: error: 'zona %s' needs a subcommand: %s\n",

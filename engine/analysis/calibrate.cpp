@@ -1,4 +1,5 @@
-// Calibration of scene parameters against a force-deformation curve (golden section / Nelder-Mead).
+// Calibration of scene parameters against force-deformation curves: least squares on the loading
+// branch (Levenberg-Marquardt), a bootstrap over curves for the intervals (engine/analysis/calibrate.h).
 #include "engine/analysis/calibrate.h"
 
 #include <algorithm>
@@ -7,7 +8,10 @@
 #include <fstream>
 #include <limits>
 #include <numeric>
+#include <random>
 #include <sstream>
+
+#include <Eigen/Dense>
 
 #include <nlohmann/json.hpp>
 
@@ -28,18 +32,6 @@ std::vector<std::string> split_csv_line(const std::string& line) {
     out.push_back(b == std::string::npos ? "" : cell.substr(b, e - b + 1));
   }
   return out;
-}
-
-// The loading part of a run: (deformation, force) at each new largest deformation before puncture.
-void loading_curve(const RunResult& run, std::vector<double>* d, std::vector<double>* f) {
-  d->clear();
-  f->clear();
-  for (const ForceSample& s : run.samples) {
-    if (s.punctured) break;
-    if (!d->empty() && s.deformation <= d->back()) continue;
-    d->push_back(s.deformation);
-    f->push_back(s.force);
-  }
 }
 
 // Linear interpolation in a sorted table, clamped at its ends.
@@ -67,8 +59,10 @@ Result<ForceCurve> read_force_curve_csv(const std::string& path) {
   std::ifstream in(path);
   if (!in) return make_error("%s: cannot open", path.c_str());
   std::string line;
-  int line_number = 0, id = -1, iforce = -1;
+  int line_number = 0, id = -1, iforce = -1, ipunct = -1;
   ForceCurve curve;
+  curve.source = path;
+  bool in_loading = true;
   while (std::getline(in, line)) {
     ++line_number;
     if (line.empty() || line[0] == '#' || line.find_first_not_of(" \t\r") == std::string::npos) continue;
@@ -77,13 +71,16 @@ Result<ForceCurve> read_force_curve_csv(const std::string& path) {
       for (size_t i = 0; i < cells.size(); ++i) {
         if (cells[i] == "deformation_m") id = static_cast<int>(i);
         if (cells[i] == "force_N") iforce = static_cast<int>(i);
+        if (cells[i] == "punctured") ipunct = static_cast<int>(i);
       }
       if (id < 0 || iforce < 0)
         return make_error("%s:%d: the header needs columns deformation_m and force_N", path.c_str(), line_number);
       continue;
     }
-    if (static_cast<int>(cells.size()) <= std::max(id, iforce))
-      return make_error("%s:%d: expected at least %d columns", path.c_str(), line_number, std::max(id, iforce) + 1);
+    const int needed = std::max({id, iforce, ipunct});
+    if (static_cast<int>(cells.size()) <= needed)
+      return make_error("%s:%d: expected at least %d columns", path.c_str(), line_number, needed + 1);
+    ++curve.rows;
     char* end = nullptr;
     const double d = std::strtod(cells[static_cast<size_t>(id)].c_str(), &end);
     const bool d_ok = end && *end == '\0' && !cells[static_cast<size_t>(id)].empty();
@@ -91,15 +88,131 @@ Result<ForceCurve> read_force_curve_csv(const std::string& path) {
     const bool f_ok = end && *end == '\0' && !cells[static_cast<size_t>(iforce)].empty();
     if (!d_ok || !f_ok || !std::isfinite(d) || !std::isfinite(f))
       return make_error("%s:%d: deformation_m and force_N must be numbers", path.c_str(), line_number);
-    if (!curve.deformation.empty() && d <= curve.deformation.back())
+    if (ipunct >= 0) {
+      // zona's force.csv: the loading branch is the rows before the puncture that advance.
+      const std::string& p = cells[static_cast<size_t>(ipunct)];
+      if (p != "0" && p != "1")
+        return make_error("%s:%d: punctured must be 0 or 1, got '%s'", path.c_str(), line_number, p.c_str());
+      if (p == "1") in_loading = false;
+      if (!in_loading) {
+        curve.punctured = true;
+        ++curve.after_puncture;
+        continue;
+      }
+      if (!curve.deformation.empty() ? d <= curve.deformation.back() : d <= 0) {
+        ++curve.not_advancing;
+        continue;
+      }
+    } else if (!curve.deformation.empty() && d <= curve.deformation.back()) {
       return make_error("%s:%d: deformation_m must increase (%g after %g)", path.c_str(), line_number, d,
                         curve.deformation.back());
+    }
     curve.deformation.push_back(d);
     curve.force.push_back(f);
   }
   if (id < 0) return make_error("%s: empty (no header)", path.c_str());
-  if (curve.deformation.size() < 2) return make_error("%s: needs at least 2 data rows", path.c_str());
+  if (curve.deformation.size() < 2)
+    return make_error("%s: needs at least 2 data rows on the loading branch (has %zu)", path.c_str(),
+                      curve.deformation.size());
   return curve;
+}
+
+SimulatedCurve simulated_curve(const RunResult& run) {
+  SimulatedCurve c;
+  for (const ForceSample& s : run.samples) {
+    if (s.punctured) break;
+    if (!std::isfinite(s.deformation) || !std::isfinite(s.force)) break;
+    if (!c.loading.deformation.empty() && s.deformation <= c.loading.deformation.back()) continue;
+    c.loading.deformation.push_back(s.deformation);
+    c.loading.force.push_back(s.force);
+  }
+  c.loading.punctured = run.puncture.punctured;
+  if (run.puncture.punctured) {
+    c.puncture_force = run.puncture.force;
+    // The puncture point closes the branch (the force the criterion fired at).
+    if (c.loading.deformation.empty() || run.puncture.deformation > c.loading.deformation.back()) {
+      c.loading.deformation.push_back(run.puncture.deformation);
+      c.loading.force.push_back(run.puncture.force);
+    }
+  }
+  c.peak_force = run.peak_force;
+  if (quasi_static_measured(run.quasi_limits)) c.quasi_static = run.quasi_static();
+  return c;
+}
+
+Result<SimulatedCurve> read_simulated_curve(const std::string& folder) {
+  const std::string summary_path = folder + "/summary.json";
+  std::ifstream in(summary_path);
+  if (!in) return make_error("%s: no summary (the run did not finish)", summary_path.c_str());
+  std::stringstream text;
+  text << in.rdbuf();
+  const json j = json::parse(text.str(), nullptr, false);
+  if (j.is_discarded() || !j.is_object()) return make_error("%s: not valid JSON", summary_path.c_str());
+  const json numerics = j.value("numerics", json::object());
+  if (numerics.value("stopped_early", false))
+    return make_error("run stopped early: %s", numerics.value("stop_reason", std::string("?")).c_str());
+  SimulatedCurve c;
+  Result<ForceCurve> loading = read_force_curve_csv(folder + "/force.csv");
+  if (loading.ok()) c.loading = *loading;  // fewer than 2 points: an empty branch, not an error
+  const json puncture = j.value("puncture", json::object());
+  c.loading.punctured = puncture.value("punctured", false);
+  if (c.loading.punctured) {
+    c.puncture_force = puncture.value("force_N", 0.0);
+    const double d = puncture.value("deformation_m", 0.0);
+    if (c.loading.deformation.empty() || d > c.loading.deformation.back()) {
+      c.loading.deformation.push_back(d);
+      c.loading.force.push_back(c.puncture_force);
+    }
+  }
+  c.peak_force = j.value("peak_force_N", 0.0);
+  if (j.contains("quasi_static") && j["quasi_static"].is_boolean()) c.quasi_static = j["quasi_static"].get<bool>();
+  return c;
+}
+
+std::vector<double> curve_residuals(const SimulatedCurve& sim, const ForceCurve& data, int* past_reach) {
+  const std::vector<double>& d = sim.loading.deformation;
+  const std::vector<double>& f = sim.loading.force;
+  const double reach = d.empty() ? 0.0 : d.back();
+  std::vector<double> r;
+  r.reserve(data.deformation.size() + 1);
+  int past = 0;
+  for (size_t i = 0; i < data.deformation.size(); ++i) {
+    const double at = data.deformation[i];
+    double simulated = 0;
+    if (at <= reach) {
+      simulated = interpolate(d, f, at);
+    } else {
+      // Past the run's reach: punctured (force 0 after it) or stopped (its last force).
+      ++past;
+      simulated = sim.loading.punctured ? 0.0 : (f.empty() ? 0.0 : f.back());
+    }
+    r.push_back(simulated - data.force[i]);
+  }
+  if (data.punctured && !data.force.empty())
+    r.push_back((sim.loading.punctured ? sim.puncture_force : sim.peak_force) - data.force.back());
+  if (past_reach) *past_reach = past;
+  return r;
+}
+
+CurveError force_curve_error(const SimulatedCurve& sim, std::span<const ForceCurve> data) {
+  CurveError e;
+  double sum = 0, sum_data = 0;
+  for (const ForceCurve& curve : data) {
+    int past = 0;
+    const std::vector<double> r = curve_residuals(sim, curve, &past);
+    e.past_reach += past;
+    for (double x : r) sum += x * x;
+    for (double x : curve.force) sum_data += x * x;
+    if (curve.punctured && !curve.force.empty()) {
+      sum_data += curve.force.back() * curve.force.back();
+      ++e.puncture_terms;
+    }
+    e.points += static_cast<int>(r.size());
+  }
+  e.rms = e.points > 0 ? std::sqrt(sum / e.points) : 0.0;
+  const double data_rms = e.points > 0 ? std::sqrt(sum_data / e.points) : 0.0;
+  e.relative = data_rms > 0 ? e.rms / data_rms : 0.0;
+  return e;
 }
 
 Result<FitParameter> parse_fit_parameter(const std::string& spec, const json& scene_json) {
@@ -160,49 +273,167 @@ std::string fit_override(const FitParameter& p, double value) {
   return text;
 }
 
-CurveError force_curve_error(const RunResult& run, const ForceCurve& data, bool data_punctures) {
-  std::vector<double> d, f;
-  loading_curve(run, &d, &f);
-  const double reach = d.empty() ? 0.0 : d.back();
-  // Past its reach the run has either punctured (force 0) or stopped (its last force).
-  auto simulated = [&](double at) {
-    if (at <= reach) return interpolate(d, f, at);
-    return run.puncture.punctured ? 0.0 : (f.empty() ? 0.0 : f.back());
-  };
-  CurveError e;
-  double sum = 0, sum_data = 0;
-  for (size_t i = 0; i < data.deformation.size(); ++i) {
-    const double r = simulated(data.deformation[i]) - data.force[i];
-    sum += r * r;
-    sum_data += data.force[i] * data.force[i];
-    ++e.points;
-  }
-  // A run still loading past the data's puncture: its force there against the data's 0, at the
-  // data's mean spacing (at most 5 % of its range, so that a late puncture is charged even
-  // when the data is a few points).
-  if (data_punctures && !data.deformation.empty()) {
-    const double last = data.deformation.back();
-    const double spacing = last / static_cast<double>(std::max<size_t>(20, data.deformation.size()));
-    for (double at = last + spacing; spacing > 0 && at <= reach; at += spacing) {
-      const double r = interpolate(d, f, at);
-      sum += r * r;
-      ++e.points;
-    }
-  }
-  e.rms = e.points > 0 ? std::sqrt(sum / e.points) : 0.0;
-  const double data_rms = std::sqrt(sum_data / static_cast<double>(std::max<size_t>(1, data.deformation.size())));
-  e.relative = data_rms > 0 ? e.rms / data_rms : 0.0;
-  return e;
+namespace {
+
+// Normalised coordinate of a value (the inverse of to_value).
+double to_unit(const FitParameter& p, double v) {
+  if (p.lower > 0) return std::log(v / p.lower) / std::log(p.upper / p.lower);
+  return (v - p.lower) / (p.upper - p.lower);
 }
+
+// Correlation matrix of a covariance matrix (0 where a variance is 0).
+std::vector<std::vector<double>> correlation_of(const Eigen::MatrixXd& cov) {
+  const Eigen::Index n = cov.rows();
+  std::vector<std::vector<double>> c(static_cast<size_t>(n), std::vector<double>(static_cast<size_t>(n), 0.0));
+  for (Eigen::Index i = 0; i < n; ++i)
+    for (Eigen::Index k = 0; k < n; ++k) {
+      const double d = std::sqrt(cov(i, i) * cov(k, k));
+      c[static_cast<size_t>(i)][static_cast<size_t>(k)] = d > 0 ? cov(i, k) / d : (i == k ? 1.0 : 0.0);
+    }
+  return c;
+}
+
+// The search and the bootstrap over one scene, its data and its parameters.
+class Fitter {
+ public:
+  Fitter(const std::string& scene_path, const std::vector<std::string>& overrides,
+         std::span<const ForceCurve> data, const CalibrateOptions& options, CalibrationResult& result)
+      : scene_path_(scene_path), overrides_(overrides), data_(data), options_(options), result_(result) {}
+
+  int budget_left() const { return options_.max_evaluations - static_cast<int>(result_.history.size()); }
+
+  // Runs the points (normalised) as one batch; returns their indices in the history.
+  std::vector<size_t> evaluate(const std::vector<std::vector<double>>& xs, const char* role) {
+    std::vector<std::vector<std::string>> batch;
+    std::vector<CalibrationEvaluation> evs;
+    const size_t count = std::min(xs.size(), static_cast<size_t>(std::max(0, budget_left())));
+    for (size_t i = 0; i < count; ++i) {
+      CalibrationEvaluation ev;
+      ev.role = role;
+      std::vector<std::string> o = overrides_;
+      for (size_t k = 0; k < result_.parameters.size(); ++k) {
+        ev.values.push_back(to_value(result_.parameters[k], xs[i][k]));
+        o.push_back(fit_override(result_.parameters[k], ev.values.back()));
+      }
+      batch.push_back(o);
+      evs.push_back(ev);
+    }
+    std::vector<Result<SimulatedCurve>> curves;
+    if (options_.evaluate) {
+      curves = options_.evaluate(batch);
+    } else {
+      RunOptions run_options = options_.run;
+      if (run_options.stop_after_puncture < 0) run_options.stop_after_puncture = 0;
+      for (const std::vector<std::string>& o : batch) {
+        const auto start = std::chrono::steady_clock::now();
+        Result<Scene> scene = load_scene(scene_path_, o);
+        if (!scene.ok()) {
+          curves.push_back(scene.error());
+          continue;
+        }
+        Result<RunResult> run = run_scene(*scene, run_options);
+        if (!run.ok()) curves.push_back(run.error());
+        else if (run->stopped_early) curves.push_back(make_error("run stopped early: %s", run->stop_reason.c_str()));
+        else {
+          SimulatedCurve c = simulated_curve(*run);
+          c.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+          curves.push_back(c);
+        }
+      }
+    }
+    std::vector<size_t> indices;
+    for (size_t i = 0; i < evs.size(); ++i) {
+      CalibrationEvaluation& ev = evs[i];
+      if (i >= curves.size()) {
+        ev.message = "not run";
+      } else if (!curves[i].ok()) {
+        ev.message = curves[i].error().message;
+      } else {
+        const SimulatedCurve& c = *curves[i];
+        ev.ok = true;
+        ev.error = force_curve_error(c, data_);
+        for (const ForceCurve& curve : data_) ev.residuals.push_back(curve_residuals(c, curve));
+        for (const auto& r : ev.residuals)
+          for (double x : r) ev.sum_squares += x * x;
+        ev.punctured = c.loading.punctured;
+        if (ev.punctured) {
+          ev.puncture_deformation = c.loading.deformation.empty() ? 0.0 : c.loading.deformation.back();
+          ev.puncture_force = c.puncture_force;
+        }
+        ev.quasi_static = c.quasi_static;
+        ev.wall_seconds = c.wall_seconds;
+      }
+      result_.history.push_back(ev);
+      indices.push_back(result_.history.size() - 1);
+      if (options_.progress) options_.progress(ev, static_cast<int>(indices.back()));
+    }
+    return indices;
+  }
+
+  double cost(size_t index) const {
+    const CalibrationEvaluation& ev = result_.history[index];
+    return ev.ok ? ev.sum_squares : std::numeric_limits<double>::infinity();
+  }
+
+  static Eigen::VectorXd flat(const CalibrationEvaluation& ev) {
+    std::vector<double> all;
+    for (const auto& r : ev.residuals) all.insert(all.end(), r.begin(), r.end());
+    return Eigen::Map<const Eigen::VectorXd>(all.data(), static_cast<Eigen::Index>(all.size()));
+  }
+
+  // The forward-difference Jacobian of the residuals at `x` (its evaluation `at`), in the
+  // normalised parameters; false when a run failed or the budget is out.
+  bool jacobian(const std::vector<double>& x, size_t at, Eigen::MatrixXd* J) {
+    const size_t n = x.size();
+    std::vector<std::vector<double>> xs;
+    std::vector<double> h(n);
+    for (size_t k = 0; k < n; ++k) {
+      h[k] = x[k] + kStep <= 1.0 ? kStep : -kStep;  // inside the box
+      std::vector<double> xk = x;
+      xk[k] += h[k];
+      xs.push_back(xk);
+    }
+    if (budget_left() < static_cast<int>(n)) return false;
+    const std::vector<size_t> idx = evaluate(xs, "jacobian");
+    const Eigen::VectorXd r0 = flat(result_.history[at]);
+    J->resize(r0.size(), static_cast<Eigen::Index>(n));
+    for (size_t k = 0; k < n; ++k) {
+      if (k >= idx.size() || !result_.history[idx[k]].ok) return false;
+      J->col(static_cast<Eigen::Index>(k)) = (flat(result_.history[idx[k]]) - r0) / h[k];
+    }
+    return true;
+  }
+
+  static constexpr double kStep = 0.02;  // Jacobian step in the normalised parameters
+
+ private:
+  const std::string& scene_path_;
+  const std::vector<std::string>& overrides_;
+  std::span<const ForceCurve> data_;
+  const CalibrateOptions& options_;
+  CalibrationResult& result_;
+};
+
+std::vector<double> clamp_unit(std::vector<double> x) {
+  for (double& c : x) c = std::clamp(c, 0.0, 1.0);
+  return x;
+}
+
+}  // namespace
 
 Result<CalibrationResult> calibrate(const std::string& scene_path,
                                     const std::vector<std::string>& overrides,
                                     const std::vector<FitParameter>& parameters,
-                                    const ForceCurve& data, const CalibrateOptions& options) {
+                                    std::span<const ForceCurve> data, const CalibrateOptions& options) {
   if (parameters.empty()) return make_error("calibrate: no parameter to fit");
-  if (data.deformation.size() < 2 || data.deformation.size() != data.force.size())
-    return make_error("calibrate: the data needs at least 2 points");
-  if (options.max_evaluations < 1) return make_error("calibrate: max_evaluations must be >= 1");
+  if (data.empty()) return make_error("calibrate: no data curve");
+  for (const ForceCurve& c : data)
+    if (c.deformation.size() < 2 || c.deformation.size() != c.force.size())
+      return make_error("calibrate: %s: the data needs at least 2 points",
+                        c.source.empty() ? "a curve" : c.source.c_str());
+  const size_t n = parameters.size();
+  if (options.max_evaluations < static_cast<int>(n) + 2)
+    return make_error("calibrate: max_evaluations must be >= %zu (a point and its Jacobian)", n + 2);
   for (const FitParameter& p : parameters)
     if (!(p.upper > p.lower)) return make_error("calibrate: %s: the range must have LO < HI", p.key.c_str());
   // The scene must load at both ends of every range (a bound it rejects is the user's error).
@@ -216,139 +447,192 @@ Result<CalibrationResult> calibrate(const std::string& scene_path,
 
   CalibrationResult result;
   result.parameters = parameters;
-  RunOptions run_options = options.run;
-  if (run_options.stop_after_puncture < 0) run_options.stop_after_puncture = 0;
-  const double infinity = std::numeric_limits<double>::infinity();
+  result.curve_count = static_cast<int>(data.size());
+  Fitter fit(scene_path, overrides, data, options, result);
 
-  // The objective: relative RMS error of one run (infinite when it fails).
-  auto evaluate = [&](const std::vector<double>& s) -> double {
-    CalibrationEvaluation ev;
-    std::vector<std::string> o = overrides;
-    for (size_t i = 0; i < parameters.size(); ++i) {
-      ev.values.push_back(to_value(parameters[i], s[i]));
-      o.push_back(fit_override(parameters[i], ev.values.back()));
-    }
-    const auto start = std::chrono::steady_clock::now();
-    Result<Scene> scene = load_scene(scene_path, o);
-    if (!scene.ok()) {
-      ev.message = scene.error().message;
-    } else {
-      Result<RunResult> run = run_scene(*scene, run_options);
-      if (!run.ok()) {
-        ev.message = run.error().message;
-      } else if (run->stopped_early) {
-        ev.message = "run stopped early: " + run->stop_reason;
-      } else {
-        ev.ok = true;
-        ev.error = force_curve_error(*run, data, options.data_punctures);
-        ev.puncture = run->puncture;
-      }
-    }
-    ev.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    result.history.push_back(ev);
-    if (options.progress) options.progress(ev, static_cast<int>(result.history.size()) - 1);
-    return ev.ok ? ev.error.relative : infinity;
-  };
-  auto budget_left = [&] { return static_cast<int>(result.history.size()) < options.max_evaluations; };
-
-  const size_t n = parameters.size();
-  if (n == 1) {
-    // Scan, then golden section inside the best point's neighbours.
-    const int g = std::max(3, options.grid_points);
-    double best_s = 0, best = infinity;
-    for (int j = 0; j < g && budget_left(); ++j) {
-      const double s = static_cast<double>(j) / (g - 1);
-      const double v = evaluate({s});
-      if (v < best) best = v, best_s = s;
-    }
-    double a = std::max(0.0, best_s - 1.0 / (g - 1)), b = std::min(1.0, best_s + 1.0 / (g - 1));
-    const double r = (std::sqrt(5.0) - 1.0) / 2.0;
-    double x1 = b - r * (b - a), x2 = a + r * (b - a);
-    double f1 = budget_left() ? evaluate({x1}) : infinity;
-    double f2 = budget_left() ? evaluate({x2}) : infinity;
-    while (b - a > options.tolerance && budget_left()) {
-      if (f1 <= f2) {
-        b = x2, x2 = x1, f2 = f1;
-        x1 = b - r * (b - a);
-        f1 = evaluate({x1});
-      } else {
-        a = x1, x1 = x2, f1 = f2;
-        x2 = a + r * (b - a);
-        f2 = evaluate({x2});
-      }
-    }
-    result.converged = b - a <= options.tolerance;
+  // The start: a scan for one parameter (its best point), the centre of the box for several.
+  std::vector<double> x(n, 0.5);
+  size_t current = 0;
+  if (n == 1 && options.grid_points >= 2) {
+    std::vector<std::vector<double>> grid;
+    for (int j = 0; j < options.grid_points; ++j) grid.push_back({static_cast<double>(j) / (options.grid_points - 1)});
+    const std::vector<size_t> idx = fit.evaluate(grid, "scan");
+    current = idx.front();
+    for (size_t i : idx)
+      if (fit.cost(i) < fit.cost(current)) current = i;
+    x = grid[static_cast<size_t>(current - idx.front())];
   } else {
-    // Nelder-Mead in the unit box (points clamped into it).
-    auto clamp_point = [](std::vector<double> x) {
-      for (double& c : x) c = std::clamp(c, 0.0, 1.0);
-      return x;
-    };
-    std::vector<std::vector<double>> simplex(n + 1, std::vector<double>(n, 0.5));
-    for (size_t i = 0; i < n; ++i) simplex[i + 1][i] = 0.75;
-    std::vector<double> values(n + 1, infinity);
-    for (size_t i = 0; i <= n && budget_left(); ++i) values[i] = evaluate(simplex[i]);
-    auto size_of = [&] {
-      double largest = 0;
-      for (size_t i = 1; i <= n; ++i)
-        for (size_t k = 0; k < n; ++k) largest = std::max(largest, std::fabs(simplex[i][k] - simplex[0][k]));
-      return largest;
-    };
-    while (budget_left()) {
-      std::vector<size_t> order(n + 1);
-      std::iota(order.begin(), order.end(), size_t{0});
-      std::sort(order.begin(), order.end(), [&](size_t x, size_t y) { return values[x] < values[y]; });
-      std::vector<std::vector<double>> s2;
-      std::vector<double> v2;
-      for (size_t i : order) s2.push_back(simplex[i]), v2.push_back(values[i]);
-      simplex = s2;
-      values = v2;
-      if (size_of() <= options.tolerance) {
+    current = fit.evaluate({x}, "start").front();
+  }
+  if (!std::isfinite(fit.cost(current))) {
+    const std::string why = result.history.empty() ? "no evaluation" : result.history[current].message;
+    return make_error("calibrate: no run succeeded at the start (%s)", why.c_str());
+  }
+
+  // Levenberg-Marquardt in the normalised box: each iteration a Jacobian (n runs at once),
+  // then `batch` trial steps at once, one per damping factor.
+  Eigen::MatrixXd J;
+  std::vector<double> j_at;  // where J was taken
+  double lambda = 1e-2;
+  result.stop_reason = "max_evaluations reached";
+  while (true) {
+    if (fit.budget_left() < static_cast<int>(n) + 1) break;
+    if (!fit.jacobian(x, current, &J)) {
+      result.stop_reason = "a Jacobian run failed";
+      break;
+    }
+    j_at = x;
+    const Eigen::VectorXd r = Fitter::flat(result.history[current]);
+    const Eigen::MatrixXd A = J.transpose() * J;
+    const Eigen::VectorXd g = J.transpose() * r;
+    bool accepted = false, done = false;
+    while (!accepted && !done) {
+      const int b = std::max(1, std::min({options.batch, 4, fit.budget_left() - static_cast<int>(n)}));
+      if (fit.budget_left() < 1) break;
+      static constexpr double kFactors[] = {1.0, 10.0, 0.1, 100.0};
+      std::vector<std::vector<double>> trials;
+      std::vector<double> lambdas;
+      double smallest_step = 1e300;
+      for (int t = 0; t < b; ++t) {
+        const double l = lambda * kFactors[t];
+        Eigen::MatrixXd M = A;
+        for (Eigen::Index i = 0; i < M.rows(); ++i) M(i, i) += l * std::max(A(i, i), 1e-12 * (A.trace() + 1e-300)) + 1e-300;
+        const Eigen::VectorXd step = -M.ldlt().solve(g);
+        std::vector<double> xt = x;
+        for (size_t k = 0; k < n; ++k) xt[k] += std::isfinite(step(static_cast<Eigen::Index>(k))) ? step(static_cast<Eigen::Index>(k)) : 0.0;
+        xt = clamp_unit(xt);
+        double moved = 0;
+        for (size_t k = 0; k < n; ++k) moved = std::max(moved, std::fabs(xt[k] - x[k]));
+        smallest_step = std::min(smallest_step, moved);
+        if (moved < options.tolerance) continue;  // too small to be worth a run
+        trials.push_back(xt);
+        lambdas.push_back(l);
+      }
+      if (trials.empty()) {
         result.converged = true;
+        result.stop_reason = "the next step is below the tolerance";
+        done = true;
         break;
       }
-      std::vector<double> centroid(n, 0.0);
-      for (size_t i = 0; i < n; ++i)
-        for (size_t k = 0; k < n; ++k) centroid[k] += simplex[i][k] / static_cast<double>(n);
-      auto along = [&](double t) {
-        std::vector<double> x(n);
-        for (size_t k = 0; k < n; ++k) x[k] = centroid[k] + t * (simplex[n][k] - centroid[k]);
-        return clamp_point(x);
-      };
-      const std::vector<double> xr = along(-1.0);
-      const double fr = evaluate(xr);
-      if (fr < values[0] && budget_left()) {
-        const std::vector<double> xe = along(-2.0);
-        const double fe = evaluate(xe);
-        if (fe < fr) simplex[n] = xe, values[n] = fe;
-        else simplex[n] = xr, values[n] = fr;
-      } else if (fr < values[n - 1]) {
-        simplex[n] = xr, values[n] = fr;
-      } else if (budget_left()) {
-        const std::vector<double> xc = fr < values[n] ? along(-0.5) : along(0.5);
-        const double fc = evaluate(xc);
-        if (fc < std::min(fr, values[n])) {
-          simplex[n] = xc, values[n] = fc;
-        } else {
-          // Shrink towards the best point.
-          for (size_t i = 1; i <= n && budget_left(); ++i) {
-            for (size_t k = 0; k < n; ++k) simplex[i][k] = simplex[0][k] + 0.5 * (simplex[i][k] - simplex[0][k]);
-            values[i] = evaluate(simplex[i]);
-          }
+      const std::vector<size_t> idx = fit.evaluate(trials, "step");
+      size_t best = idx.front();
+      for (size_t i : idx)
+        if (fit.cost(i) < fit.cost(best)) best = i;
+      if (fit.cost(best) < fit.cost(current)) {
+        const std::vector<double>& xn = trials[best - idx.front()];
+        double moved = 0;
+        for (size_t k = 0; k < n; ++k) moved = std::max(moved, std::fabs(xn[k] - x[k]));
+        x = xn;
+        current = best;
+        lambda = std::max(1e-6, lambdas[best - idx.front()] / 3);
+        accepted = true;
+        if (moved < options.tolerance) {
+          result.converged = true;
+          result.stop_reason = "the last step is below the tolerance";
+          done = true;
+        }
+      } else {
+        lambda *= std::pow(10.0, b);
+        if (lambda > 1e8) {
+          result.converged = true;
+          result.stop_reason = "no step lowers the error";
+          done = true;
         }
       }
+      if (!accepted && fit.budget_left() < 1) done = true;
     }
+    if (done || !accepted) break;
+  }
+  result.best = result.history[current];
+  // The best evaluation over the whole history (a scan point can beat the search's end).
+  for (size_t i = 0; i < result.history.size(); ++i)
+    if (fit.cost(i) < fit.cost(current)) {
+      current = i;
+      result.best = result.history[i];
+      x.clear();
+      for (size_t k = 0; k < n; ++k) x.push_back(to_unit(parameters[k], result.best.values[k]));
+    }
+  // The Jacobian at the best point, for the intervals (taken again when the search moved on).
+  if (j_at != x && !fit.jacobian(x, current, &J)) J.resize(0, 0);
+  if (J.size() == 0) {
+    result.interval_note = "no Jacobian at the fit (budget out or a run failed): no interval";
+    return result;
   }
 
-  // The best evaluation over the whole history.
-  const CalibrationEvaluation* best = nullptr;
-  for (const CalibrationEvaluation& ev : result.history)
-    if (ev.ok && (!best || ev.error.relative < best->error.relative)) best = &ev;
-  if (!best) {
-    const std::string why = result.history.empty() ? "no evaluation" : result.history.front().message;
-    return make_error("calibrate: no run succeeded (first: %s)", why.c_str());
+  // Curvature correlation: (J^T J)^-1 over all points (its scale is meaningless: the points of
+  // a curve are correlated; its shape shows which parameters trade off).
+  const Eigen::MatrixXd A = J.transpose() * J;
+  const Eigen::MatrixXd ridge = 1e-12 * (A.trace() + 1e-300) * Eigen::MatrixXd::Identity(A.rows(), A.cols());
+  result.curvature_correlation = correlation_of((A + ridge).inverse());
+
+  // Bootstrap over whole curves: resample the curves with replacement, refit each replicate by
+  // Gauss-Newton on the residuals linearised at the fit.
+  if (data.size() < 2) {
+    result.interval_note =
+        "one curve: an interval needs repeated curves (cells or runs), resampled as wholes; "
+        "none from the points of one curve, whose errors are correlated";
+    return result;
   }
-  result.best = *best;
+  if (options.bootstrap <= 0) {
+    result.interval_note = "no bootstrap (0 replicates)";
+    return result;
+  }
+  std::vector<Eigen::MatrixXd> Jc;
+  std::vector<Eigen::VectorXd> rc;
+  Eigen::Index row = 0;
+  for (const std::vector<double>& r : result.best.residuals) {
+    const Eigen::Index m = static_cast<Eigen::Index>(r.size());
+    Jc.push_back(J.middleRows(row, m));
+    rc.push_back(Eigen::Map<const Eigen::VectorXd>(r.data(), m));
+    row += m;
+  }
+  std::mt19937 rng(options.seed);
+  std::uniform_int_distribution<size_t> pick(0, data.size() - 1);
+  std::vector<std::vector<double>> replicates(n);  // normalised
+  Eigen::MatrixXd samples(options.bootstrap, static_cast<Eigen::Index>(n));
+  for (int b = 0; b < options.bootstrap; ++b) {
+    std::vector<int> weight(data.size(), 0);
+    for (size_t i = 0; i < data.size(); ++i) ++weight[pick(rng)];
+    Eigen::MatrixXd Aw = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(n), static_cast<Eigen::Index>(n));
+    Eigen::VectorXd gw = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n));
+    for (size_t c = 0; c < data.size(); ++c) {
+      if (!weight[c]) continue;
+      Aw += weight[c] * Jc[c].transpose() * Jc[c];
+      gw += weight[c] * Jc[c].transpose() * rc[c];
+    }
+    const Eigen::VectorXd step = -(Aw + ridge).ldlt().solve(gw);
+    for (size_t k = 0; k < n; ++k) {
+      const double s = std::clamp(x[k] + step(static_cast<Eigen::Index>(k)), 0.0, 1.0);
+      replicates[k].push_back(s);
+      samples(b, static_cast<Eigen::Index>(k)) = s;
+    }
+  }
+  result.replicates = options.bootstrap;
+  const double tail = (1.0 - options.confidence) / 2.0;
+  for (size_t k = 0; k < n; ++k) {
+    std::vector<double> v = replicates[k];
+    std::sort(v.begin(), v.end());
+    auto quantile = [&](double q) {
+      const double at = q * static_cast<double>(v.size() - 1);
+      const size_t i = static_cast<size_t>(std::floor(at));
+      const double t = at - static_cast<double>(i);
+      return i + 1 < v.size() ? v[i] * (1 - t) + v[i + 1] * t : v.back();
+    };
+    result.interval_lower.push_back(to_value(parameters[k], quantile(tail)));
+    result.interval_upper.push_back(to_value(parameters[k], quantile(1 - tail)));
+    double mean = 0, sq = 0;
+    for (double s : replicates[k]) mean += to_value(parameters[k], s) / static_cast<double>(v.size());
+    for (double s : replicates[k]) sq += std::pow(to_value(parameters[k], s) - mean, 2);
+    result.bootstrap_sd.push_back(std::sqrt(sq / std::max<double>(1.0, static_cast<double>(v.size()) - 1.0)));
+  }
+  const Eigen::MatrixXd centred = samples.rowwise() - samples.colwise().mean();
+  result.bootstrap_correlation = correlation_of(centred.transpose() * centred);
+  char note[200];
+  std::snprintf(note, sizeof note,
+                "%d bootstrap replicates over %zu curves (resampled as wholes), each refitted on the "
+                "model linearised at the fit; %.0f %% percentile intervals",
+                options.bootstrap, data.size(), 100 * options.confidence);
+  result.interval_note = note;
   return result;
 }
 
