@@ -419,9 +419,13 @@ void run_command(const RunArgs& args) {
                 metrics.deformation_percent, sim.cell_diameter() * 1e6, run.puncture.force * 1e6);
   else
     std::printf("puncture: none\n");
-  std::printf("peak force %.3f uN; %lld steps of %.3g s (mass scaling %.4g); wall %.1f s\n",
-              run.peak_force * 1e6, static_cast<long long>(run.steps), sim.model().dt,
-              sim.model().mass_scaling, run.wall_seconds);
+  if (scene->solver.method == SolverMethod::kStatic)
+    std::printf("peak force %.3f uN; %lld load steps (static); wall %.1f s\n",
+                run.peak_force * 1e6, static_cast<long long>(run.steps), run.wall_seconds);
+  else
+    std::printf("peak force %.3f uN; %lld steps of %.3g s (mass scaling %.4g); wall %.1f s\n",
+                run.peak_force * 1e6, static_cast<long long>(run.steps), sim.model().dt,
+                sim.model().mass_scaling, run.wall_seconds);
   if (run.status != kStepOk) {
     std::string flags;
     for (const std::string& name : step_flag_names(run.status)) flags += (flags.empty() ? "" : ", ") + name;

@@ -35,6 +35,7 @@ struct ConvergenceArgs {
   std::string backend = "cpu";
   int threads = 0;
   std::vector<std::string> sets;
+  std::string solver;
   std::string deformations = "10,20,30,40";
   std::string out;
   bool quiet = false;
@@ -180,8 +181,12 @@ std::vector<std::string> write_plot(const std::filesystem::path& out, const Conv
   return {stem + ".png"};
 }
 
-void convergence_command(const ConvergenceArgs& args) {
+void convergence_command(const ConvergenceArgs& given) {
   namespace fs = std::filesystem;
+  ConvergenceArgs args = given;
+  args.sets = with_solver(args.sets, args.solver);
+  // The static solver runs on the CPU (static_backend).
+  if (args.solver == "static" && args.backend == "auto") args.backend = "cpu";
   // Everything that can be wrong with the input is found before the first size runs.
   Result<BackendKind> kind = parse_backend_kind(args.backend);
   if (!kind) return fail(kind.error().message);
@@ -334,6 +339,7 @@ void add_study_commands(CLI::App& app) {
                       " on the CPU, " + kGpuSizes + " on the GPU)");
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
       ->capture_default_str();
+  add_solver_option(cmd, &args->solver);
   cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();
   cmd->add_option("--set", args->sets, "Override a scene key: key.path=value (repeatable)");
   cmd->add_option("--deformations", args->deformations,

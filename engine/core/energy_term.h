@@ -31,10 +31,11 @@ class EnergyTerm {
                                    std::span<Vec3d> y) = 0;
   /// Adds the Hessian's diagonal 3 x 3 blocks to d [N/m].
   virtual void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) = 0;
-  /// Adds the Hessian at u, each of its pieces (an element, a contact point) projected to
-  /// positive semi-definite, into h [N/m] (a projected Newton's matrix): the pattern must hold
-  /// the blocks the term couples (ElasticEnergy::hessian_pattern holds every term's).
-  virtual void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h) = 0;
+  /// Adds the Hessian at u into h [N/m], exact or (`project`) with each of its pieces (an
+  /// element, a contact point) projected to positive semi-definite (a projected Newton's
+  /// matrix). The pattern must hold the blocks the term couples (ElasticEnergy::hessian_pattern
+  /// holds every term's).
+  virtual void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h, bool project) = 0;
 };
 
 }  // namespace zona

@@ -229,9 +229,9 @@ BlockSparseMatrix ElasticEnergy::hessian_pattern(const Model& m) {
 namespace {
 
 // The 9 x 9 matrix d^2 Psi / dF^2 of a law at h (row and column k = 3 r + c for F's entry
-// (r, c)), symmetrised, with its negative eigenvalues clamped to zero.
-Eigen::Matrix<double, 9, 9> projected_stress_tangent(const ElementLaw<double>& law,
-                                                     const Mat3d& h) {
+// (r, c)), symmetrised; with `project`, its negative eigenvalues clamped to zero.
+Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const Mat3d& h,
+                                           bool project) {
   Eigen::Matrix<double, 9, 9> q;
   for (int k = 0; k < 9; ++k) {
     Mat3d df = Mat3d::zero();
@@ -241,6 +241,7 @@ Eigen::Matrix<double, 9, 9> projected_stress_tangent(const ElementLaw<double>& l
       for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
   }
   q = 0.5 * (q + q.transpose()).eval();
+  if (!project) return q;
   // Most elements are near rest, where the tangent is positive definite: a Cholesky factor
   // says so for a fraction of an eigendecomposition's cost.
   Eigen::LLT<Eigen::Matrix<double, 9, 9>> llt(q);
@@ -252,7 +253,7 @@ Eigen::Matrix<double, 9, 9> projected_stress_tangent(const ElementLaw<double>& l
 
 }  // namespace
 
-void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm) {
+void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm, bool project) {
   const Model& m = *model_;
   ZONA_ASSERT(u.size() == m.vertex_count() && hm.rows() == u.size());
   if (m.nodal_pressure) vertex_pressures(u);
@@ -261,7 +262,7 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm)
     corners(u, t, ue);
     const TetShape<double>& s = m.tet_shape[t];
     const Eigen::Matrix<double, 9, 9> q =
-        projected_stress_tangent(law(t), tet_displacement_gradient(s, ue));
+        stress_tangent(law(t), tet_displacement_gradient(s, ue), project);
     // dF = sum_a v_a grad_a^T: F's entry (r, c) moves by grad_a[c] per unit of u_a[r], so block
     // (a, b) is V sum_{c, d} grad_a[c] q(3 r + c, 3 s + d) grad_b[d] for rows r, columns s.
     for (int a = 0; a < 4; ++a)

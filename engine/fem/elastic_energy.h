@@ -39,10 +39,10 @@ class ElasticEnergy final : public EnergyTerm {
                            std::span<Vec3d> y) override;
   /// Adds the Hessian's 3 x 3 diagonal blocks to d [N/m].
   void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
-  /// The element parts' 12 x 12 Hessians, each projected to positive semi-definite (its 9 x 9
-  /// d^2 Psi / dF^2 clamped at zero eigenvalues), plus nodal pressure's rank-one vertex terms
-  /// exact (they are positive semi-definite).
-  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h) override;
+  /// The element parts' 12 x 12 Hessians, each exact or projected to positive semi-definite
+  /// (its 9 x 9 d^2 Psi / dF^2 clamped at zero eigenvalues), plus nodal pressure's rank-one
+  /// vertex terms exact (they are positive semi-definite).
+  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h, bool project) override;
   /// The pattern of the Hessian: vertices sharing an element and, with nodal pressure, vertices
   /// sharing a vertex's elements (the rank-one terms couple a vertex's whole star).
   static BlockSparseMatrix hessian_pattern(const Model& model);

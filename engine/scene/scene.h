@@ -116,7 +116,7 @@ struct SolverDef {
   double min_travel_step = 1e-9;    ///< a load step that fails below this ends the run [m]
   /// Converged: the largest vertex force imbalance at most this fraction of the force scale,
   /// max(needle axial force, E_max tip_radius^2) [-].
-  double tolerance = 1e-6;
+  double tolerance = 1e-5;
   LinearSolverKind linear = LinearSolverKind::kCg;
   /// The volume barrier acts below this element volume ratio [-] (docs/physics.md).
   double barrier_volume = 0.1;

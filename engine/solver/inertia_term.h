@@ -49,7 +49,7 @@ class InertiaTerm final : public EnergyTerm {
   void add_hessian_diagonal(std::span<const Vec3d>, std::span<Mat3d> d) override {
     for (size_t i = 0; i < d.size(); ++i) d[i] = d[i] + weight_[i] * Mat3d::identity();
   }
-  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix& h) override {
+  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix& h, bool) override {
     for (size_t i = 0; i < weight_.size(); ++i) {
       const int32_t v = static_cast<int32_t>(i);
       h.add(v, v, weight_[i] * Mat3d::identity());

@@ -68,6 +68,9 @@ class DirectSolver final : public LinearSolver {
     if (ldlt_.info() != Eigen::Success)
       return make_error("the direct solver could not factor the Hessian (%zu unknowns)",
                         static_cast<size_t>(matrix_.rows()));
+    if (!(ldlt_.vectorD().minCoeff() > 0))
+      return make_error("the Hessian is not positive definite (a pivot of %.3g)",
+                        ldlt_.vectorD().minCoeff());
     return {};
   }
   Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <string>
 
 namespace zona {
 
@@ -39,9 +40,9 @@ double NewtonSolver::evaluate(std::span<const Vec3d> u, std::span<Vec3d> g) {
   return e;
 }
 
-const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u) {
+const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u, bool project) {
   h_.set_zero();
-  for (EnergyTerm* t : terms_) t->add_hessian(u, h_);
+  for (EnergyTerm* t : terms_) t->add_hessian(u, h_, project);
   h_.apply_mask(fixed_);
   return h_;
 }
@@ -81,33 +82,44 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     if (stats.iterations > 0)
       eta = std::clamp(options_.forcing_gamma * std::pow(gnorm / gnorm_prev, options_.forcing_alpha),
                        options_.forcing_min, options_.forcing_max);
-    const BlockSparseMatrix& h = hessian(u);
-    if (on_hessian) on_hessian(h, u, g_);
-    if (Status s = linear_->setup(h); !s) {
-      stats.failure = s.error().message;
-      return stats;
-    }
-    for (size_t i = 0; i < n; ++i) {
-      rhs_[i] = -1.0 * g_[i];
-      d_[i] = Vec3d{0, 0, 0};
-    }
-    Result<LinearSolveStats> ls = linear_->solve(rhs_, d_, eta);
-    if (!ls.ok()) {
-      stats.failure = ls.error().message;
-      return stats;
-    }
-    stats.krylov += ls->iterations;
+    // The exact Hessian first; the projected one where the exact one is not positive definite.
     double slope = 0;
-    for (size_t i = 0; i < n; ++i) slope += dot(g_[i], d_[i]);
+    int64_t cg = 0;
+    std::string why;
+    for (bool project : {false, true}) {
+      const BlockSparseMatrix& h = hessian(u, project);
+      if (on_hessian) on_hessian(h, u, g_);
+      if (Status st = linear_->setup(h); !st) {
+        why = st.error().message;
+        continue;
+      }
+      for (size_t i = 0; i < n; ++i) {
+        rhs_[i] = -1.0 * g_[i];
+        d_[i] = Vec3d{0, 0, 0};
+      }
+      Result<LinearSolveStats> ls = linear_->solve(rhs_, d_, eta);
+      if (!ls.ok()) {
+        why = ls.error().message;
+        continue;
+      }
+      cg += ls->iterations;
+      slope = 0;
+      for (size_t i = 0; i < n; ++i) slope += dot(g_[i], d_[i]);
+      if (slope < 0) {
+        stats.projected += project ? 1 : 0;
+        break;
+      }
+      why = "the Newton direction does not descend";
+    }
+    stats.krylov += cg;
     if (!(slope < 0)) {
-      stats.failure = "the Newton direction does not descend (the projected Hessian is not "
-                      "positive definite)";
+      stats.failure = "no Newton direction on the projected Hessian: " + why;
       return stats;
     }
     if (std::getenv("ZONA_NEWTON_TRACE"))
-      std::fprintf(stderr, "newton %d: E %.17g |g|max %.3g slope %.3g cg %lld eta %.2g\n",
+      std::fprintf(stderr, "newton %d: E %.17g |g|max %.3g slope %.3g cg %lld eta %.2g%s\n",
                    stats.iterations, e, stats.residual, slope,
-                   static_cast<long long>(ls->iterations), eta);
+                   static_cast<long long>(cg), eta, why.empty() ? "" : " (projected)");
     // Backtracking: halve until the energy falls enough, from the capped step.
     double alpha = 1, e_trial = 0;
     if (options_.max_displacement > 0) {

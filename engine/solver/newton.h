@@ -1,5 +1,8 @@
-// Projected Newton on a sum of energy terms (engine/core/energy_term.h): each iteration
-// assembles the Hessian with every piece projected to positive semi-definite, solves H d = -g
+// Projected Newton on a sum of energy terms (engine/core/energy_term.h), projected where needed:
+// each iteration assembles the exact Hessian and, where that is not positive definite (CG meets
+// a direction of non-positive curvature, the factorisation a non-positive pivot, or the step
+// does not descend), the Hessian with every piece projected to positive semi-definite; it solves
+// H d = -g
 // (linear_solver.h) to a relative residual set by the Eisenstat-Walker forcing term, and takes
 // the largest step of a backtracking line search that lowers the total energy (Armijo). The
 // energy is +infinity at a collapsed element (the volume barrier), so no accepted state inverts
@@ -40,6 +43,7 @@ struct NewtonOptions {
 /// How a solve went.
 struct NewtonStats {
   int iterations = 0;          ///< Newton iterations
+  int projected = 0;           ///< of them, on the projected Hessian
   int64_t krylov = 0;          ///< CG iterations summed over them
   double residual = 0;         ///< largest free vertex force imbalance at the end [N]
   double energy = 0;           ///< total energy at the end [J]
@@ -55,13 +59,15 @@ class NewtonSolver {
                std::vector<uint8_t> fixed, std::unique_ptr<LinearSolver> linear,
                NewtonOptions options = {});
 
+  /// Adds a term (its blocks must be in the pattern).
+  void add_term(EnergyTerm* term) { terms_.push_back(term); }
   /// Minimises the terms' sum from u (updated in place) to the force tolerance [N].
   NewtonStats solve(std::vector<Vec3d>& u, double tolerance);
 
   /// Total energy [J] and, if g is non-empty, its gradient (fixed vertices zeroed) [N].
   double evaluate(std::span<const Vec3d> u, std::span<Vec3d> g);
-  /// The projected Hessian at u, masked (for export and tests).
-  const BlockSparseMatrix& hessian(std::span<const Vec3d> u);
+  /// The Hessian at u, exact or projected, masked.
+  const BlockSparseMatrix& hessian(std::span<const Vec3d> u, bool project);
   const char* linear_solver_name() const { return linear_->name(); }
   /// Called with each iteration's masked Hessian, state and gradient before its solve (the
   /// matrix export of docs/static.md's preconditioner study); empty: none.

@@ -71,6 +71,13 @@ class StaticRun {
     result_.stopped_early = true;
     result_.stop_reason = reason;
   }
+  // The released load's factor at travel s: the release, plus the shaft's drag
+  // shaft_friction x inserted length over the load the needle carried.
+  double released_ramp(double s) const {
+    const double f = std::fabs(puncture_.force);
+    const double drag = p_.puncture.shaft_friction * std::max(0.0, s - punctured_travel_);
+    return released_scale_ + (f > 0 ? drag / f : 0.0);
+  }
   double force_tolerance() const {
     return def_.tolerance * std::max(force_scale_, std::fabs(accepted_.force));
   }
@@ -88,6 +95,12 @@ class StaticRun {
   ElasticEnergy elastic_;
   std::unique_ptr<PenaltyContactTerm> needle_, rim_;
   std::unique_ptr<SuctionTerm> suction_;
+  // After the puncture: the needle's load as a dead load (released_scale_ of it, plus the
+  // shaft's drag).
+  std::unique_ptr<SuctionTerm> released_;
+  std::vector<int32_t> released_vertex_;
+  std::vector<Vec3d> released_load_;
+  double released_scale_ = 1, punctured_travel_ = 0;
   std::unique_ptr<InertiaTerm> inertia_;
   std::unique_ptr<NewtonSolver> newton_;
   std::vector<int32_t> suction_vertex_;
@@ -237,6 +250,7 @@ bool StaticRun::solve_at(double s, double scale, std::vector<Vec3d>& u, NewtonSt
     needle_->set_scale(scale);
   }
   if (suction_) suction_->set_ramp(suction_ramp_);
+  if (released_) released_->set_ramp(released_ramp(s));
   const double ds = s - travel_;
   const double h = (ds > 0 ? ds : def_.travel_step) / speed_;
   inertia_->set_step(h, u_, v_);
@@ -256,7 +270,13 @@ Measures StaticRun::measure(std::span<const Vec3d> u, double travel) {
       e += p_.record.entry_weight[c] * u[static_cast<size_t>(p_.record.entry_vertex[c])];
     m.deformation = dot(e, dir);
   }
-  if (needle_) {
+  if (released_) {
+    const double r = released_ramp(travel);
+    for (const Vec3d& f : released_load_) m.force_vector += r * f;
+    m.force = dot(m.force_vector, dir);
+    m.contacts = static_cast<int64_t>(released_vertex_.size());
+  } else if (needle_) {
+    needle_->set_field(needle_field(travel));  // the state's own pose
     const PenaltyContactTerm::Load l = needle_->load(u);
     m.force_vector = l.force;
     m.force = dot(l.force, dir);
@@ -328,6 +348,8 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
   const double h = (ds > 0 ? ds : def_.travel_step) / speed_;
   for (size_t i = 0; i < u.size(); ++i) v_[i] = (1.0 / h) * (u[i] - u_[i]);
   ++step_;
+  // Measured with the friction the state was solved with (before the anchors move).
+  accepted_ = measure(u, s);
   int64_t rim_slid = 0, rim_contacts = 0;
   if (needle_) {
     needle_->commit(u);
@@ -344,7 +366,6 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
   }
   u_ = u;
   travel_ = s;
-  accepted_ = measure(u_, s);
   result_.steps = step_;
   if (row) emit(sample(accepted_, stats));
   frames_up_to(s, u_, accepted_);
@@ -524,13 +545,43 @@ RunResult StaticRun::run() {
       puncture_.force = m_hi.force;
       puncture_.energy = m_hi.elastic;
       puncture_.force_vector = m_hi.force_vector;
-      // The release: the tip's load falls by force_drop; the state follows at the same travel.
-      needle_scale_ = 1.0 - pp.force_drop;
-      std::vector<Vec3d> ur = u_;
-      if (!solve_at(hi, needle_scale_, ur, &stats)) {
-        stop("the state after the puncture's release did not converge: " + failure_);
-        break;
+      // The release. The membrane has given way: the needle's contact becomes the load it
+      // carried at the puncture, as a dead load on the same vertices (the same equilibrium),
+      // which then falls by force_drop; past it, the shaft's drag grows with the inserted
+      // length (puncture.shaft_friction) on the same vertices, along the axis.
+      {
+        std::vector<Vec3d> g(u_.size(), Vec3d{0, 0, 0});
+        needle_->set_field(needle_field(hi));
+        needle_->set_scale(1);
+        needle_->add_gradient(u_, g);
+        for (size_t v = 0; v < g.size(); ++v)
+          if (g[v].x != 0 || g[v].y != 0 || g[v].z != 0) {
+            released_vertex_.push_back(static_cast<int32_t>(v));
+            released_load_.push_back(-1.0 * g[v]);
+          }
+        released_ = std::make_unique<SuctionTerm>(released_vertex_, released_load_,
+                                                  "released needle load");
+        newton_->add_term(released_.get());
+        needle_->set_scale(0);
+        needle_scale_ = 0;
+        punctured_travel_ = hi;
       }
+      double scale = 1, dscale = 0.5;
+      const double released = 1.0 - pp.force_drop;
+      std::vector<Vec3d> ur = u_;
+      while (scale > released && !result_.stopped_early) {
+        const double next = std::max(released, scale - dscale);
+        released_scale_ = next;
+        std::vector<Vec3d> trial_r = ur;
+        if (solve_at(hi, 0, trial_r, &stats)) {
+          scale = next;
+          ur.swap(trial_r);
+        } else if ((dscale *= 0.5) < 1e-3) {
+          stop("the state after the puncture's release did not converge at " +
+               std::to_string(scale) + " of the puncture load: " + failure_);
+        }
+      }
+      if (result_.stopped_early) break;
       accept(ur, hi, stats);
       next_target = targets.size();  // rows at set deformations are the loading branch's
       if (options_.stop_after_puncture >= 0) break;

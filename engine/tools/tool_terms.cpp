@@ -136,11 +136,12 @@ void PenaltyContactTerm::add_hessian_diagonal(std::span<const Vec3d> u, std::spa
   }
 }
 
-void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm) {
+void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
+                                     bool project) {
   for (size_t i = 0; i < points_.size(); ++i) {
     const ContactPoint& p = points_[i];
     if (!(field_.eval(position(u, i)).distance < 0) && !(lagged_[i].cap > 0)) continue;
-    const Mat3d h = point_hessian(u, i, true);
+    const Mat3d h = point_hessian(u, i, project);
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b)
         if (p.weight[a] != 0 && p.weight[b] != 0)
@@ -197,8 +198,9 @@ PenaltyContactTerm::Load PenaltyContactTerm::load(std::span<const Vec3d> u) cons
   return out;
 }
 
-SuctionTerm::SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load)
-    : vertex_(vertex), load_(load) {
+SuctionTerm::SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load,
+                         const char* name)
+    : vertex_(vertex), load_(load), name_(name) {
   ZONA_ASSERT(vertex.size() == load.size());
 }
 

@@ -80,7 +80,7 @@ class PenaltyContactTerm final : public EnergyTerm {
   void add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
                            std::span<Vec3d> y) override;
   void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
-  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h) override;
+  void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h, bool project) override;
 
   /// The tool's pose for the coming step.
   void set_field(const ToolField& field) { field_ = field; }
@@ -128,24 +128,26 @@ class PenaltyContactTerm final : public EnergyTerm {
   std::vector<StickAnchor> anchor_;  // committed anchors, (point count)
 };
 
-/// The suction on the aspirated patch as a dead load: E = -ramp sum_v f_v . u_v, f the full
-/// suction load [N] per point, ramp in [0, 1].
+/// A dead load: E = -ramp sum_v f_v . u_v, f the full load [N] per vertex, ramp >= 0. The
+/// suction on the aspirated patch; in the static solver, the needle's load after a puncture.
 class SuctionTerm final : public EnergyTerm {
  public:
-  SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load);
-  const char* name() const override { return "suction"; }
+  SuctionTerm(std::span<const int32_t> vertex, std::span<const Vec3d> load,
+              const char* name = "suction");
+  const char* name() const override { return name_; }
   double energy(std::span<const Vec3d> u) override;
   void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override;
   void add_hessian_product(std::span<const Vec3d>, std::span<const Vec3d>,
                            std::span<Vec3d>) override {}
   void add_hessian_diagonal(std::span<const Vec3d>, std::span<Mat3d>) override {}
-  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix&) override {}
+  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix&, bool) override {}
   void set_ramp(double ramp) { ramp_ = ramp; }
 
  private:
   std::span<const int32_t> vertex_;
   std::span<const Vec3d> load_;
   double ramp_ = 1;
+  const char* name_;
 };
 
 }  // namespace zona

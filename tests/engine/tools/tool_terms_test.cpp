@@ -216,7 +216,7 @@ TEST(ToolTerms, FaceQuadratureContactMatchesCentralDifferencesAndAssemblesPositi
       for (int32_t a : t)
         for (int32_t b : t) rows[static_cast<size_t>(a)].push_back(b);
     BlockSparseMatrix h(rows);
-    term.add_hessian(p.u, h);
+    term.add_hessian(p.u, h, true);
     for (double phase : {0.3, 1.1, 2.9}) {
       std::vector<Vec3d> v(p.u.size()), hv(p.u.size()), pv(p.u.size(), Vec3d{0, 0, 0});
       for (size_t i = 0; i < v.size(); ++i) {

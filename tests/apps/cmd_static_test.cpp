@@ -1,0 +1,125 @@
+// `zona run` with the static solver, end to end on a small held cell: rows exactly at 10 um of
+// deformation and at every load step, each converged (its residual column below the stated
+// tolerance), the needle's and the holder's forces in balance, the puncture bracketed to the
+// stated travel tolerance and its release reached; and the scenes it refuses, with one line.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tests/apps/cli_runner.h"
+
+namespace {
+
+using zona::test::CliRun;
+using zona::test::run_zona;
+using zona::test::TempDir;
+
+namespace fs = std::filesystem;
+
+// A 20 um cell held by suction, punctured at 0.6 uN (about 12.5 um of deformation).
+const char* kScene = R"({
+  "name": "tiny_static",
+  "mesh": {"generate": {"diameter": "20 um", "vertices": 600, "refine_edge_length": "1 um",
+                        "refine_radius": "5 um", "refine_at": "needle", "edge_length": "3 um"}},
+  "model": "neohookean",
+  "volumetric": "nodal",
+  "materials": {"default": {"young": "10 kPa", "poisson": 0.45, "density": "1000 kg/m^3"}},
+  "solver": {"method": "static", "travel_step": "1 um", "puncture_tolerance": "5 nm"},
+  "needle": {"tip_radius": "2 um", "standoff": "0.5 um", "speed": "0.1 mm/s", "max_travel": "13 um"},
+  "puncture": {"criterion": "force", "threshold": "0.6 uN", "force_drop": 0.9, "drop_time": "0.2 ms"},
+  "holding_pipette": {"mode": "suction", "inner_radius": "4 um", "outer_radius": "12 um",
+                      "suction": "2 kPa", "friction": 0.3},
+  "output": {"frames": 3}
+})";
+
+// force.csv as columns by name.
+std::map<std::string, std::vector<double>> read_csv(const fs::path& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);  // schema
+  std::getline(in, line);
+  std::vector<std::string> names;
+  std::stringstream header(line);
+  for (std::string name; std::getline(header, name, ',');) names.push_back(name);
+  std::map<std::string, std::vector<double>> columns;
+  while (std::getline(in, line)) {
+    std::stringstream row(line);
+    std::string cell;
+    for (size_t i = 0; std::getline(row, cell, ','); ++i) columns[names.at(i)].push_back(std::stod(cell));
+  }
+  return columns;
+}
+
+TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const CliRun r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("load steps (static)"), std::string::npos) << r.out;
+  auto c = read_csv(out / "force.csv");
+  const std::vector<double>& d = c["deformation_m"];
+  const std::vector<double>& f = c["force_N"];
+  const std::vector<double>& hold = c["holding_force_N"];
+  const std::vector<double>& res = c["residual_N"];
+  const std::vector<double>& newton = c["newton_iterations"];
+  const std::vector<double>& punct = c["punctured"];
+  ASSERT_GT(d.size(), 10u);
+  // A row at 10 um of deformation, to 1e-4 of it.
+  int at10 = 0;
+  for (double x : d) at10 += std::fabs(x - 10e-6) <= 1e-4 * 10e-6;
+  EXPECT_EQ(at10, 1);
+  // Every row converged: the residual at most tolerance x max(needle force, E r^2).
+  const double scale = 10e3 * 2e-6 * 2e-6;
+  for (size_t i = 1; i < d.size(); ++i) {
+    EXPECT_LE(res[i], 1e-5 * std::max(scale, std::fabs(f[i])) * (1 + 1e-9)) << "row " << i;
+    EXPECT_GE(newton[i], 1) << "row " << i;
+    // Equilibrium: the holder takes the needle's axial load (the regulariser carries ~1e-5).
+    if (f[i] > 1e-8) {
+      EXPECT_NEAR(-hold[i], f[i], 2e-3 * f[i]) << "row " << i;
+    }
+  }
+  // The loading branch rises; the puncture at 0.6 uN, bracketed to 5 nm of travel.
+  nlohmann::json summary = nlohmann::json::parse(std::ifstream(out / "summary.json"));
+  EXPECT_EQ(summary["solver"], "static");
+  ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump();
+  const double fp = summary["puncture"]["force_N"].get<double>();
+  EXPECT_GE(fp, 0.6e-6);
+  EXPECT_LE(fp, 0.6e-6 * 1.01);
+  // After it the load is released to 10 % and the run goes on to the end of the travel.
+  size_t first = 0;
+  while (first < punct.size() && punct[first] == 0) ++first;
+  ASSERT_LT(first, punct.size());
+  EXPECT_NEAR(f[first], 0.1 * fp, 1e-3 * fp);
+  EXPECT_NEAR(c["needle_travel_m"].back(), 13e-6, 1e-12);
+  EXPECT_TRUE(fs::exists(out / "frames.pvd"));
+}
+
+TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  auto one_line_error = [&](const std::string& args, const std::string& words) {
+    const CliRun r = run_zona("run " + scene.string() + " --headless --out " +
+                                  (dir.path / "o").string() + " " + args,
+                              dir.path);
+    EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.err;
+    EXPECT_NE(r.err.find(words), std::string::npos) << args << "\n" << r.err;
+  };
+  one_line_error("--set model=svk --set volumetric=element", "spurious collapsed equilibria");
+  one_line_error("--set contact.model=kinematic", "kinematic contact has no energy");
+  one_line_error("--backend cuda", "runs on the CPU");
+  one_line_error("--set solver.linear=qr", "solver.linear");
+  one_line_error("--set solver.tolerance=0", "solver.tolerance");
+}
+
+}  // namespace
