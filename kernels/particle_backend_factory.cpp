@@ -2,6 +2,8 @@
 // for the particle model.
 #include "kernels/particle_backend.h"
 
+#include "engine/sim/backend_cpu.h"
+
 namespace zona {
 
 Result<std::unique_ptr<Backend>> make_particle_backend(BackendKind kind, const ParticleModel& model,

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "engine/particles/particle_model.h"
+#include "engine/sim/backend_cpu.h"
 #include "engine/sim/simulation.h"
 #include "tests/engine/test_scenes.h"
 
