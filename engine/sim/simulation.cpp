@@ -574,6 +574,17 @@ Status Simulation::setup_runner(SetupContext& setup) {
     const double row_dt = std::max(std::max(scene_.output.sample_interval, 0.0), model_.dt);
     sample_capacity_ = static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 4;
     kinematic_runner_ = make_kinematic_runner(*this, sample_capacity_);
+    // The record functions the host step shares with the job: the filter's weight over one
+    // step (backend_substeps steps of model.dt on the Backend path).
+    JobParams& p = record_params_;
+    const double step = (backend_ ? options_.backend_substeps : 1) * model_.dt;
+    p.dt = step;
+    p.needle.direction = script_.direction;
+    p.record.force_filter = scene_.needle.force_filter;
+    p.record.force_filter_weight =
+        p.record.force_filter > 0 ? 1.0 - std::exp(-step / p.record.force_filter) : 1.0;
+    p.record.stiffness_window = options_.stiffness_window;
+    p.puncture.shaft_friction = scene_.puncture.shaft_friction;
   }
   return Status::ok_status();
 }

@@ -327,13 +327,11 @@ class Simulation {
   // Published.
   NeedleReport report_;
   std::unique_ptr<TripleBuffer<SurfaceSnapshot>> snapshots_;
-  double stiffness_force_ = 0, stiffness_travel_ = 0;
-  bool stiffness_anchor_set_ = false;
-  bool filter_started_ = false;
-  double filter_time_ = 0;
+  // The host step's record: the job's force filter and local stiffness (engine/sim/job.h)
+  // over these parameters (record, needle direction, shaft friction) and this state.
+  JobParams record_params_;
+  JobState record_state_;
   QuasiStaticLimits quasi_limits_;
-  double filtered_holding_ = 0;      // the holder's axial force through the needle's filter [N]
-  bool holding_filter_started_ = false;
   bool quasi_blocks_puncture_ = false;  // the last measured state failed an enforced check
   StepStatus last_status_ = kStepOk;
 

@@ -247,14 +247,6 @@ void Simulation::measure() {
     report_.constraint_force = puncture_->punctured() ? report_.force_vector
                                                       : needle_contacts_->total_reaction();
     report_.raw_force = dot(report_.force_vector, d);
-    // First-order low-pass (exact for a constant input over the step).
-    const double tau = scene_.needle.force_filter;
-    const double h = time - filter_time_;
-    report_.force = tau > 0 && filter_started_
-                        ? report_.force + (1.0 - std::exp(-h / tau)) * (report_.raw_force - report_.force)
-                        : report_.raw_force;
-    filter_started_ = true;
-    filter_time_ = time;
     report_.contacts = static_cast<int32_t>(needle_contacts_->size());
     // Ladjal et al.'s contact point: the needle axis against the deformed surface, searched from the
     // last hit triangle; the deformation is its advance over the same ray's rest hit.
@@ -304,19 +296,18 @@ void Simulation::measure() {
   report_.holding_force = holding;
   report_.elastic_energy = state_.diag.elastic_energy;
   report_.kinetic_energy = state_.diag.kinetic_energy;
-  // The quasi-static check on the measured state, through the needle force's filter (as the
-  // job's record stage does).
+  // The needle's and the holder's force through the load cell's low-pass, then the quasi-static
+  // check on them: the job's record-stage functions (job_filter_forces, quasi_static_step).
   if (has_needle_) {
-    const double axial = dot(holding, d);
-    const double tau = scene_.needle.force_filter;
-    filtered_holding_ = tau > 0 && holding_filter_started_
-                            ? filtered_holding_ + (1.0 - std::exp(-model_.dt / tau)) * (axial - filtered_holding_)
-                            : axial;
-    holding_filter_started_ = true;
+    JobRecord measured;
+    measured.raw_force = report_.raw_force;
+    measured.holding_force = holding;
+    job_filter_forces(record_params_, record_state_, measured);
+    report_.force = measured.force;
     quasi_blocks_puncture_ = quasi_static_step(
-        quasi_limits_, report_.quasi, !puncture_->punctured(), report_.force, filtered_holding_,
-        report_.kinetic_energy, report_.elastic_energy, state_.step_count, time,
-        report_.deformation);
+        quasi_limits_, report_.quasi, !puncture_->punctured(), report_.force,
+        record_state_.filtered_holding, report_.kinetic_energy, report_.elastic_energy,
+        state_.step_count, time, report_.deformation);
   }
   // Particle model: the enclosed volume against its rest value (Asgari et al. eq. 6's constraint).
   if (particles_) {
@@ -326,20 +317,20 @@ void Simulation::measure() {
 }
 
 void Simulation::publish() {
-  // Local stiffness for the haptic thread: the slope of force over travel, taken over at least
-  // options.stiffness_window of travel (a finite difference of the published samples).
-  // From the puncture on the load no longer follows the tip's travel into the cell: the slope is
-  // the shaft's drag per metre inserted (job_finish_step does the same).
-  if (!stiffness_anchor_set_ || report_.punctured) {
-    stiffness_anchor_set_ = true;
-    stiffness_force_ = report_.force;
-    stiffness_travel_ = report_.travel;
-    if (report_.punctured) report_.stiffness = scene_.puncture.shaft_friction;
-  } else if (std::fabs(report_.travel - stiffness_travel_) >= options_.stiffness_window) {
-    report_.stiffness = (report_.force - stiffness_force_) / (report_.travel - stiffness_travel_);
-    stiffness_force_ = report_.force;
-    stiffness_travel_ = report_.travel;
+  // Local stiffness for the haptic thread: the job's record stage (job_local_stiffness: the
+  // slope of force over at least options.stiffness_window of travel). From the puncture on the
+  // load no longer follows the tip's travel into the cell: the slope is the shaft's drag per
+  // metre inserted, re-anchored each step (as job_puncture_test does).
+  JobRecord published;
+  published.force = report_.force;
+  published.travel = report_.travel;
+  job_local_stiffness(record_params_, record_state_, published);
+  if (report_.punctured) {
+    record_state_.stiffness = record_params_.puncture.shaft_friction;
+    record_state_.stiffness_force = report_.force;
+    record_state_.stiffness_travel = report_.travel;
   }
+  report_.stiffness = record_state_.stiffness;
   // Surface snapshot into the writer's slot, then publish (no allocation: slots are sized).
   if (snapshots_ && state_.step_count % options_.snapshot_interval == 0) {
     SurfaceSnapshot& out = snapshots_->write_slot();
