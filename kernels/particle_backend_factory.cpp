@@ -1,8 +1,7 @@
 // The particle backend factory: the one place besides kernels/ stubs that decides CPU or CUDA
 // for the particle model.
-#include "kernels/particle_backend.h"
-
 #include "engine/sim/backend_cpu.h"
+#include "kernels/particle_backend.h"
 
 namespace zona {
 

@@ -23,12 +23,12 @@
 #include <vector>
 
 #include "engine/core/base.h"
-#include "engine/mesh/mesh.h"
+#include "engine/core/vec.h"
 #include "engine/fem/model.h"
-#include "engine/scene/scene.h"
 #include "engine/fem/state.h"
 #include "engine/fem/step_status.h"
-#include "engine/core/vec.h"
+#include "engine/mesh/mesh.h"
+#include "engine/scene/scene.h"
 
 namespace zona {
 
@@ -169,6 +169,5 @@ StepStatus particle_step(const ParticleModel& model, const Model& body, State& s
 
 /// One line: layout, particle and spring counts, spacing, dt and its bound, mass scaling.
 std::string describe_particle_model(const ParticleModel& model);
-
 
 }  // namespace zona

@@ -4,19 +4,18 @@
 // simulation_step.cpp, the penalty step's setup simulation_job.cpp, the run driver run.cpp.
 #include "engine/sim/simulation.h"
 
-#include "engine/sim/kinematic_runner.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <numbers>
 #include <limits>
+#include <numbers>
 #include <set>
 #include <utility>
 
 #include "engine/core/parallel.h"
 #include "engine/fem/mass_scaling.h"
 #include "engine/scene/scene_mesh.h"
+#include "engine/sim/kinematic_runner.h"
 
 namespace zona {
 namespace {
@@ -192,23 +191,25 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   // The setup stages, in order; each is timed, and the times are reported as one note
   // ("setup: mesh 3.1 s, ..."): a fine mesh's setup is a third of its run to the puncture.
   using Stage = Status (Simulation::*)(SetupContext&);
+  // clang-format off
   static constexpr std::pair<const char*, Stage> kStages[] = {
-      {"mesh", &Simulation::setup_body},            // mesh (scene or particle body)
-      {"surface", &Simulation::setup_surface},      // boundary surface
-      {"needle", &Simulation::setup_needle},        // needle axis, entry point, script
-      {"holding", &Simulation::setup_holding},      // holding pipette, fixed and indented vertices
-      {"model", &Simulation::setup_model},          // the immutable model
+      {"mesh",         &Simulation::setup_body},          // mesh (scene or particle body)
+      {"surface",      &Simulation::setup_surface},       // boundary surface
+      {"needle",       &Simulation::setup_needle},        // needle axis, entry point, script
+      {"holding",      &Simulation::setup_holding},       // holding pipette, fixed, indented
+      {"model",        &Simulation::setup_model},         // the immutable model
       {"mass scaling", &Simulation::setup_mass_scaling},  // selective mass scaling
-      {"state", &Simulation::setup_state},          // the mutable state
-      {"tools", &Simulation::setup_tools},          // contact sets, puncture
-      {"end", &Simulation::setup_end_time},         // when the run ends
-      {"scratch", &Simulation::setup_scratch},      // step scratch, snapshots
+      {"state",        &Simulation::setup_state},         // the mutable state
+      {"tools",        &Simulation::setup_tools},         // contact sets, puncture
+      {"end",          &Simulation::setup_end_time},      // when the run ends
+      {"scratch",      &Simulation::setup_scratch},       // step scratch, snapshots
       {"quasi-static", &Simulation::setup_quasi_static},  // the quasi-static check's limits
-      {"job", &Simulation::setup_job},              // the penalty step's parameters
-      {"backend", &Simulation::setup_backend},      // CPU in place or a Backend
-      {"damping", &Simulation::setup_damping},      // stiffness damping history
-      {"start", &Simulation::setup_runner},         // the runner the run driver steps
+      {"job",          &Simulation::setup_job},           // the penalty step's parameters
+      {"backend",      &Simulation::setup_backend},       // CPU in place or a Backend
+      {"damping",      &Simulation::setup_damping},       // stiffness damping history
+      {"start",        &Simulation::setup_runner},        // the runner the run driver steps
   };
+  // clang-format on
   SetupContext setup;
   setup.direction = scene.needle.direction / norm(scene.needle.direction);
   std::string times;
@@ -246,7 +247,8 @@ Status Simulation::setup_body(SetupContext&) {
 // The boundary surface the tools touch, ray casts hit and frames draw.
 Status Simulation::setup_surface(SetupContext&) {
   Result<ContactSurface> surface = build_contact_surface(mesh_);
-  if (!surface.ok()) return make_error("%s: %s", scene_.name.c_str(), surface.error().message.c_str());
+  if (!surface.ok())
+    return make_error("%s: %s", scene_.name.c_str(), surface.error().message.c_str());
   surface_ = std::move(*surface);
   return Status::ok_status();
 }
@@ -276,7 +278,8 @@ Status Simulation::setup_needle(SetupContext& setup) {
         cast_ray(surface_, mesh_.rest_positions, zero, through + 2 * diagonal * d, -1.0 * d, -1);
     if (in.triangle < 0 || out.triangle < 0) {
       if (!scene_.needle.start)
-        return make_error("%s: needle: the axis through the cell centre misses the surface", scene_.name.c_str());
+        return make_error("%s: needle: the axis through the cell centre misses the surface",
+                          scene_.name.c_str());
       notes_.push_back("needle: the axis misses the cell; deformation is reported as 0");
       entry_point_ = *scene_.needle.start;
     } else {
@@ -284,7 +287,8 @@ Status Simulation::setup_needle(SetupContext& setup) {
       cell_diameter_ = dot(out.point - in.point, d);
       rest_hit_triangle_ = in.triangle;
     }
-    script_.start = scene_.needle.start ? *scene_.needle.start : entry_point_ - scene_.needle.standoff * d;
+    script_.start =
+        scene_.needle.start ? *scene_.needle.start : entry_point_ - scene_.needle.standoff * d;
     if (!script_.trajectory.time.empty()) script_.start = script_.trajectory.position.front();
   } else {
     const Aabb box = mesh_bounds(mesh_);
@@ -299,8 +303,8 @@ Status Simulation::setup_holding(SetupContext& setup) {
   // Holding pipette and boundary conditions -> fixed vertices.
   std::vector<int32_t>& fixed = setup.fixed;
   if (scene_.holding_pipette.enabled) {
-    Result<HoldingSetup> h = make_holding(scene_.holding_pipette, surface_, mesh_.rest_positions, centre_,
-                                          setup.direction);
+    Result<HoldingSetup> h = make_holding(scene_.holding_pipette, surface_, mesh_.rest_positions,
+                                          centre_, setup.direction);
     if (!h.ok()) return make_error("%s: %s", scene_.name.c_str(), h.error().message.c_str());
     holding_ = std::move(*h);
     if (holding_->mode == HoldingMode::kFixed)
@@ -310,7 +314,8 @@ Status Simulation::setup_holding(SetupContext& setup) {
     const BoundaryDef& b = scene_.boundary[i];
     if (b.type == BoundaryKind::kFixed) {
       const std::vector<int32_t> sel = select_vertices(mesh_, surface_, b.where);
-      if (sel.empty()) return make_error("%s: boundary[%zu]: selects no vertex", scene_.name.c_str(), i);
+      if (sel.empty())
+        return make_error("%s: boundary[%zu]: selects no vertex", scene_.name.c_str(), i);
       fixed.insert(fixed.end(), sel.begin(), sel.end());
     } else {
       const Vec3d dir = b.direction / norm(b.direction);
@@ -323,7 +328,9 @@ Status Simulation::setup_holding(SetupContext& setup) {
           indent_speed_.push_back(b.speed);
           ++n;
         }
-      if (n == 0) return make_error("%s: boundary[%zu]: the indent patch holds no surface vertex", scene_.name.c_str(), i);
+      if (n == 0)
+        return make_error("%s: boundary[%zu]: the indent patch holds no surface vertex",
+                          scene_.name.c_str(), i);
     }
   }
   std::sort(fixed.begin(), fixed.end());
@@ -335,7 +342,8 @@ Status Simulation::setup_holding(SetupContext& setup) {
       return make_error("%s: boundary: indent patches overlap", scene_.name.c_str());
     for (int32_t v : sorted_indent)
       if (std::binary_search(fixed.begin(), fixed.end(), v))
-        return make_error("%s: boundary: vertex %d is both fixed and indented", scene_.name.c_str(), v);
+        return make_error("%s: boundary: vertex %d is both fixed and indented", scene_.name.c_str(),
+                          v);
   }
   return Status::ok_status();
 }
@@ -344,19 +352,23 @@ Status Simulation::setup_holding(SetupContext& setup) {
 Status Simulation::setup_model(SetupContext& setup) {
   if (particles_) {
     Result<Model> model = particle_body_model(*particles_, mesh_, setup.fixed);
-    if (!model.ok()) return make_error("%s: %s", scene_.name.c_str(), model.error().message.c_str());
+    if (!model.ok())
+      return make_error("%s: %s", scene_.name.c_str(), model.error().message.c_str());
     model_ = std::move(*model);
     if (scene_.integrator.mass_scaling_mode == MassScalingMode::kSelective)
       notes_.push_back("particles: mass scaling is uniform (selective scaling is FEM-only)");
     if (scene_.puncture.criterion == PunctureCriterion::kStrain)
-      return make_error("%s: puncture.criterion 'strain' needs FEM elements; use force or energy "
-                        "with model 'particles'", scene_.name.c_str());
+      return make_error(
+          "%s: puncture.criterion 'strain' needs FEM elements; use force or energy "
+          "with model 'particles'",
+          scene_.name.c_str());
   } else {
     Result<ModelDesc> desc = model_desc_from_scene(scene_, mesh_, options_, &notes_);
     if (!desc.ok()) return desc.error();
     desc->fixed_vertices = setup.fixed;
     Result<Model> model = build_model(mesh_, *desc);
-    if (!model.ok()) return make_error("%s: %s", scene_.name.c_str(), model.error().message.c_str());
+    if (!model.ok())
+      return make_error("%s: %s", scene_.name.c_str(), model.error().message.c_str());
     model_ = std::move(*model);
   }
   return Status::ok_status();
@@ -383,19 +395,20 @@ Status Simulation::setup_mass_scaling(SetupContext&) {
     std::vector<double> need;
     auto period = [&](double dt) {
       const double w = holder_swing_omega(
-          model_.materials, bore, selective_scaling_total_mass(model_, dt, safety, &need,
-                                                              setup_threads));
+          model_.materials, bore,
+          selective_scaling_total_mass(model_, dt, safety, &need, setup_threads));
       return w > 0 ? 2.0 * std::numbers::pi / w : 0.0;
     };
     const double at_target = period(target);
     if (at_target > loading) {
       double lo = target * 1e-3, hi = target;  // period(lo) <= loading < period(hi)
       if (period(lo) > loading)
-        return make_error("%s: integrator.quasi_static_travel: even at a %.3g us step the "
-                          "cell's swing on its holder (%.3g ms) outlasts the %.3g ms of "
-                          "%.3g um at %.3g mm/s; lengthen the travel",
-                          scene_.name.c_str(), lo * 1e6, period(lo) * 1e3, loading * 1e3,
-                          travel * 1e6, speed * 1e3);
+        return make_error(
+            "%s: integrator.quasi_static_travel: even at a %.3g us step the "
+            "cell's swing on its holder (%.3g ms) outlasts the %.3g ms of "
+            "%.3g um at %.3g mm/s; lengthen the travel",
+            scene_.name.c_str(), lo * 1e6, period(lo) * 1e3, loading * 1e3, travel * 1e6,
+            speed * 1e3);
       for (int i = 0; i < 60 && hi - lo > 1e-4 * hi; ++i) {
         const double mid = 0.5 * (lo + hi);
         (period(mid) > loading ? hi : lo) = mid;
@@ -472,7 +485,8 @@ Status Simulation::setup_end_time(SetupContext&) {
       end_time_ = std::max(end_time_, indent_depth_[i] / indent_speed_[i]);
   }
   if (!(end_time_ > 0))
-    return make_error("%s: nothing ends the run: set integrator.duration or needle.max_travel", scene_.name.c_str());
+    return make_error("%s: nothing ends the run: set integrator.duration or needle.max_travel",
+                      scene_.name.c_str());
   return Status::ok_status();
 }
 
@@ -513,8 +527,9 @@ Status Simulation::setup_quasi_static(SetupContext&) {
   q.has_holder = rim_contacts_ != nullptr ? 1 : 0;
   q.max_imbalance = qd.max_imbalance;
   q.max_kinetic_share = qd.max_kinetic_share;
-  q.force_floor = qd.force_floor ? *qd.force_floor
-                                 : 3.0 * young_max * scene_.needle.tip_radius * scene_.needle.tip_radius;
+  q.force_floor = qd.force_floor
+                      ? *qd.force_floor
+                      : 3.0 * young_max * scene_.needle.tip_radius * scene_.needle.tip_radius;
   q.energy_floor = model_.energy_floor;
   return Status::ok_status();
 }
@@ -535,9 +550,9 @@ Status Simulation::setup_backend(SetupContext&) {
   if (particles_) backend_description_ = "particles: cpu reference in place, 1 thread, float64";
   if (particles_ ? bool(options_.particle_backend_factory) : bool(options_.backend_factory)) {
     std::string notice;
-    Result<std::unique_ptr<Backend>> backend = particles_
-                                                   ? options_.particle_backend_factory(*particles_, &notice)
-                                                   : options_.backend_factory(&notice);
+    Result<std::unique_ptr<Backend>> backend =
+        particles_ ? options_.particle_backend_factory(*particles_, &notice)
+                   : options_.backend_factory(&notice);
     if (!backend.ok()) return backend.error();
     if (!notice.empty()) notes_.push_back(notice);
     if (std::string((*backend)->name()) != "cpu" || options_.keep_cpu_backend) {

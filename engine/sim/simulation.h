@@ -235,9 +235,9 @@ class Simulation {
 
   // What the setup stages hand on to later ones.
   struct SetupContext {
-    Vec3d direction{1, 0, 0};      // the needle's axis (unit) [-]
-    std::vector<int32_t> fixed;    // fixed vertices, ascending
-    bool job_path = false;         // the penalty step (the job) runs this scene
+    Vec3d direction{1, 0, 0};    // the needle's axis (unit) [-]
+    std::vector<int32_t> fixed;  // fixed vertices, ascending
+    bool job_path = false;       // the penalty step (the job) runs this scene
   };
   // Setup stages (one line each in build).
   Status setup_body(SetupContext& setup);

@@ -23,10 +23,10 @@ void Simulation::set_needle_tip(Vec3d tip) {
 
 StepStatus Simulation::step2() {
   if (job_) return step_job();
-  test_puncture();                       // 2. puncture criterion on the last measurement
-  update_contacts();                     // 3. contact sets and prescribed targets
-  apply_loads();                         // 4. suction, released tip force, shaft drag
-  const StepStatus status = integrate(); // 5. internal forces + integrate (backend)
+  test_puncture();                        // 2. puncture criterion on the last measurement
+  update_contacts();                      // 3. contact sets and prescribed targets
+  apply_loads();                          // 4. suction, released tip force, shaft drag
+  const StepStatus status = integrate();  // 5. internal forces + integrate (backend)
   if (status & kStepFailed) {
     // A failed health check (non-finite, energy blow-up): the run stops here, and nothing of
     // this state is measured or published (no puncture, frame or haptic sample from it).
@@ -34,11 +34,11 @@ StepStatus Simulation::step2() {
     last_status_ = status;
     return status;
   }
-  measure();                             // 6. reactions, needle force, deformation
+  measure();  // 6. reactions, needle force, deformation
   const StepStatus measured = status | (quasi_blocks_puncture_ ? kStepNotQuasiStatic : kStepOk);
   report_.status = measured;
   last_status_ = measured;
-  publish();                             // 7. report, local stiffness, snapshot
+  publish();  // 7. report, local stiffness, snapshot
   return measured;
 }
 
@@ -84,8 +84,10 @@ void Simulation::update_contacts() {
         for (int c = 0; c < 3; ++c) {
           const int32_t v = seeds_[c];
           if (v < 0 || taken_[static_cast<size_t>(v)] || needle_contacts_->holds(v)) continue;
-          const Vec3d x = model_.rest_positions[static_cast<size_t>(v)] + state_.u[static_cast<size_t>(v)];
-          needle_contacts_->hold(v, x + penetration * d - tip_, d, state_.u[static_cast<size_t>(v)]);
+          const Vec3d x =
+              model_.rest_positions[static_cast<size_t>(v)] + state_.u[static_cast<size_t>(v)];
+          needle_contacts_->hold(v, x + penetration * d - tip_, d,
+                                 state_.u[static_cast<size_t>(v)]);
         }
     }
     mark(rim_contacts_.get(), 0);
@@ -181,8 +183,9 @@ StepStatus Simulation::integrate() {
   // new loads go through set_external_forces, or an upload where the backend lacks it.
   // Otherwise only the targets move. The prescribed vertices start from where they are and
   // reach their targets at the last sub-step.
-  const bool same_set = uploaded_prescribed_.size() == np &&
-                        std::equal(prescribed_.begin(), prescribed_.end(), uploaded_prescribed_.begin());
+  const bool same_set =
+      uploaded_prescribed_.size() == np &&
+      std::equal(prescribed_.begin(), prescribed_.end(), uploaded_prescribed_.begin());
   bool upload = !same_set;
   if (same_set && loads_changed_ && !backend_->set_external_forces(state_.external_force).ok())
     upload = true;
@@ -244,21 +247,22 @@ void Simulation::measure() {
     report_.travel = dot(tip_ - script_.start, d);
     report_.force_vector = puncture_->punctured() ? puncture_->body_force(time, report_.travel)
                                                   : needle_contacts_->total_static_reaction();
-    report_.constraint_force = puncture_->punctured() ? report_.force_vector
-                                                      : needle_contacts_->total_reaction();
+    report_.constraint_force =
+        puncture_->punctured() ? report_.force_vector : needle_contacts_->total_reaction();
     report_.raw_force = dot(report_.force_vector, d);
     report_.contacts = static_cast<int32_t>(needle_contacts_->size());
-    // Ladjal et al.'s contact point: the needle axis against the deformed surface, searched from the
-    // last hit triangle; the deformation is its advance over the same ray's rest hit.
+    // Ladjal et al.'s contact point: the needle axis against the deformed surface, searched from
+    // the last hit triangle; the deformation is its advance over the same ray's rest hit.
     const Vec3d origin = tip_ - 2.0 * cell_diameter_ * d;
     const RayHit now = cast_ray(surface_, model_.rest_positions, u, origin, d, hit_triangle_);
-    const RayHit at_rest = cast_ray(surface_, model_.rest_positions, std::span<const Vec3d>(zero_u_),
-                                    origin, d, rest_hit_triangle_);
+    const RayHit at_rest = cast_ray(surface_, model_.rest_positions,
+                                    std::span<const Vec3d>(zero_u_), origin, d, rest_hit_triangle_);
     hit_valid_ = now.triangle >= 0;
     hit_point_ = now.point;
     if (now.triangle >= 0) {
       hit_triangle_ = now.triangle;
-      for (int c = 0; c < 3; ++c) seeds_[c] = surface_.triangles[static_cast<size_t>(now.triangle)][c];
+      for (int c = 0; c < 3; ++c)
+        seeds_[c] = surface_.triangles[static_cast<size_t>(now.triangle)][c];
     }
     if (at_rest.triangle >= 0) rest_hit_triangle_ = at_rest.triangle;
     report_.deformation =
@@ -291,7 +295,8 @@ void Simulation::measure() {
     holding = rim_contacts_->total_static_reaction();
     report_.holding_contacts = static_cast<int32_t>(rim_contacts_->size());
   } else if (holding_) {
-    for (int32_t v : holding_->patch_vertices) holding -= f[static_cast<size_t>(v)] + ext[static_cast<size_t>(v)];
+    for (int32_t v : holding_->patch_vertices)
+      holding -= f[static_cast<size_t>(v)] + ext[static_cast<size_t>(v)];
   }
   report_.holding_force = holding;
   report_.elastic_energy = state_.diag.elastic_energy;
@@ -304,10 +309,10 @@ void Simulation::measure() {
     measured.holding_force = holding;
     job_filter_forces(record_params_, record_state_, measured);
     report_.force = measured.force;
-    quasi_blocks_puncture_ = quasi_static_step(
-        quasi_limits_, report_.quasi, !puncture_->punctured(), report_.force,
-        record_state_.filtered_holding, report_.kinetic_energy, report_.elastic_energy,
-        state_.step_count, time, report_.deformation);
+    quasi_blocks_puncture_ =
+        quasi_static_step(quasi_limits_, report_.quasi, !puncture_->punctured(), report_.force,
+                          record_state_.filtered_holding, report_.kinetic_energy,
+                          report_.elastic_energy, state_.step_count, time, report_.deformation);
   }
   // Particle model: the enclosed volume against its rest value (Asgari et al. eq. 6's constraint).
   if (particles_) {

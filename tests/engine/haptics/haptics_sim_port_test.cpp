@@ -59,8 +59,9 @@ TEST(SimulationHapticPort, TheHapticScenePuncturesWhereThePenaltyStepPutsIt) {
   // kinematic contact held (up to 25 % more; the curves agree within 1 uN to 30 um). The band
   // is the run's own point within a few percent (the physics, not the rounding, moves it), and
   // Ladjal et al.'s 45 um must stay within 10 %.
-  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_haptic.json",
-                                   {"integrator.duration=0.52s", "output.frames=0"});
+  Result<Scene> scene =
+      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_haptic.json",
+                 {"integrator.duration=0.52s", "output.frames=0"});
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   RunOptions options;
   options.simulation.threads = 1;

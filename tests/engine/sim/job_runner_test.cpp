@@ -108,7 +108,8 @@ double force_at(const RunResult& run, double at) {
   for (size_t i = 1; i < run.samples.size(); ++i) {
     const ForceSample &a = run.samples[i - 1], &b = run.samples[i];
     if (a.deformation <= at && b.deformation >= at && b.deformation > a.deformation)
-      return a.raw_force + (at - a.deformation) / (b.deformation - a.deformation) * (b.raw_force - a.raw_force);
+      return a.raw_force +
+             (at - a.deformation) / (b.deformation - a.deformation) * (b.raw_force - a.raw_force);
   }
   return NAN;
 }
@@ -275,9 +276,8 @@ TEST(JobTip, FollowsTheHandedInTipAtMostAtTheSpeedLimit) {
 TEST(JobSimulation, AHandedInTipIsFollowedAtTheSpeedLimitStepByStep) {
   // A haptic hand far ahead (10 um at once): the job's tip moves v dt per step, as the
   // scripted needle does, instead of jumping into the cell.
-  Result<Scene> scene =
-      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
-                 {"mesh.generate.vertices=3000", "output.frames=0"});
+  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                                   {"mesh.generate.vertices=3000", "output.frames=0"});
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   SimulationOptions options;
   options.threads = 1;
@@ -300,7 +300,8 @@ TEST(JobDrift, DampsTheSwingAndNotTheSteadyDrift) {
   JobParams p;
   p.dt = 1e-4;
   p.damping.drift = 100;  // [1/s]
-  p.damping.drift_window = 0.01;  // 100 steps: an update every kDriftInterval moves w 8 % of the way
+  p.damping.drift_window =
+      0.01;  // 100 steps: an update every kDriftInterval moves w 8 % of the way
   JobState s;
   JobStepTotals tot;
   tot.mass = 2.0;
@@ -366,10 +367,9 @@ TEST(JobSimulation, TheStepFollowsTheSwingOnTheHolder) {
   EXPECT_LT(built("0.5um", "0.2mm/s")->model().dt, 0.9 * tight->model().dt);
   // A travel no step can satisfy (1 nm: 10 us of loading, shorter than the swing of the cell
   // at its physical mass) is an error that names the key, not a near-zero step.
-  Result<Scene> scene =
-      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
-                 {"mesh.generate.vertices=3000", "output.frames=0",
-                  "integrator.quasi_static_travel=1nm"});
+  Result<Scene> scene = load_scene(
+      std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+      {"mesh.generate.vertices=3000", "output.frames=0", "integrator.quasi_static_travel=1nm"});
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   Result<std::unique_ptr<Simulation>> bad = Simulation::create(*scene);
   ASSERT_FALSE(bad.ok());
@@ -397,10 +397,9 @@ TEST(JobSimulation, FastNeedleOnAFineCellRaisesMassesWithoutAddingEnergy) {
   // that kept the vertices' velocities added kinetic energy from nothing: this run stopped with
   // an energy blow-up at step 457 (kinetic energy 10x the work put in). Keeping the momentum, it
   // runs its 3 ms with the energy explained by the work.
-  Result<Scene> scene =
-      load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
-                 {"mesh.generate.vertices=10000", "needle.speed=10mm/s", "integrator.duration=3ms",
-                  "output.frames=0"});
+  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte_fine.json",
+                                   {"mesh.generate.vertices=10000", "needle.speed=10mm/s",
+                                    "integrator.duration=3ms", "output.frames=0"});
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   RunOptions options;
   options.simulation.threads = 0;
