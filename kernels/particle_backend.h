@@ -17,7 +17,7 @@ Result<std::unique_ptr<Backend>> make_particle_cuda_backend(const ParticleModel&
                                                             const BackendOptions& options);
 
 /// Creates the backend `kind` asks for:
-///  - kCpu: the CPU reference (engine/particles/particle_model.h's make_particle_cpu_backend);
+///  - kCpu: the CPU reference (engine/sim/backend_cpu.h's make_particle_cpu_backend);
 ///  - kCuda: the CUDA backend, or an error;
 ///  - kAuto: the CUDA backend when it can be created, else the CPU one with a one-line reason in
 ///    `notice`.

@@ -1,5 +1,6 @@
 // The particle backend factory: the one place besides kernels/ stubs that decides CPU or CUDA
 // for the particle model.
+#include "engine/sim/backend_cpu.h"
 #include "kernels/particle_backend.h"
 
 namespace zona {

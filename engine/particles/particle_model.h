@@ -7,9 +7,12 @@
 // the centre particle form a "body mesh" whose tetrahedra are the fans from the centre to each
 // membrane triangle. That mesh gives the shared Model (rest positions, masses, fixed vertices,
 // dt, contact search adjacency) and the ContactSurface, so the needle, holding pipette,
-// puncture, measurement and recording code of engine/sim/simulation.cpp run unchanged; only the
+// puncture, measurement and recording code of engine/sim/ (the host step) run unchanged; only the
 // internal forces and the update differ: particle_step() replaces zona::step() (same State, same
-// prescribed-vertex and status semantics), and a particle Backend replaces the FEM one on the GPU.
+// prescribed-vertex and status semantics), and a particle Backend replaces the FEM one
+// (engine/sim/backend_cpu.h's make_particle_cpu_backend, kernels/particle_backend.h). This
+// folder sits below engine/sim/: it knows the Model, the State and the step's status flags
+// (engine/fem/), not the simulation or its Backend interface.
 #pragma once
 
 #include <array>
@@ -19,14 +22,13 @@
 #include <string>
 #include <vector>
 
-#include "engine/sim/backend.h"
 #include "engine/core/base.h"
-#include "engine/sim/integrator.h"
-#include "engine/mesh/mesh.h"
-#include "engine/fem/model.h"
-#include "engine/scene/scene.h"
-#include "engine/fem/state.h"
 #include "engine/core/vec.h"
+#include "engine/fem/model.h"
+#include "engine/fem/state.h"
+#include "engine/fem/step_status.h"
+#include "engine/mesh/mesh.h"
+#include "engine/scene/scene.h"
 
 namespace zona {
 
@@ -167,10 +169,5 @@ StepStatus particle_step(const ParticleModel& model, const Model& body, State& s
 
 /// One line: layout, particle and spring counts, spacing, dt and its bound, mass scaling.
 std::string describe_particle_model(const ParticleModel& model);
-
-/// The CPU reference behind the Backend interface (own copy of the state; upload/step/download
-/// as the FEM backends). `model` must outlive it. Used by `--backend cpu` paths that need the
-/// interface and as the GPU parity tests' reference.
-std::unique_ptr<Backend> make_particle_cpu_backend(const ParticleModel& model);
 
 }  // namespace zona

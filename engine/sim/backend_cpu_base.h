@@ -1,8 +1,8 @@
 // What every CPU backend shares: its own State, prescribed vertices moved linearly towards each
 // call's targets sub-step by sub-step (the CUDA backends' arithmetic, so both see the same
 // targets), downloads and summaries. A concrete backend supplies the step of its model, its
-// elastic forces and its description (engine/sim/backend_cpu.cpp: FEM; engine/particles/particle_backend_cpu.cpp:
-// particles).
+// elastic forces and its description (engine/sim/backend_cpu.cpp: FEM;
+// engine/sim/backend_particles_cpu.cpp: particles).
 #pragma once
 
 #include <string>

@@ -48,7 +48,8 @@ class KinematicRunner final : public JobRunner {
  public:
   KinematicRunner(Simulation& sim, size_t capacity) : sim_(sim), records_(capacity) {
     const double interval = sim.scene().output.sample_interval;
-    interval_ = interval > 0 ? interval : 0;
+    sample_params_.dt = sim.model().dt;
+    sample_params_.record.sample_interval = interval > 0 ? interval : 0;
   }
 
   Status advance(int64_t steps) override {
@@ -71,15 +72,14 @@ class KinematicRunner final : public JobRunner {
       const JobRecord r = kinematic_record(sim_);
       seen_status_ |= r.status;
       halted_ = r.halted != 0;
-      // Sampled as the job's record stage samples (job_sample_due): the step whose time
+      // Sampled by the job's record stage's rule (job_sample_due): the step whose time
       // reaches the next sample time, and a failed step. Its status carries every flag seen
       // since the last sample, so that a flag between samples is not lost.
-      const double dt = sim_.model().dt;
-      const bool due = r.time >= next_sample_ - 0.5 * dt || halted_;
+      sample_state_.time = r.time;
+      sample_state_.halted = halted_ ? 1 : 0;
+      const bool due = job_sample_due(sample_params_, sample_state_);
       JobRecord sample = r;
       if (due) {
-        next_sample_ += interval_ > 0 ? interval_ : dt;
-        if (next_sample_ < r.time) next_sample_ = r.time + interval_;
         sample.status = seen_status_;
         seen_status_ = 0;
       }
@@ -110,7 +110,8 @@ class KinematicRunner final : public JobRunner {
   bool halted_ = false, has_tip_ = false;
   Vec3d tip_{0, 0, 0};
   int64_t advanced_ = 0;
-  double interval_ = 0, next_sample_ = 0;
+  JobParams sample_params_;  // dt and the sample interval (job_sample_due)
+  JobState sample_state_;    // time, halted, the next sample time
   uint32_t seen_status_ = 0;
 };
 

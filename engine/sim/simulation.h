@@ -1,7 +1,12 @@
 // The injection experiment: a Scene turned into a running simulation (mesh, model, backend,
-// needle, holding pipette, contact, puncture), stepped by a step function that reads like a
-// table of contents, split in two halves so that the haptic thread (issue 7) can hand in the
-// needle pose between them (as mj_step1 / mj_step2 do in MuJoCo).
+// needle, holding pipette, contact, puncture) by a list of named setup stages (build,
+// simulation.cpp), stepped in two halves so that the haptic thread can hand in the needle pose
+// between them (as mj_step1 / mj_step2 do in MuJoCo; simulation_step.cpp).
+//
+// The step is the job's (engine/sim/job.h, stages named in step_stage.h) for every FEM scene
+// with a tool: step2 hands one step to the runner, the pose entering through JobRunner::set_tip.
+// The particle model, an indentation boundary and contact.model "kinematic" take the host step
+// of the kinematic contact (docs/architecture.md, "One engine"):
 //
 //   step1:  1. tools      needle pose at t_{n+1} from its script
 //           -- set_needle_tip() may replace the pose here --
@@ -230,9 +235,33 @@ class Simulation {
 
  private:
   Simulation() = default;
+  /// Setup: the named setup stages below, in order (simulation.cpp).
   Status build(const Scene& scene, const SimulationOptions& options);
 
-  // Stages of step2 (one line each there).
+  // What the setup stages hand on to later ones.
+  struct SetupContext {
+    Vec3d direction{1, 0, 0};    // the needle's axis (unit) [-]
+    std::vector<int32_t> fixed;  // fixed vertices, ascending
+    bool job_path = false;       // the penalty step (the job) runs this scene
+  };
+  // Setup stages (one line each in build).
+  Status setup_body(SetupContext& setup);
+  Status setup_surface(SetupContext& setup);
+  Status setup_needle(SetupContext& setup);
+  Status setup_holding(SetupContext& setup);
+  Status setup_model(SetupContext& setup);
+  Status setup_mass_scaling(SetupContext& setup);
+  Status setup_state(SetupContext& setup);
+  Status setup_tools(SetupContext& setup);
+  Status setup_end_time(SetupContext& setup);
+  Status setup_scratch(SetupContext& setup);
+  Status setup_quasi_static(SetupContext& setup);
+  Status setup_job(SetupContext& setup);
+  Status setup_backend(SetupContext& setup);
+  Status setup_damping(SetupContext& setup);
+  Status setup_runner(SetupContext& setup);
+
+  // Stages of the kinematic step2 (one line each there; simulation_step.cpp).
   void test_puncture();
   void update_contacts();
   void apply_loads();
@@ -303,13 +332,11 @@ class Simulation {
   // Published.
   NeedleReport report_;
   std::unique_ptr<TripleBuffer<SurfaceSnapshot>> snapshots_;
-  double stiffness_force_ = 0, stiffness_travel_ = 0;
-  bool stiffness_anchor_set_ = false;
-  bool filter_started_ = false;
-  double filter_time_ = 0;
+  // The host step's record: the job's force filter and local stiffness (engine/sim/job.h)
+  // over these parameters (record, needle direction, shaft friction) and this state.
+  JobParams record_params_;
+  JobState record_state_;
   QuasiStaticLimits quasi_limits_;
-  double filtered_holding_ = 0;      // the holder's axial force through the needle's filter [N]
-  bool holding_filter_started_ = false;
   bool quasi_blocks_puncture_ = false;  // the last measured state failed an enforced check
   StepStatus last_status_ = kStepOk;
 

@@ -7,11 +7,10 @@
 
 #include <gtest/gtest.h>
 
-#include <cstdio>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -19,6 +18,7 @@
 #include <vector>
 
 #include "engine/particles/particle_model.h"
+#include "engine/sim/backend_cpu.h"
 #include "engine/sim/simulation.h"
 #include "tests/engine/test_scenes.h"
 

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/particles/particle_element.h"
+#include "engine/sim/backend_cpu.h"
 #include "engine/sim/simulation.h"
 #include "tests/engine/test_scenes.h"
 

@@ -1,8 +1,9 @@
 // The particle model's CPU reference behind the Backend interface: particle_step over the
 // CpuBackendBase's own State (the CPU FEM backend's sub-stepping and hand-over,
-// engine/sim/backend_cpu_base.h), so the GPU backend has a like-for-like reference.
+// engine/sim/backend_cpu_base.h), so the GPU backend has a like-for-like reference. It lives in
+// engine/sim/ (the Backend interface's folder), so that engine/particles/ does not depend on it.
+#include "engine/sim/backend_cpu.h"
 #include "engine/sim/backend_cpu_base.h"
-#include "engine/particles/particle_model.h"
 
 namespace zona {
 namespace {
