@@ -34,7 +34,7 @@ void add_solver_option(CLI::App* cmd, std::string* solver);
 std::vector<std::string> with_solver(std::vector<std::string> sets, const std::string& solver);
 /// For a static scene: the backend it runs on (the CPU; "auto" becomes "cpu", "cuda" is
 /// refused: the static solver's GPU path is not built) and whether the scene can run static
-/// (engine/solver/static_run.h, check_static_scene).
+/// (engine/sim/static_run.h, check_static_scene).
 zona::Status static_backend(const zona::Scene& scene, zona::BackendKind* kind);
 
 /// The scene file a command's SCENE argument names, looked up as every command looks it up: a

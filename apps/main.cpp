@@ -8,7 +8,7 @@
 #include "apps/commands.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/backend.h"
-#include "engine/solver/static_run.h"
+#include "engine/sim/static_run.h"
 #include "build_commit.h"  // generated: ZONA_BUILD_COMMIT
 
 namespace zona::cli {

@@ -3,7 +3,7 @@
 # includes only itself and folders of a lower layer. Prints each offending include and exits 1.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-declare -A layer=([core]=0 [mesh]=1 [fem]=2 [scene]=2 [tools]=3 [particles]=3 [sim]=4
+declare -A layer=([core]=0 [mesh]=1 [fem]=2 [scene]=2 [tools]=3 [particles]=3 [solver]=3 [sim]=4
                   [haptics]=5 [analysis]=5)
 status=0
 for dir in engine/*/; do
@@ -18,5 +18,5 @@ for dir in engine/*/; do
   done < <(grep -o '#include "engine/[a-z_]*/' "$dir"*.h "$dir"*.cpp 2>/dev/null |
            sed 's|#include "engine/||; s|/$||')
 done
-[ $status -eq 0 ] && echo "engine layers: ok (core < mesh < fem, scene < tools, particles < sim < haptics, analysis)"
+[ $status -eq 0 ] && echo "engine layers: ok (core < mesh < fem, scene < tools, particles, solver < sim < haptics, analysis)"
 exit $status

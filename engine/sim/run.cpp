@@ -8,7 +8,7 @@
 #include <cstdio>
 
 #include "engine/sim/simulation.h"
-#include "engine/solver/static_run.h"
+#include "engine/sim/static_run.h"
 
 namespace zona {
 

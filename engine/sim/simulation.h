@@ -217,7 +217,7 @@ class Simulation {
   }
   /// The job's setup (tool vertices, parameters); empty on the kinematic path.
   const JobSetup& job_setup() const { return job_setup_; }
-  /// The static solver (engine/solver/static_run.h) publishes its accepted state: the host
+  /// The static solver (engine/sim/static_run.h) publishes its accepted state: the host
   /// state's displacement and time, the report and the puncture, for frames and outputs.
   void publish_static_state(std::span<const Vec3d> u, const NeedleReport& report,
                             const PunctureRecord& puncture);

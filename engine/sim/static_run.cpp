@@ -1,5 +1,5 @@
 // The static solver's run (static_run.h).
-#include "engine/solver/static_run.h"
+#include "engine/sim/static_run.h"
 
 #include <algorithm>
 #include <chrono>
