@@ -25,19 +25,22 @@ using io_detail::xml_escape;
 // not the n grids a rewrite of the whole file would (long runs have thousands of frames).
 constexpr std::string_view kTail = "    </Grid>\n  </Domain>\n</Xdmf>\n";
 
+// Any count but 1 and 9 is written as a Vector: ParaView's XDMF (2) reader takes a Vector of c
+// columns as c components, but a Matrix as one tuple of every value, and expands a Tensor6 to
+// nine components in XDMF's order (xx xy xz yy yz zz), which is not zona's 6-component order
+// (xx yy zz xy yz xz). Its Xdmf3 readers take the columns as components whatever the type.
 const char* attribute_type(int components) {
   switch (components) {
     case 1: return "Scalar";
-    case 3: return "Vector";
     case 9: return "Tensor";
-    default: return "Matrix";
+    default: return "Vector";
   }
 }
 
 // One DataItem naming a dataset of the .h5: (rows) or (rows x cols).
 void append_data_item(std::string& out, size_t rows, int cols, const char* type, int precision,
                       const std::string& h5_name, const std::string& dataset) {
-  out += "        <DataItem Dimensions=\"";
+  out += "          <DataItem Dimensions=\"";
   append_int(out, static_cast<int64_t>(rows));
   if (cols != 1) {
     out += ' ';
@@ -93,13 +96,13 @@ Result<XdmfWriter> XdmfWriter::create(const std::string& xdmf_path, const Mesh& 
   // The series' constants and region names, repeated in every grid (an Information element
   // belongs to the grid it is in).
   for (const VtkField& f : options.field_data) {
-    w.information_ += "      <Information Name=\"" + xml_escape(f.name) + "\" Value=\"";
+    w.information_ += "        <Information Name=\"" + xml_escape(f.name) + "\" Value=\"";
     append_real(w.information_, f.values[0]);
     w.information_ += "\"/>\n";
   }
   for (const Region& r : mesh.regions) {
     if (r.name.empty()) continue;
-    w.information_ += "      <Information Name=\"region:" + xml_escape(r.name) + "\" Value=\"";
+    w.information_ += "        <Information Name=\"region:" + xml_escape(r.name) + "\" Value=\"";
     append_int(w.information_, r.tag);
     w.information_ += "\"/>\n";
   }
@@ -153,28 +156,28 @@ Status XdmfWriter::append_grid(double time, const std::vector<VtkField>& point_d
   const std::string frame_path = std::string("/frames/") + group + "/";
   // The mesh's Geometry and Topology in every grid (not an xi:include of the first grid's):
   // each grid reads on its own, in ParaView, meshio and any XDMF reader.
-  std::string out = "    <Grid Name=\"frame_" + std::string(group) + "\" GridType=\"Uniform\">\n";
-  out += "      <Time Value=\"";
+  std::string out = "      <Grid Name=\"frame_" + std::string(group) + "\" GridType=\"Uniform\">\n";
+  out += "        <Time Value=\"";
   append_real(out, time);
   out += "\"/>\n" + information_;
-  out += "      <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"";
+  out += "        <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"";
   append_int(out, static_cast<int64_t>(tet_count_));
   out += "\" NodesPerElement=\"4\">\n";
   append_data_item(out, tet_count_, 4, "Int", 8, h5_name_, "/mesh/tets");
-  out += "      </Topology>\n      <Geometry GeometryType=\"XYZ\">\n";
+  out += "        </Topology>\n        <Geometry GeometryType=\"XYZ\">\n";
   append_data_item(out, vertex_count_, 3, "Float", 8, h5_name_, "/mesh/points");
-  out += "      </Geometry>\n";
+  out += "        </Geometry>\n";
   for (const auto& [fields, center, rows] : {std::tuple{&point_data, "Node", vertex_count_},
                                              std::tuple{&cell_data, "Cell", tet_count_}})
     for (const VtkField& f : *fields) {
-      out += "      <Attribute Name=\"" + xml_escape(f.name) + "\" AttributeType=\"" +
+      out += "        <Attribute Name=\"" + xml_escape(f.name) + "\" AttributeType=\"" +
              attribute_type(f.components) + "\" Center=\"" + center + "\">\n";
       append_data_item(out, rows, f.components, "Float", 8, h5_name_, frame_path + f.name);
-      out += "      </Attribute>\n";
+      out += "        </Attribute>\n";
     }
-  out += "      <Attribute Name=\"region\" AttributeType=\"Scalar\" Center=\"Cell\">\n";
+  out += "        <Attribute Name=\"region\" AttributeType=\"Scalar\" Center=\"Cell\">\n";
   append_data_item(out, tet_count_, 1, "Int", 4, h5_name_, "/mesh/region");
-  out += "      </Attribute>\n    </Grid>\n";
+  out += "        </Attribute>\n      </Grid>\n";
   out += kTail;
   std::FILE* f = xml_.get();
   if (std::fseek(f, -static_cast<long>(kTail.size()), SEEK_END) != 0 ||

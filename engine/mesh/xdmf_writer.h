@@ -52,8 +52,9 @@ struct H5SeriesCloser {
 /// The .xdmf has one Uniform grid per frame (its Time, the mesh's Geometry and Topology, an
 /// Attribute per array plus the cell array "region"), all inside one Temporal collection, so
 /// that readers which take the first grid for the mesh (meshio) find it there.
-/// Attribute types: 1 component Scalar, 3 Vector, 9 Tensor (row-major); any other count Matrix
-/// (a 6-component symmetric tensor is not XDMF's Tensor6, whose order is xx xy xz yy yz zz).
+/// Attribute types: 1 component Scalar, 9 Tensor (row-major), any other count Vector (3, and 6
+/// for a symmetric tensor in zona's order xx yy zz xy yz xz, which is not XDMF's Tensor6 order
+/// xx xy xz yy yz zz; ParaView's readers take a Vector's columns as its components).
 class XdmfWriter {
  public:
   /// Creates (truncates) `xdmf_path` and the .h5 beside it with the mesh. Errors: built without

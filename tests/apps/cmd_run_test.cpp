@@ -188,7 +188,7 @@ TEST(CmdRun, OutputFormatXdmfWritesTheSeriesAndRerunsRemoveIt) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.err.find("--output-format: \"bogus\" is not one of: vtu, xdmf, vtu+xdmf"),
             std::string::npos) << r.err;
-  if (!xdmf_supported()) {
+  if (!zona::xdmf_supported()) {
     r = run_zona(base + " --output-format xdmf", dir.path);
     EXPECT_NE(r.exit_code, 0);
     EXPECT_NE(r.err.find("built without it"), std::string::npos) << r.err;

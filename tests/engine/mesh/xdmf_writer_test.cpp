@@ -95,8 +95,8 @@ TEST(XdmfWriter, TwoFramesMakeATemporalCollectionOfWholeGrids) {
             std::string::npos);
   EXPECT_NE(text.find("Name=\"stress\" AttributeType=\"Tensor\" Center=\"Node\""),
             std::string::npos);
-  // Six components in zona's order (xx yy zz xy yz xz) are not XDMF's Tensor6: a Matrix.
-  EXPECT_NE(text.find("Name=\"green_strain\" AttributeType=\"Matrix\" Center=\"Cell\""),
+  // Six components in zona's order (xx yy zz xy yz xz) are not XDMF's Tensor6: a Vector of 6.
+  EXPECT_NE(text.find("Name=\"green_strain\" AttributeType=\"Vector\" Center=\"Cell\""),
             std::string::npos);
   EXPECT_NE(text.find("<DataItem Dimensions=\"2\" DataType=\"Int\" Precision=\"4\""),
             std::string::npos);
