@@ -1,6 +1,7 @@
 // `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
 // run goes), summary.json, VTU frames and the force-deformation plot (PNG and SVG); SIGINT / SIGTERM end the
-// run at the next step with its outputs written.
+// run at the next step with its outputs written. Frames go to VTU files or an XDMF + HDF5 series
+// (output.format, --output-format).
 #include <signal.h>
 #include <unistd.h>
 
@@ -41,6 +42,7 @@ struct RunArgs {
   double stop_after_puncture = -1;
   bool no_frames = false;
   bool no_plot = false;     // --no-plot: no force_deformation.png / .svg (sweeps, calibration)
+  std::string output_format;  // --output-format: vtu, xdmf or vtu+xdmf; "": the scene's
   std::string png_frames;   // --frames DIR: numbered PNG frames from the renderer
   std::string frame_color = "displacement";
   int frame_count = 0;      // 0: the scene's output.frames (or 50 when it has none)
@@ -289,6 +291,19 @@ void run_command(const RunArgs& args) {
   options.stop_after_puncture = args.stop_after_puncture;
 
   if (args.frame_count < 0) return fail("--frame-count must be >= 0");
+  if (!args.output_format.empty()) {
+    bool known = false;
+    for (FrameFormat f : {FrameFormat::kVtu, FrameFormat::kXdmf, FrameFormat::kVtuAndXdmf})
+      if (args.output_format == frame_format_name(f)) {
+        scene->output.format = f;
+        known = true;
+      }
+    if (!known)
+      return fail("--output-format: \"" + args.output_format +
+                  "\" is not one of: vtu, xdmf, vtu+xdmf");
+    if (writes_xdmf(scene->output.format) && !xdmf_supported())
+      return fail("--output-format " + args.output_format + ": " + kXdmfUnsupportedMessage);
+  }
   if (args.frame_count > 0) {
     scene->output.frames = args.frame_count;
     scene->output.frame_interval.reset();
@@ -333,7 +348,8 @@ void run_command(const RunArgs& args) {
   // reported once and the run goes on.
   std::unique_ptr<FrameRecorder> frames;
   std::string frame_error;
-  if (!args.no_frames && scene->output.frames > 0) frames = std::make_unique<FrameRecorder>(out);
+  if (!args.no_frames && scene->output.frames > 0)
+    frames = std::make_unique<FrameRecorder>(out, scene->output.format);
   PngFrameWriter png_frames;
   if (!args.png_frames.empty()) {
     Result<PngFrameWriter> writer =
@@ -383,6 +399,8 @@ void run_command(const RunArgs& args) {
     run = run_simulation(sim, options);
   }
   progress.finish();
+  if (frames)
+    if (Status st = frames->close(); !st && frame_error.empty()) frame_error = st.error().message;
   if (!frame_error.empty()) std::fprintf(stderr, "zona run: warning: frames: %s\n", frame_error.c_str());
 
   // Outputs. A failed streamed row (disk full, ...): the whole curve is still in memory, so
@@ -480,9 +498,12 @@ void add_run_command(CLI::App& app) {
   cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();
   cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
                   "Stop this many simulated seconds after puncture (default: run to the end)");
-  cmd->add_flag("--no-frames", args->no_frames, "Write no VTU frames");
+  cmd->add_flag("--no-frames", args->no_frames, "Write no frames (VTU or XDMF)");
   cmd->add_flag("--no-plot", args->no_plot,
                 "Draw no force-deformation plot (what zona sweep and zona calibrate run)");
+  cmd->add_option("--output-format", args->output_format,
+                  "Frames as vtu (frames.pvd + .vtu files), xdmf (frames.xdmf + frames.h5, "
+                  "needs HDF5) or vtu+xdmf; default: the scene's output.format (vtu)");
   cmd->add_option("--frames", args->png_frames,
                   "Also render numbered PNG frames into this folder (Vulkan renderer, headless)");
   cmd->add_option("--frame-color", args->frame_color,

@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/core/units.h"
+#include "engine/mesh/xdmf_writer.h"
 #include "engine/fem/model.h"
 #include "engine/fem/state.h"
 #include "engine/mesh/mesh_generate.h"
@@ -195,6 +196,8 @@ NB_MODULE(_zona, m) {
   m.attr("version") = ZONA_VERSION;
   m.attr("schema_version") = kOutputSchemaVersion;
   m.attr("force_csv_columns") = nb::cast(force_csv_columns());
+  // Whether output.format "xdmf" can be written (a build with HDF5; engine/mesh/xdmf_writer.h).
+  m.attr("xdmf_supported") = xdmf_supported();
   m.def("find_scene", &scene_file, nb::arg("name"),
         "The scene file a name or path resolves to, as every zona command resolves it.");
   m.def(

@@ -3,7 +3,7 @@
 // take the GIL back between batches of steps; a KeyboardInterrupt, an exception from the
 // progress callback or a callback returning False stops the run through RunOptions::stop, and
 // the result up to there comes back. With an output folder it writes what `zona run` writes
-// (force.csv streamed, scene.json, summary.json, VTU frames; not the PNG plot).
+// (force.csv streamed, scene.json, summary.json, VTU or XDMF frames; not the PNG plot).
 #include <atomic>
 #include <chrono>
 #include <filesystem>
@@ -198,7 +198,7 @@ nb::dict run(const RunArgs& a) {
         if (Status st = csv->append(s); !st) output_error = st.error().message;
     };
     if (scene.output.frames > 0 || scene.output.frame_interval) {
-      frames = std::make_unique<FrameRecorder>(a.out);
+      frames = std::make_unique<FrameRecorder>(a.out, scene.output.format);
       options.frame = [&](const Simulation& s, int) {
         if (output_error.empty())
           if (Status st = frames->write(s); !st) output_error = st.error().message;
@@ -249,6 +249,8 @@ nb::dict run(const RunArgs& a) {
   if (csv) {
     if (Status s = csv->close(); !s && output_error.empty()) output_error = s.error().message;
   }
+  if (frames)
+    if (Status s = frames->close(); !s && output_error.empty()) output_error = s.error().message;
   const TrainingMetrics metrics = compute_training_metrics(result, sim.cell_diameter());
   if (sim.backend() && std::string(sim.backend()->name()) == "cuda")
     for (const DeviceInfo& d : cuda_devices(nullptr))

@@ -53,6 +53,10 @@ Result<VtuFile> parse_vtu_file(std::string_view data, const std::string& name);
 Status write_file(const std::string& path, std::string_view data);
 /// Checks what the writers rely on: indices in range, one region tag per tetrahedron (or none).
 Status check_mesh_for_write(const Mesh& mesh, const std::string& path);
+/// `s` with XML's five special characters escaped and control characters as spaces.
+std::string xml_escape(std::string_view s);
+/// `text` made fit for an XML comment: one line, no "--".
+std::string xml_comment_text(std::string_view text);
 /// Appends the shortest text that reads back to exactly `value`.
 void append_real(std::string& out, double value);
 /// Appends an integer in decimal.

@@ -15,24 +15,11 @@ namespace {
 
 using io_detail::append_int;
 using io_detail::append_real;
+using io_detail::xml_comment_text;
+using io_detail::xml_escape;
 
 constexpr uint8_t kVtkTetra = 10;  // VTK cell type of the linear tetrahedron
 
-std::string xml_escape(std::string_view s) {
-  std::string out;
-  for (char ch : s) {
-    switch (ch) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&apos;"; break;
-      default:
-        out.push_back(static_cast<unsigned char>(ch) < 0x20 ? ' ' : ch);
-    }
-  }
-  return out;
-}
 
 // Encodes into space reserved up front: arrays reach hundreds of megabytes, so no per-character
 // appends.
@@ -138,16 +125,7 @@ Status write_vtu(const std::string& path, const Mesh& mesh, const std::vector<Vt
   out += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"";
   out += std::endian::native == std::endian::little ? "LittleEndian" : "BigEndian";
   out += "\" header_type=\"UInt64\">\n";
-  if (!options.comment.empty()) {
-    // One line, and no "--" (not allowed inside an XML comment).
-    std::string note;
-    for (char ch : options.comment) {
-      if (ch == '\n' || ch == '\r') ch = ' ';
-      if (ch == '-' && !note.empty() && note.back() == '-') note.push_back(' ');
-      note.push_back(ch);
-    }
-    out += "  <!-- " + note + " -->\n";
-  }
+  if (!options.comment.empty()) out += "  <!-- " + xml_comment_text(options.comment) + " -->\n";
   out += "  <UnstructuredGrid>\n";
   // Whole-data-set arrays: the caller's, then the region names (VTK string arrays would keep
   // the names more plainly, but meshio cannot read them: one Int32 per name instead).
@@ -247,5 +225,36 @@ Status PvdWriter::rewrite() const {
   if (ec) return make_error("%s: cannot replace: %s", pvd_path_.c_str(), ec.message().c_str());
   return {};
 }
+
+namespace io_detail {
+
+std::string xml_escape(std::string_view s) {
+  std::string out;
+  for (char ch : s) {
+    switch (ch) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      case '\'': out += "&apos;"; break;
+      default:
+        out.push_back(static_cast<unsigned char>(ch) < 0x20 ? ' ' : ch);
+    }
+  }
+  return out;
+}
+
+std::string xml_comment_text(std::string_view text) {
+  // One line, and no "--" (not allowed inside an XML comment).
+  std::string note;
+  for (char ch : text) {
+    if (ch == '\n' || ch == '\r') ch = ' ';
+    if (ch == '-' && !note.empty() && note.back() == '-') note.push_back(' ');
+    note.push_back(ch);
+  }
+  return note;
+}
+
+}  // namespace io_detail
 
 }  // namespace zona

@@ -17,6 +17,7 @@
 #include <sstream>
 #include <string_view>
 
+#include "engine/mesh/xdmf_writer.h"
 #include "engine/scene/scene_reader.h"
 #include "engine/core/units.h"
 
@@ -554,7 +555,7 @@ void read_experiment(Reader& root, Scene& scene) {
 }
 
 void read_output(Reader& root, Scene& scene) {
-  Reader r = root.object("output", {"frames", "frame_interval", "sample_interval"});
+  Reader r = root.object("output", {"frames", "frame_interval", "sample_interval", "format"});
   if (!r.present()) return;
   OutputDef& o = scene.output;
   if (r.has("frames") && r.has("frame_interval")) {
@@ -568,6 +569,12 @@ void read_output(Reader& root, Scene& scene) {
     o.frame_interval = interval;
   }
   r.quantity("sample_interval", dim::kTime, &o.sample_interval, Range::non_negative());
+  if (r.choice("format", {Choice<FrameFormat>{"vtu", FrameFormat::kVtu},
+                          Choice<FrameFormat>{"xdmf", FrameFormat::kXdmf},
+                          Choice<FrameFormat>{"vtu+xdmf", FrameFormat::kVtuAndXdmf}},
+               &o.format) &&
+      writes_xdmf(o.format) && !xdmf_supported())
+    r.fail("format", kXdmfUnsupportedMessage);  // at load, not when the first frame is due
 }
 
 // Where the needle axis first meets the generated ball (centred at the origin).

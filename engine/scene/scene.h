@@ -342,9 +342,23 @@ struct HapticsDef {
   int network_port = 47600;                ///< UDP port for kNetwork
 };
 
+/// The files a run's frames go to (docs/outputs.md).
+enum class FrameFormat {
+  kVtu,          ///< "vtu": frames.pvd + frames_NNNNNN.vtu
+  kXdmf,         ///< "xdmf": frames.xdmf + frames.h5 (needs a build with HDF5)
+  kVtuAndXdmf,   ///< "vtu+xdmf": both, the same frames
+};
+
+/// Whether frames in `format` include VTU files / the XDMF series.
+inline bool writes_vtu(FrameFormat format) { return format != FrameFormat::kXdmf; }
+inline bool writes_xdmf(FrameFormat format) { return format != FrameFormat::kVtu; }
+/// The scene file's name of a format ("vtu", "xdmf", "vtu+xdmf").
+const char* frame_format_name(FrameFormat format);
+
 /// What a run writes.
 struct OutputDef {
-  int frames = 10;               ///< VTU frames over the run (evenly spaced); 0: none
+  int frames = 10;               ///< frames over the run (evenly spaced); 0: none
+  FrameFormat format = FrameFormat::kVtu;  ///< where the frames go
   std::optional<double> frame_interval;  ///< time between frames [s]; overrides frames when set
   double sample_interval = 1e-5; ///< time between force.csv rows [s]; 0: every step
 };

@@ -35,6 +35,15 @@ json direction_json(Vec3d v) { return json::array({v.x, v.y, v.z}); }
 
 }  // namespace
 
+const char* frame_format_name(FrameFormat format) {
+  switch (format) {
+    case FrameFormat::kXdmf: return "xdmf";
+    case FrameFormat::kVtuAndXdmf: return "vtu+xdmf";
+    case FrameFormat::kVtu: break;
+  }
+  return "vtu";
+}
+
 json scene_to_json(const Scene& scene) {
   using namespace dim;
   json j = json::object();
@@ -262,6 +271,7 @@ json scene_to_json(const Scene& scene) {
     output["frames"] = o.frames;
   }
   output["sample_interval"] = quantity_json(o.sample_interval, kTime);
+  output["format"] = frame_format_name(o.format);
   j["output"] = output;
   j["experiment"] = scene.experiment == Experiment::kDynamic ? "dynamic" : "quasi_static";
   const QuasiStaticDef& q = scene.quasi_static;

@@ -355,23 +355,49 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   return j;
 }
 
-FrameRecorder::FrameRecorder(const std::string& directory)
-    : writer_((std::filesystem::path(directory) / "frames.pvd").string()) {}
+FrameRecorder::FrameRecorder(const std::string& directory, FrameFormat format)
+    : directory_(directory),
+      format_(format),
+      pvd_((std::filesystem::path(directory) / "frames.pvd").string()) {}
+
+std::string FrameRecorder::xdmf_path() const {
+  return (std::filesystem::path(directory_) / "frames.xdmf").string();
+}
 
 Status FrameRecorder::write(const Simulation& sim) {
   frame_fields(sim, &point_data_, &cell_data_);
+  const double time = sim.state().time;
   // The rest positions with the displacement beside them: one Warp By Vector shows the
   // deformed cell (deformed points and a displacement array would show it deformed twice).
-  VtuOptions options;
-  options.field_data = {{"TimeValue", 1, {sim.state().time}}, {"points_at_rest", 1, {1.0}}};
-  options.comment = kFramePointsNote;
-  return writer_.write_frame(sim.state().time, sim.mesh(), point_data_, cell_data_, options);
+  if (writes_vtu(format_)) {
+    VtuOptions options;
+    options.field_data = {{"TimeValue", 1, {time}}, {"points_at_rest", 1, {1.0}}};
+    options.comment = kFramePointsNote;
+    if (Status s = pvd_.write_frame(time, sim.mesh(), point_data_, cell_data_, options); !s)
+      return s;
+  }
+  if (writes_xdmf(format_)) {
+    if (!xdmf_) {
+      XdmfOptions options;
+      options.field_data = {{"points_at_rest", 1, {1.0}}};
+      options.comment = kSeriesPointsNote;
+      Result<XdmfWriter> writer = XdmfWriter::create(xdmf_path(), sim.mesh(), options);
+      if (!writer) return writer.error();
+      xdmf_.emplace(std::move(writer).value());
+    }
+    if (Status s = xdmf_->write_frame(time, point_data_, cell_data_); !s) return s;
+  }
+  ++frame_count_;
+  return Status::ok_status();
 }
 
+Status FrameRecorder::close() { return xdmf_ ? xdmf_->close() : Status::ok_status(); }
+
 bool is_run_output(const std::string& file_name) {
-  static constexpr const char* kNames[] = {"force.csv", "summary.json", "scene.json",
-                                           "frames.pvd", "force_deformation.png",
-                                           "force_deformation.svg"};
+  static constexpr const char* kNames[] = {"force.csv",   "summary.json",
+                                           "scene.json",  "frames.pvd",
+                                           "frames.xdmf", "frames.h5",
+                                           "force_deformation.png", "force_deformation.svg"};
   for (const char* name : kNames) {
     const std::string n = name;
     if (file_name == n || file_name == n + ".tmp") return true;

@@ -6,6 +6,7 @@
 
 #include <cstdio>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -14,6 +15,7 @@
 
 #include "engine/core/base.h"
 #include "engine/mesh/mesh_io.h"
+#include "engine/mesh/xdmf_writer.h"
 #include "engine/sim/simulation.h"
 
 namespace zona {
@@ -143,25 +145,43 @@ inline constexpr const char* kFramePointsNote =
     "array 'displacement' (ParaView: Warp By Vector, vectors displacement, scale factor 1). "
     "Field arrays: TimeValue [s], points_at_rest = 1. docs/outputs.md lists every array.";
 
-/// Writes frames of a simulation into DIR/frames.pvd + DIR/frames_<i>.vtu: the rest positions
-/// with frame_fields' arrays (the displacement among them), field arrays "TimeValue" [s] and
-/// "points_at_rest" (1), and kFramePointsNote.
+/// The same note in an XDMF series (an XML comment in the .xdmf, the .h5 root's "note").
+inline constexpr const char* kSeriesPointsNote =
+    "zona frames: the Geometry (/mesh/points) is the REST positions; the deformed cell is "
+    "Geometry + the point attribute 'displacement' (ParaView: Warp By Vector, vectors "
+    "displacement, scale factor 1). points_at_rest = 1 (an Information element of each grid, an "
+    "attribute of the .h5 root). docs/outputs.md lists every array.";
+
+/// Writes frames of a simulation into its output folder DIR, in `format`: VTU as DIR/frames.pvd
+/// + DIR/frames_<i>.vtu, XDMF as DIR/frames.xdmf + DIR/frames.h5 (XdmfWriter's layout,
+/// engine/mesh/xdmf_writer.h). Either way the points are the rest positions with
+/// frame_fields' arrays (the displacement among them), the field data "points_at_rest" (1) and
+/// the note kFramePointsNote; the VTU frames carry "TimeValue" [s] too, the XDMF grids their
+/// Time. The XDMF files are created at the first write (the mesh is the simulation's).
 class FrameRecorder {
  public:
-  explicit FrameRecorder(const std::string& directory);
-  /// Writes the simulation's current state as the next frame.
+  explicit FrameRecorder(const std::string& directory, FrameFormat format = FrameFormat::kVtu);
+  /// Writes the simulation's current state as the next frame. Errors: a failed write; XDMF in
+  /// a build without HDF5 (kXdmfUnsupportedMessage).
   Status write(const Simulation& simulation);
-  const std::string& pvd_path() const { return writer_.path(); }
-  size_t frame_count() const { return writer_.frame_count(); }
+  /// Closes the XDMF files (the destructor does it too, dropping the error).
+  Status close();
+  const std::string& pvd_path() const { return pvd_.path(); }
+  std::string xdmf_path() const;
+  size_t frame_count() const { return frame_count_; }
 
  private:
-  PvdWriter writer_;
+  std::string directory_;
+  FrameFormat format_;
+  PvdWriter pvd_;
+  std::optional<XdmfWriter> xdmf_;
+  size_t frame_count_ = 0;
   std::vector<VtkField> point_data_, cell_data_;
 };
 
 /// Whether `file_name` (no folder) is one of the outputs `zona run` writes into its output
 /// folder: force.csv, summary.json, scene.json, force_deformation.png and .svg, frames.pvd,
-/// frames_<digits>.vtu, or the ".tmp" of one of them (atomic writes).
+/// frames_<digits>.vtu, frames.xdmf, frames.h5, or the ".tmp" of one of them (atomic writes).
 bool is_run_output(const std::string& file_name);
 
 /// Removes from `directory` the files is_run_output names (an earlier run's outputs, so that a

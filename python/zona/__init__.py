@@ -17,6 +17,7 @@ import numpy as np
 from . import _zona
 from ._readers import Columns, Frame, Vtu, read_force_csv, read_pvd, read_summary, read_vtu
 from ._result import Result
+from ._xdmf import XdmfSeries, read_xdmf
 from ._zona import ZonaError
 
 __version__ = _zona.version
@@ -24,11 +25,14 @@ __version__ = _zona.version
 SCHEMA_VERSION = _zona.schema_version
 #: force.csv's column names, in order.
 FORCE_CSV_COLUMNS = tuple(_zona.force_csv_columns)
+#: Whether this build writes XDMF + HDF5 frames (output.format "xdmf"; a build with libhdf5).
+XDMF_SUPPORTED = bool(_zona.xdmf_supported)
 
 __all__ = [
-    "Columns", "Frame", "Mesh", "NotQuasiStaticWarning", "Result", "Vtu", "ZonaError",
-    "find_scene", "forces", "generate_mesh", "load_scene", "read_force_csv", "read_mesh",
-    "read_pvd", "read_summary", "read_vtu", "run", "FORCE_CSV_COLUMNS", "SCHEMA_VERSION",
+    "Columns", "Frame", "Mesh", "NotQuasiStaticWarning", "Result", "Vtu", "XdmfSeries",
+    "ZonaError", "find_scene", "forces", "generate_mesh", "load_scene", "read_force_csv",
+    "read_mesh", "read_pvd", "read_summary", "read_vtu", "read_xdmf", "run",
+    "FORCE_CSV_COLUMNS", "SCHEMA_VERSION", "XDMF_SUPPORTED",
 ]
 
 
@@ -81,12 +85,13 @@ def run(scene="mouse_oocyte", backend="cpu", out=None, progress=None, *, sets=No
     and returns a Result.
 
     backend: "cpu" (default), "cuda" or "auto". out: a folder to write what `zona run` writes
-    (force.csv, summary.json, scene.json, VTU frames; no plot), or None to write nothing.
+    (force.csv, summary.json, scene.json, frames in the scene's output.format: VTU, XDMF or
+    both; no plot), or None to write nothing.
     progress: a callable taking a dict (time_s, end_time_s, wall_s, travel_m, deformation_m,
     force_N, punctured), called about every progress_interval seconds of wall time; returning
     False stops the run (the result says interrupted). sets: overrides ("key.path=value" list
     or dict). threads: CPU threads (0: all). stop_after_puncture: simulated seconds to go on
-    after puncture (None: to the scene's end). frames: VTU frames over the run with `out`
+    after puncture (None: to the scene's end). frames: frames over the run with `out`
     (None: the scene's output.frames). full_duration: as `zona run --full-duration`.
 
     The GIL is released while the engine steps. Ctrl-C (KeyboardInterrupt) or an exception in

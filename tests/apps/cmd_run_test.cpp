@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/analysis/plot.h"
+#include "engine/mesh/xdmf_writer.h"
 #include "tests/apps/cli_runner.h"
 
 namespace {
@@ -173,6 +174,61 @@ TEST(CmdRun, RerunRemovesItsOwnEarlierOutputsOnly) {
   EXPECT_FALSE(fs::exists(out / "frames.pvd"));
   EXPECT_TRUE(fs::exists(out / "summary.json"));
   user_files_intact();
+}
+
+// Frames as an XDMF + HDF5 series: the two files instead of the VTU series (both with vtu+xdmf);
+// a rerun with VTU frames removes them; a format the build cannot write is refused up front.
+TEST(CmdRun, OutputFormatXdmfWritesTheSeriesAndRerunsRemoveIt) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const std::string base = "run " + scene.string() + " --quiet --frame-count 3 --out " + out.string();
+  CliRun r = run_zona(base + " --output-format bogus", dir.path);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("--output-format: \"bogus\" is not one of: vtu, xdmf, vtu+xdmf"),
+            std::string::npos) << r.err;
+  if (!zona::xdmf_supported()) {
+    r = run_zona(base + " --output-format xdmf", dir.path);
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find("built without it"), std::string::npos) << r.err;
+    r = run_zona(base + " --set output.format=xdmf", dir.path);
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find("output.format: XDMF output needs HDF5"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(out / "force.csv"));
+    return;
+  }
+  r = run_zona(base + " --output-format xdmf", dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(out / "frames.xdmf"));
+  EXPECT_TRUE(fs::exists(out / "frames.h5"));
+  EXPECT_FALSE(fs::exists(out / "frames.pvd"));
+  EXPECT_FALSE(fs::exists(out / "frames_000000.vtu"));
+  std::ifstream xdmf(out / "frames.xdmf");
+  const std::string text((std::istreambuf_iterator<char>(xdmf)), std::istreambuf_iterator<char>());
+  size_t grids = 0;
+  for (size_t at = text.find("GridType=\"Uniform\""); at != std::string::npos;
+       at = text.find("GridType=\"Uniform\"", at + 1))
+    ++grids;
+  EXPECT_EQ(grids, 3u);
+  EXPECT_NE(text.find("REST positions"), std::string::npos);
+  const nlohmann::json resolved = nlohmann::json::parse(std::ifstream(out / "scene.json"));
+  EXPECT_EQ(resolved["output"]["format"], "xdmf");
+
+  // Both: the same three frames in each series.
+  r = run_zona(base + " --set output.format=vtu+xdmf", dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(out / "frames.xdmf"));
+  EXPECT_TRUE(fs::exists(out / "frames_000002.vtu"));
+
+  // Back to VTU: the earlier series goes; a user's .h5 stays.
+  std::ofstream(out / "mine.h5") << "mine\n";
+  r = run_zona(base, dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_FALSE(fs::exists(out / "frames.xdmf"));
+  EXPECT_FALSE(fs::exists(out / "frames.h5"));
+  EXPECT_TRUE(fs::exists(out / "frames.pvd"));
+  EXPECT_TRUE(fs::exists(out / "mine.h5"));
 }
 
 TEST(CmdRun, AFastNeedleOnAMassScaledCellIsNotAResult) {

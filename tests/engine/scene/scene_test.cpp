@@ -12,6 +12,9 @@
 #include <numbers>
 #include <string>
 #include <tuple>
+#include <utility>
+
+#include "engine/mesh/xdmf_writer.h"
 
 namespace zona {
 namespace {
@@ -562,6 +565,28 @@ TEST(Scene, OverridesApplyBeforeValidation) {
                               {"boundary.1.depth=3 um", "boundary.1.depth=4 um", "output.frames=5"});
   expect_rel(bench.boundary[1].depth, 4e-6);
   EXPECT_EQ(bench.output.frames, 5);
+}
+
+TEST(Scene, OutputFormatChoosesTheFramesFiles) {
+  json j = minimal();
+  EXPECT_EQ(parse_scene(j, "test.json")->output.format, FrameFormat::kVtu);
+  expect_error(j, "output.format", "\"vtk\" is not one of: vtu, xdmf, vtu+xdmf",
+               {"output.format=vtk"});
+  for (const auto& [name, format] : {std::pair{"vtu", FrameFormat::kVtu},
+                                     std::pair{"xdmf", FrameFormat::kXdmf},
+                                     std::pair{"vtu+xdmf", FrameFormat::kVtuAndXdmf}}) {
+    const std::string set = std::string("output.format=") + name;
+    if (writes_xdmf(format) && !xdmf_supported()) {
+      // Refused at load, with the reason, never skipped when the first frame is due.
+      expect_error(j, "output.format", "built without it", {set});
+      continue;
+    }
+    Result<Scene> s = parse_scene(j, "test.json", {set});
+    ASSERT_TRUE(s.ok()) << s.error().message;
+    EXPECT_EQ(s->output.format, format);
+    EXPECT_EQ(scene_to_json(*s)["output"]["format"], name);
+    EXPECT_EQ(parse_scene(scene_to_json(*s), "back.json")->output.format, format);
+  }
 }
 
 TEST(Scene, OverridesAreValidatedLikeTheFile) {

@@ -250,11 +250,13 @@ TEST(Recorder, ProvenanceOfThisMachine) {
 TEST(Recorder, RunOutputNames) {
   for (const char* name : {"force.csv", "summary.json", "summary.json.tmp", "scene.json",
                            "force_deformation.png", "force_deformation.svg", "frames.pvd",
-                           "frames.pvd.tmp", "frames_000000.vtu", "frames_1234567.vtu"})
+                           "frames.pvd.tmp", "frames_000000.vtu", "frames_1234567.vtu",
+                           "frames.xdmf", "frames.h5", "frames.xdmf.tmp"})
     EXPECT_TRUE(is_run_output(name)) << name;
   for (const char* name : {"notes.txt", "force.csv.bak", "my_force.csv", "frames_.vtu",
                            "frames_12a.vtu", "frames_000001.vtu.bak", "frames_000001.vtk",
-                           "Frames_000001.vtu", "frames.pvd.old", "mesh.vtu", "frames.h5"})
+                           "Frames_000001.vtu", "frames.pvd.old", "mesh.vtu", "frames.hdf5",
+                           "series.xdmf", "frames_000001.h5", "frames.xmf", "frames.h5.bak"})
     EXPECT_FALSE(is_run_output(name)) << name;
 }
 
@@ -262,14 +264,18 @@ TEST(Recorder, RemoveRunOutputsRemovesOnlyZonasFiles) {
   const fs::path dir = fs::temp_directory_path() / "zona_recorder_stale";
   fs::remove_all(dir);
   fs::create_directories(dir / "frames_000005.vtu");  // a user's folder with an output's name
+  fs::create_directories(dir / "frames.h5");  // and one named as the XDMF series' data
   for (const char* name : {"force.csv", "summary.json", "frames.pvd", "frames_000000.vtu",
-                           "frames_000009.vtu", "notes.txt", "frames_notes.vtu", "mesh.vtu"})
+                           "frames_000009.vtu", "notes.txt", "frames_notes.vtu", "mesh.vtu",
+                           "frames.xdmf", "run.h5", "series.xdmf"})
     std::ofstream(dir / name) << "x\n";
   std::vector<std::string> removed;
   ASSERT_TRUE(remove_run_outputs(dir.string(), &removed).ok());
-  EXPECT_EQ(removed, (std::vector<std::string>{"force.csv", "frames.pvd", "frames_000000.vtu",
-                                               "frames_000009.vtu", "summary.json"}));
-  for (const char* name : {"notes.txt", "frames_notes.vtu", "mesh.vtu", "frames_000005.vtu"})
+  EXPECT_EQ(removed, (std::vector<std::string>{"force.csv", "frames.pvd", "frames.xdmf",
+                                               "frames_000000.vtu", "frames_000009.vtu",
+                                               "summary.json"}));
+  for (const char* name : {"notes.txt", "frames_notes.vtu", "mesh.vtu", "frames_000005.vtu",
+                           "frames.h5", "run.h5", "series.xdmf"})
     EXPECT_TRUE(fs::exists(dir / name)) << name;
   for (const std::string& name : removed) EXPECT_FALSE(fs::exists(dir / name)) << name;
   // A folder that does not exist: nothing to do.
