@@ -401,15 +401,29 @@ RunResult StaticRun::run() {
   frames_up_to(0, u_, accepted_);
   std::vector<Vec3d> u = u_;
   NewtonStats stats;
-  // Suction, ramped in with the needle at its start.
+  // Suction, ramped in with the needle at its start. The seating is a fictitious path to the
+  // held state: until the rim's friction has been lagged from a state in contact, the cell can
+  // spin on the rim with nothing but the regulariser against it (and the contact's
+  // nanometre-deep penalty makes Newton crawl along that spin), so a ramp step that does not
+  // converge is taken as it stands (its energy is lower than its start) and its contacts
+  // lagged; the full suction is then solved to the tolerance, re-lagged up to
+  // kSettleSteps times.
+  constexpr int kSettleSteps = 4;
   if (suction_) {
-    for (int k = 1; k <= def_.suction_steps && !result_.stopped_early; ++k) {
-      suction_ramp_ = static_cast<double>(k) / def_.suction_steps;
-      if (!solve_at(0, 1, u, &stats)) {
-        stop("holding: the suction's load step " + std::to_string(k) + " did not converge: " +
-             failure_);
+    for (int k = 1; k <= def_.suction_steps + kSettleSteps && !result_.stopped_early; ++k) {
+      suction_ramp_ = std::min(1.0, static_cast<double>(k) / def_.suction_steps);
+      const bool converged = solve_at(0, 1, u, &stats);
+      const bool full = k >= def_.suction_steps;
+      if (converged && full) {
+        accept(u, 0, stats, false);
         break;
       }
+      if (!converged && k == def_.suction_steps + kSettleSteps) {
+        stop("holding: the full suction did not converge in " + std::to_string(kSettleSteps + 1) +
+             " load steps: " + failure_);
+        break;
+      }
+      if (!std::isfinite(newton_->evaluate(u, {}))) u = u_;
       accept(u, 0, stats, false);
     }
   }
@@ -534,6 +548,12 @@ RunResult StaticRun::run() {
         }
       }
       if (result_.stopped_early) break;
+      // The needle's load on each vertex at the puncture, with the friction it was solved with
+      // (before accept moves the anchors).
+      std::vector<Vec3d> g_needle(u_hi.size(), Vec3d{0, 0, 0});
+      needle_->set_field(needle_field(hi));
+      needle_->set_scale(1);
+      needle_->add_gradient(u_hi, g_needle);
       accept(u_hi, hi, st_hi);
       if (result_.stopped_early) break;
       punctured_ = true;
@@ -550,10 +570,7 @@ RunResult StaticRun::run() {
       // which then falls by force_drop; past it, the shaft's drag grows with the inserted
       // length (puncture.shaft_friction) on the same vertices, along the axis.
       {
-        std::vector<Vec3d> g(u_.size(), Vec3d{0, 0, 0});
-        needle_->set_field(needle_field(hi));
-        needle_->set_scale(1);
-        needle_->add_gradient(u_, g);
+        const std::vector<Vec3d>& g = g_needle;
         for (size_t v = 0; v < g.size(); ++v)
           if (g[v].x != 0 || g[v].y != 0 || g[v].z != 0) {
             released_vertex_.push_back(static_cast<int32_t>(v));
