@@ -67,9 +67,18 @@ nb::dict sample_columns(const std::vector<ForceSample>& samples) {
   real(12, [](const ForceSample& s) { return s.raw_force; });
   real(13, [](const ForceSample& s) { return s.imbalance; });
   real(14, [](const ForceSample& s) { return s.kinetic_share; });
-  if (names.size() != 15)
+  std::vector<int32_t> newton(n);
+  std::vector<int64_t> krylov(n);
+  for (size_t i = 0; i < n; ++i) {
+    newton[i] = samples[i].newton_iterations;
+    krylov[i] = samples[i].krylov_iterations;
+  }
+  columns[names.at(15).c_str()] = array_of(std::move(newton), {n});
+  columns[names.at(16).c_str()] = array_of(std::move(krylov), {n});
+  real(17, [](const ForceSample& s) { return s.residual; });
+  if (names.size() != 18)
     throw ZonaError("force.csv has " + std::to_string(names.size()) +
-                    " columns; this module knows 15 (python/module_run.cpp)");
+                    " columns; this module knows 18 (python/module_run.cpp)");
   return columns;
 }
 

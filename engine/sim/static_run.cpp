@@ -369,7 +369,17 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
   result_.steps = step_;
   if (row) emit(sample(accepted_, stats));
   frames_up_to(s, u_, accepted_);
-  // What ends the run.
+  // What ends the run. (An inverted element cannot be accepted: the barrier makes its energy
+  // infinite. Checked all the same, as every result is.)
+  if (const double j = elastic_.min_volume_ratio(u_); !(j > 0)) {
+    char line[160];
+    std::snprintf(line, sizeof line,
+                  "load step %lld (travel %.4g um): an element inverted (volume ratio %.3g); "
+                  "nothing after it is a result",
+                  static_cast<long long>(step_), s * 1e6, j);
+    stop(line);
+    return;
+  }
   if (!punctured_ && p_.needle.breach_depth > 0 && accepted_.depth > p_.needle.breach_depth) {
     char line[320];
     std::snprintf(line, sizeof line,
@@ -408,12 +418,17 @@ RunResult StaticRun::run() {
   // converge is taken as it stands (its energy is lower than its start) and its contacts
   // lagged; the full suction is then solved to the tolerance, re-lagged up to
   // kSettleSteps times.
-  constexpr int kSettleSteps = 4;
+  constexpr int kSettleSteps = 4, kRampIterations = 6;
   if (suction_) {
     for (int k = 1; k <= def_.suction_steps + kSettleSteps && !result_.stopped_early; ++k) {
       suction_ramp_ = std::min(1.0, static_cast<double>(k) / def_.suction_steps);
-      const bool converged = solve_at(0, 1, u, &stats);
       const bool full = k >= def_.suction_steps;
+      // A ramp step is a stage of the seating, not a result: a few iterations, then its
+      // contacts are lagged.
+      const int max_iterations = newton_->options().max_iterations;
+      if (!full) newton_->options().max_iterations = kRampIterations;
+      const bool converged = solve_at(0, 1, u, &stats);
+      newton_->options().max_iterations = max_iterations;
       if (converged && full) {
         accept(u, 0, stats, false);
         break;

@@ -59,6 +59,7 @@ class NewtonSolver {
                std::vector<uint8_t> fixed, std::unique_ptr<LinearSolver> linear,
                NewtonOptions options = {});
 
+  NewtonOptions& options() { return options_; }
   /// Adds a term (its blocks must be in the pattern).
   void add_term(EnergyTerm* term) { terms_.push_back(term); }
   /// Minimises the terms' sum from u (updated in place) to the force tolerance [N].

@@ -407,8 +407,11 @@ TEST(CmdRun, SignalStopsTheRunAndKeepsItsOutputs) {
     ASSERT_GE(csv.size(), 2u);
     EXPECT_EQ(csv[0].rfind("# zona force.csv schema ", 0), 0u) << csv[0];
     EXPECT_EQ(csv[1].rfind("time_s,needle_travel_m,deformation_m,force_N", 0), 0u) << csv[1];
+    // Whole rows: as many fields as the header.
+    const auto header_commas = std::count(csv[1].begin(), csv[1].end(), ',');
+    EXPECT_EQ(header_commas, 17);
     for (size_t i = 2; i < csv.size(); ++i)
-      EXPECT_EQ(std::count(csv[i].begin(), csv[i].end(), ','), 14) << i << ": " << csv[i];
+      EXPECT_EQ(std::count(csv[i].begin(), csv[i].end(), ','), header_commas) << i << ": " << csv[i];
     // summary.json: whole, interrupted, its numbers up to the stop.
     std::ifstream js(out / "summary.json");
     const nlohmann::json j = nlohmann::json::parse(js, nullptr, /*allow_exceptions=*/false);

@@ -104,6 +104,27 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   EXPECT_TRUE(fs::exists(out / "frames.pvd"));
 }
 
+// The regulariser (the real mass and the medium's drag) holds the cell's spin on the rim and
+// nothing else: ten times the viscosity leaves the curve where it was.
+TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  const std::string base = "run " + scene.string() + " --headless --no-frames --set needle.max_travel=10um";
+  const CliRun a = run_zona(base + " --out " + (dir.path / "a").string(), dir.path);
+  const CliRun b = run_zona(base + " --set 'solver.medium_viscosity=8.9e-3 Pa*s' --out " +
+                                (dir.path / "b").string(),
+                            dir.path);
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  ASSERT_EQ(b.exit_code, 0) << b.err;
+  auto ca = read_csv(dir.path / "a" / "force.csv"), cb = read_csv(dir.path / "b" / "force.csv");
+  ASSERT_EQ(ca["force_N"].size(), cb["force_N"].size());
+  const double peak = ca["force_N"].back();
+  ASSERT_GT(peak, 1e-7);
+  for (size_t i = 0; i < ca["force_N"].size(); ++i)
+    EXPECT_NEAR(ca["force_N"][i], cb["force_N"][i], 1e-3 * peak) << "row " << i;
+}
+
 TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
   TempDir dir;
   const fs::path scene = dir.path / "tiny_static.json";

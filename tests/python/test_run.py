@@ -180,3 +180,19 @@ def test_bad_input_raises_one_line_errors(tmp_path):
         zona.run("mouse_oocyte", backend="abacus")
     with pytest.raises(TypeError):
         zona.run("mouse_oocyte", no_such_option=1)
+
+
+def test_static_solver_through_the_module():
+    """solver.method "static" from Python: converged rows with their Newton columns, a puncture
+    at its threshold, and the summary says which solver ran."""
+    r = zona.run("mouse_oocyte", sets=["mesh.generate.vertices=600", "needle.max_travel=12um",
+                                       "puncture.threshold=0.8uN", "solver.method=static"])
+    assert r.summary["solver"] == "static"
+    assert r.summary["static_solver"]["linear"] in ("cg", "direct")
+    assert r.puncture["punctured"]
+    assert r.puncture["force_N"] == pytest.approx(0.8e-6, rel=0.01)
+    rows = r.columns["newton_iterations"] > 0
+    assert rows.sum() >= 5
+    # Each row converged: the residual below 1e-5 of max(force, E r^2) (E 16.5 kPa, r 4 um).
+    scale = np.maximum(np.abs(r.force_N[rows]), 16.5e3 * 4e-6 ** 2)
+    assert np.all(r.columns["residual_N"][rows] <= 1e-5 * scale * (1 + 1e-9))
