@@ -66,7 +66,7 @@ class MultigridTest : public ::testing::Test {
     for (size_t v = 0; v < u.size(); ++v)
       if (fixed_[v]) u[v] = Vec3d{0, 0, 0};
     BlockSparseMatrix h = ElasticEnergy::hessian_pattern(model_);
-    term.add_hessian(u, h);
+    term.add_hessian(u, h, true);
     h.apply_mask(fixed_);
     return h;
   }
