@@ -89,8 +89,8 @@ class MultigridTest : public ::testing::Test {
 };
 
 // CG with the multigrid converges to 1e-8, agrees with the direct solve to 1e-6 (relative),
-// and needs far fewer iterations than with block Jacobi. Measured on this box: 14 against 343
-// (a ratio of 24); the assertion keeps a margin of 2.
+// and needs far fewer iterations than with block Jacobi. Measured on this box (nu 0.49, to
+// 1e-8): 37 against 533, a ratio of 14; the assertions keep a margin of about 2.
 TEST_F(MultigridTest, ConvergesToTheDirectSolutionInFewIterations) {
   std::vector<Vec3d> direct(b_.size(), Vec3d{0, 0, 0});
   std::unique_ptr<LinearSolver> ldlt = make_direct_solver();
@@ -108,8 +108,8 @@ TEST_F(MultigridTest, ConvergesToTheDirectSolutionInFewIterations) {
   }
   EXPECT_LE(std::sqrt(diff / ref), 1e-6);
   EXPECT_GT(mg, 0);
-  EXPECT_LE(mg, 30);
-  EXPECT_GE(jacobi, 12 * mg) << "multigrid " << mg << ", block Jacobi " << jacobi;
+  EXPECT_LE(mg, 50);
+  EXPECT_GE(jacobi, 7 * mg) << "multigrid " << mg << ", block Jacobi " << jacobi;
 }
 
 // One V-cycle is a fixed symmetric positive definite operator: x^T M^-1 y = y^T M^-1 x and
