@@ -120,7 +120,10 @@ struct SolverDef {
   /// max(needle axial force, E_max tip_radius^2) [-].
   double tolerance = 1e-5;
   LinearSolverKind linear = LinearSolverKind::kCg;
-  PreconditionerKind preconditioner = PreconditionerKind::kMultigrid;
+  // Block Jacobi by default for now: with the multigrid the tiny held cell of
+  // tests/apps/cmd_static_test.cpp ends "holder lost" at 2 um where the direct oracle does not
+  // (docs/static.md, "Preconditioner: the measurements").
+  PreconditionerKind preconditioner = PreconditionerKind::kJacobi;
   /// The volume barrier acts below this element volume ratio [-] (docs/physics.md).
   double barrier_volume = 0.1;
   /// The medium's viscosity for the regulariser's drag [Pa s] (water at 25 C).
