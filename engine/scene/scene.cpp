@@ -242,8 +242,8 @@ void read_integrator(Reader& root, Scene& scene) {
 
 void read_solver(Reader& root, Scene& scene) {
   Reader r = root.object("solver", {"method", "note", "travel_step", "min_travel_step",
-                                    "tolerance", "linear", "barrier_volume", "medium_viscosity",
-                                    "puncture_tolerance", "suction_steps"});
+                                    "tolerance", "linear", "preconditioner", "barrier_volume",
+                                    "medium_viscosity", "puncture_tolerance", "suction_steps"});
   if (!r.present()) return;
   SolverDef& s = scene.solver;
   r.choice("method",
@@ -257,6 +257,10 @@ void read_solver(Reader& root, Scene& scene) {
            {Choice<LinearSolverKind>{"direct", LinearSolverKind::kDirect},
             Choice<LinearSolverKind>{"cg", LinearSolverKind::kCg}},
            &s.linear);
+  r.choice("preconditioner",
+           {Choice<PreconditionerKind>{"jacobi", PreconditionerKind::kJacobi},
+            Choice<PreconditionerKind>{"multigrid", PreconditionerKind::kMultigrid}},
+           &s.preconditioner);
   r.number("barrier_volume", &s.barrier_volume,
            Range{0.0, 1.0, false, true, "0 switches the barrier off; below 1 (rest)"});
   r.quantity("medium_viscosity", dim::kPressure * dim::kTime, &s.medium_viscosity,

@@ -151,6 +151,8 @@ json scene_to_json(const Scene& scene) {
   solver["min_travel_step"] = quantity_json(sv.min_travel_step, kLength);
   solver["tolerance"] = sv.tolerance;
   solver["linear"] = sv.linear == LinearSolverKind::kDirect ? "direct" : "cg";
+  solver["preconditioner"] =
+      sv.preconditioner == PreconditionerKind::kMultigrid ? "multigrid" : "jacobi";
   solver["barrier_volume"] = sv.barrier_volume;
   solver["medium_viscosity"] = quantity_json(sv.medium_viscosity, kPressure * kTime);
   solver["puncture_tolerance"] = quantity_json(sv.puncture_tolerance, kLength);

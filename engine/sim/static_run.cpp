@@ -9,6 +9,7 @@
 
 #include "engine/fem/elastic_energy.h"
 #include "engine/solver/inertia_term.h"
+#include "engine/solver/multigrid.h"
 #include "engine/solver/newton.h"
 #include "engine/tools/tool_terms.h"
 
@@ -192,7 +193,10 @@ void StaticRun::build() {
   std::unique_ptr<LinearSolver> linear =
       def_.linear == LinearSolverKind::kDirect
           ? make_direct_solver()
-          : make_cg_solver(make_block_jacobi(), 20000);
+          : make_cg_solver(def_.preconditioner == PreconditionerKind::kMultigrid
+                               ? make_multigrid(model_.rest_positions, model_.vertex_fixed)
+                               : make_block_jacobi(),
+                           20000);
   NewtonOptions newton;
   // A quarter of the tip's radius (the rim's bore without a needle) per trial: the contact's
   // length scale.

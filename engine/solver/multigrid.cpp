@@ -1,0 +1,436 @@
+// The lattice-embedding multigrid preconditioner (multigrid.h).
+#include "engine/solver/multigrid.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+
+namespace zona {
+namespace {
+
+// Interpolation to the nodes of a level from the next coarser lattice: per fine node, up to 8
+// (coarse node, trilinear weight) pairs; a fixed vertex has none.
+struct Interpolation {
+  std::vector<int64_t> offsets;  // (fine nodes + 1)
+  std::vector<int32_t> nodes;    // coarse node per pair
+  std::vector<double> weights;   // its weight [-]
+  size_t coarse_count = 0;
+};
+
+// Embeds `points` (those with skip[i] == 0) in the lattice of spacing h whose first node lies
+// just below their bounding box; keeps the lattice nodes that carry a weight, in lexicographic
+// order, and returns their positions in `coarse_points`.
+Interpolation embed(std::span<const Vec3d> points, std::span<const uint8_t> skip, double h,
+                    std::vector<Vec3d>& coarse_points) {
+  Vec3d lo{INFINITY, INFINITY, INFINITY};
+  for (const Vec3d& p : points)
+    for (int c = 0; c < 3; ++c) lo[c] = std::min(lo[c], p[c]);
+  // Below the box by a hair: the smallest coordinate falls inside the first cell, not on its
+  // far face.
+  const Vec3d origin = lo - Vec3d{1e-9 * h, 1e-9 * h, 1e-9 * h};
+  int64_t dims[3] = {0, 0, 0};
+  std::vector<std::array<int64_t, 3>> cell(points.size());
+  for (size_t i = 0; i < points.size(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      cell[i][static_cast<size_t>(c)] =
+          static_cast<int64_t>(std::floor((points[i][c] - origin[c]) / h));
+      dims[c] = std::max(dims[c], cell[i][static_cast<size_t>(c)] + 2);
+    }
+  auto linear = [&](int64_t x, int64_t y, int64_t z) { return (x * dims[1] + y) * dims[2] + z; };
+
+  // The pairs, with lattice nodes by linear index first; compacted below.
+  Interpolation p;
+  p.offsets.assign(points.size() + 1, 0);
+  std::vector<int64_t> lattice;
+  for (size_t i = 0; i < points.size(); ++i) {
+    p.offsets[i] = static_cast<int64_t>(lattice.size());
+    if (!skip.empty() && skip[i]) continue;
+    double f[3];
+    for (int c = 0; c < 3; ++c)
+      f[c] = (points[i][c] - origin[c]) / h - static_cast<double>(cell[i][static_cast<size_t>(c)]);
+    for (int corner = 0; corner < 8; ++corner) {
+      double w = 1.0;
+      int64_t idx[3];
+      for (int c = 0; c < 3; ++c) {
+        const int o = (corner >> c) & 1;
+        w *= o ? f[c] : 1.0 - f[c];
+        idx[c] = cell[i][static_cast<size_t>(c)] + o;
+      }
+      // A point on a lattice plane has zero weights on the far side: no node for them.
+      if (w <= 1e-12) continue;
+      lattice.push_back(linear(idx[0], idx[1], idx[2]));
+      p.weights.push_back(w);
+    }
+  }
+  p.offsets[points.size()] = static_cast<int64_t>(lattice.size());
+  std::vector<int64_t> used = lattice;
+  std::sort(used.begin(), used.end());
+  used.erase(std::unique(used.begin(), used.end()), used.end());
+  p.nodes.resize(lattice.size());
+  for (size_t k = 0; k < lattice.size(); ++k)
+    p.nodes[k] = static_cast<int32_t>(std::lower_bound(used.begin(), used.end(), lattice[k]) -
+                                      used.begin());
+  p.coarse_count = used.size();
+  coarse_points.resize(used.size());
+  for (size_t n = 0; n < used.size(); ++n) {
+    const int64_t z = used[n] % dims[2], y = (used[n] / dims[2]) % dims[1],
+                  x = used[n] / (dims[1] * dims[2]);
+    coarse_points[n] = origin + h * Vec3d{static_cast<double>(x), static_cast<double>(y),
+                                          static_cast<double>(z)};
+  }
+  return p;
+}
+
+Mat3d inverse3(const Mat3d& a, bool* ok) {
+  const double c00 = a.m[1][1] * a.m[2][2] - a.m[1][2] * a.m[2][1];
+  const double c01 = a.m[1][2] * a.m[2][0] - a.m[1][0] * a.m[2][2];
+  const double c02 = a.m[1][0] * a.m[2][1] - a.m[1][1] * a.m[2][0];
+  const double det = a.m[0][0] * c00 + a.m[0][1] * c01 + a.m[0][2] * c02;
+  const double s = 1.0 / det;
+  Mat3d inv;
+  inv.m[0][0] = s * c00;
+  inv.m[1][0] = s * c01;
+  inv.m[2][0] = s * c02;
+  inv.m[0][1] = s * (a.m[0][2] * a.m[2][1] - a.m[0][1] * a.m[2][2]);
+  inv.m[1][1] = s * (a.m[0][0] * a.m[2][2] - a.m[0][2] * a.m[2][0]);
+  inv.m[2][1] = s * (a.m[0][1] * a.m[2][0] - a.m[0][0] * a.m[2][1]);
+  inv.m[0][2] = s * (a.m[0][1] * a.m[1][2] - a.m[0][2] * a.m[1][1]);
+  inv.m[1][2] = s * (a.m[0][2] * a.m[1][0] - a.m[0][0] * a.m[1][2]);
+  inv.m[2][2] = s * (a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0]);
+  *ok = std::isfinite(s) && det > 0;
+  return inv;
+}
+
+double dot_all(std::span<const Vec3d> a, std::span<const Vec3d> b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += dot(a[i], b[i]);
+  return s;
+}
+
+struct Level {
+  // The operator: level 0's is the caller's matrix, the others' are Galerkin products.
+  const BlockSparseMatrix* a = nullptr;
+  BlockSparseMatrix galerkin;
+  // To this level from the next coarser one (absent on the coarsest).
+  Interpolation p;
+  // The Galerkin product's plan: T = A P (rows of this level, columns of the coarser), then
+  // A_c = P^T T; each pair's destination block found once, at the build.
+  std::vector<int64_t> t_offsets;
+  std::vector<int32_t> t_cols;
+  std::vector<Mat3d> t_values;
+  std::vector<int32_t> t_target;  // per (block k of A, pair of P's row cols[k])
+  std::vector<int32_t> c_target;  // per (row i, pair of P's row i, block of T's row i)
+  // Chebyshev smoothing on D^-1 A.
+  std::vector<Mat3d> dinv;
+  double lambda_max = 0;
+  std::vector<Vec3d> power;
+  // Scratch of one cycle.
+  std::vector<Vec3d> x, b, r, d, q;
+};
+
+class LatticeMultigrid final : public Preconditioner {
+ public:
+  LatticeMultigrid(std::span<const Vec3d> positions, std::span<const uint8_t> fixed,
+                   const MultigridOptions& options)
+      : positions_(positions.begin(), positions.end()),
+        fixed_(fixed.begin(), fixed.end()),
+        options_(options) {}
+
+  const char* name() const override { return "lattice multigrid"; }
+
+  Status setup(const BlockSparseMatrix& a) override {
+    if (a.rows() != positions_.size())
+      return make_error("multigrid: the matrix has %zu block rows for %zu positions", a.rows(),
+                        positions_.size());
+    // The hierarchy follows the pattern: built at the first setup, rebuilt if the pattern
+    // changes (it does not within a run).
+    if (levels_.empty() || a.block_count() != pattern_blocks_) build(a);
+    levels_[0].a = &a;
+    for (size_t l = 0; l + 1 < levels_.size(); ++l) {
+      galerkin(levels_[l], levels_[l + 1].galerkin);
+      if (Status s = smoother(levels_[l], l); !s) return s;
+    }
+    return factor_coarsest();
+  }
+
+  void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override { cycle(0, r, z); }
+
+ private:
+  void build(const BlockSparseMatrix& a);
+  void galerkin(Level& fine, BlockSparseMatrix& coarse) const;
+  Status smoother(Level& lv, size_t l) const;
+  Status factor_coarsest();
+  void chebyshev(Level& lv, std::span<const Vec3d> b, std::span<Vec3d> x, bool zero) const;
+  void cycle(size_t l, std::span<const Vec3d> b, std::span<Vec3d> x) const;
+
+  std::vector<Vec3d> positions_;
+  std::vector<uint8_t> fixed_;
+  MultigridOptions options_;
+  size_t pattern_blocks_ = 0;
+  // mutable: a cycle writes the levels' scratch (apply is const, the operator is fixed).
+  mutable std::vector<Level> levels_;
+  Eigen::LDLT<Eigen::MatrixXd> coarse_;
+  mutable Eigen::VectorXd coarse_rhs_;
+};
+
+void LatticeMultigrid::build(const BlockSparseMatrix& a) {
+  levels_.clear();
+  pattern_blocks_ = a.block_count();
+  // The lattice spacing follows the mean distance between coupled free vertices.
+  double sum = 0;
+  int64_t count = 0;
+  for (size_t i = 0; i < a.rows(); ++i) {
+    if (!fixed_.empty() && fixed_[i]) continue;
+    for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
+      const size_t j = static_cast<size_t>(a.cols()[static_cast<size_t>(k)]);
+      if (j == i || (!fixed_.empty() && fixed_[j])) continue;
+      sum += norm(positions_[i] - positions_[j]);
+      ++count;
+    }
+  }
+  double h = options_.spacing_factor * (count > 0 ? sum / static_cast<double>(count) : 1.0);
+
+  std::vector<Vec3d> points = positions_, coarse_points;
+  std::span<const uint8_t> skip = fixed_;
+  const BlockSparseMatrix* pattern = &a;
+  levels_.emplace_back();
+  while (static_cast<int64_t>(3 * points.size()) > options_.max_coarse_unknowns) {
+    Interpolation p = embed(points, skip, h, coarse_points);
+    // A lattice no coarser than its points (a tiny or degenerate mesh) ends the hierarchy.
+    if (p.coarse_count == 0 || p.coarse_count >= points.size()) break;
+    Level& fine = levels_.back();
+    fine.p = std::move(p);
+    const Interpolation& ip = fine.p;
+    const size_t n = pattern->rows();
+    // T = A P: row i's columns are the coarse nodes of its neighbours' pairs.
+    fine.t_offsets.assign(n + 1, 0);
+    fine.t_cols.clear();
+    std::vector<int32_t> row;
+    for (size_t i = 0; i < n; ++i) {
+      row.clear();
+      for (int64_t k = pattern->offsets()[i]; k < pattern->offsets()[i + 1]; ++k) {
+        const size_t j = static_cast<size_t>(pattern->cols()[static_cast<size_t>(k)]);
+        for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+          row.push_back(ip.nodes[static_cast<size_t>(q)]);
+      }
+      std::sort(row.begin(), row.end());
+      row.erase(std::unique(row.begin(), row.end()), row.end());
+      fine.t_cols.insert(fine.t_cols.end(), row.begin(), row.end());
+      fine.t_offsets[i + 1] = static_cast<int64_t>(fine.t_cols.size());
+    }
+    fine.t_values.assign(fine.t_cols.size(), Mat3d::zero());
+    fine.t_target.clear();
+    for (size_t i = 0; i < n; ++i) {
+      const auto t_begin = fine.t_cols.begin() + fine.t_offsets[i];
+      const auto t_end = fine.t_cols.begin() + fine.t_offsets[i + 1];
+      for (int64_t k = pattern->offsets()[i]; k < pattern->offsets()[i + 1]; ++k) {
+        const size_t j = static_cast<size_t>(pattern->cols()[static_cast<size_t>(k)]);
+        for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+          fine.t_target.push_back(static_cast<int32_t>(
+              std::lower_bound(t_begin, t_end, ip.nodes[static_cast<size_t>(q)]) -
+              fine.t_cols.begin()));
+      }
+    }
+    // A_c = P^T T: coarse row I gathers T's rows i over the pairs (i, I).
+    std::vector<std::vector<int32_t>> rows(ip.coarse_count);
+    for (size_t i = 0; i < n; ++i)
+      for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
+        std::vector<int32_t>& r = rows[static_cast<size_t>(ip.nodes[static_cast<size_t>(q)])];
+        r.insert(r.end(), fine.t_cols.begin() + fine.t_offsets[i],
+                 fine.t_cols.begin() + fine.t_offsets[i + 1]);
+      }
+    for (std::vector<int32_t>& r : rows) {
+      std::sort(r.begin(), r.end());
+      r.erase(std::unique(r.begin(), r.end()), r.end());
+    }
+    Level coarse;
+    coarse.galerkin = BlockSparseMatrix(rows);
+    rows.clear();
+    fine.c_target.clear();
+    const Mat3d* base = coarse.galerkin.values().data();
+    for (size_t i = 0; i < n; ++i)
+      for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
+        const int32_t ci = ip.nodes[static_cast<size_t>(q)];
+        for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t)
+          fine.c_target.push_back(static_cast<int32_t>(
+              coarse.galerkin.find(ci, fine.t_cols[static_cast<size_t>(t)]) - base));
+      }
+    levels_.push_back(std::move(coarse));
+    levels_.back().a = &levels_.back().galerkin;
+    // levels_ may have moved: the pattern of the next round is the new coarse operator.
+    pattern = &levels_.back().galerkin;
+    points = coarse_points;
+    skip = {};
+    h *= 2.0;
+  }
+  for (size_t l = 1; l < levels_.size(); ++l) levels_[l].a = &levels_[l].galerkin;
+  for (size_t l = 0; l < levels_.size(); ++l) {
+    Level& lv = levels_[l];
+    const size_t n = l == 0 ? a.rows() : lv.galerkin.rows();
+    for (std::vector<Vec3d>* v : {&lv.x, &lv.b, &lv.r, &lv.d, &lv.q}) v->assign(n, Vec3d{0, 0, 0});
+    // The power iteration's start: a fixed, non-smooth vector (deterministic runs).
+    lv.power.resize(n);
+    for (size_t i = 0; i < n; ++i)
+      lv.power[i] = Vec3d{1.0 + 0.5 * std::sin(1.7 * static_cast<double>(i)),
+                          1.0 + 0.5 * std::cos(2.3 * static_cast<double>(i)),
+                          1.0 + 0.5 * std::sin(0.9 * static_cast<double>(i) + 1.0)};
+  }
+}
+
+void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
+  const BlockSparseMatrix& a = *fine.a;
+  const Interpolation& ip = fine.p;
+  std::span<const Mat3d> av = a.values();
+  std::fill(fine.t_values.begin(), fine.t_values.end(), Mat3d::zero());
+  size_t pos = 0;
+  for (size_t i = 0; i < a.rows(); ++i)
+    for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
+      const size_t j = static_cast<size_t>(a.cols()[static_cast<size_t>(k)]);
+      for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q) {
+        Mat3d& t = fine.t_values[static_cast<size_t>(fine.t_target[pos++])];
+        t = t + ip.weights[static_cast<size_t>(q)] * av[static_cast<size_t>(k)];
+      }
+    }
+  coarse.set_zero();
+  std::span<Mat3d> cv = coarse.values();
+  pos = 0;
+  for (size_t i = 0; i < a.rows(); ++i)
+    for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
+      const double w = ip.weights[static_cast<size_t>(q)];
+      for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t) {
+        Mat3d& c = cv[static_cast<size_t>(fine.c_target[pos++])];
+        c = c + w * fine.t_values[static_cast<size_t>(t)];
+      }
+    }
+}
+
+Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
+  const BlockSparseMatrix& a = *lv.a;
+  a.diagonal(lv.dinv);
+  for (size_t i = 0; i < lv.dinv.size(); ++i) {
+    bool ok = false;
+    lv.dinv[i] = inverse3(lv.dinv[i], &ok);
+    if (!ok)
+      return make_error("multigrid: the diagonal block of node %zu on level %zu is not positive "
+                        "definite",
+                        i, l);
+  }
+  // lambda_max(D^-1 A) by power iteration; the vector is kept for the next setup, whose matrix
+  // is close to this one.
+  std::vector<Vec3d>& v = lv.power;
+  double lambda = 0;
+  for (int it = 0; it < options_.power_iterations; ++it) {
+    a.multiply(v, lv.q);
+    for (size_t i = 0; i < v.size(); ++i) lv.q[i] = lv.dinv[i] * lv.q[i];
+    const double vn = std::sqrt(dot_all(v, v)), qn = std::sqrt(dot_all(lv.q, lv.q));
+    if (!(qn > 0)) break;
+    lambda = qn / vn;
+    for (size_t i = 0; i < v.size(); ++i) v[i] = lv.q[i] / qn;
+  }
+  if (!(lambda > 0) || !std::isfinite(lambda))
+    return make_error("multigrid: no spectral bound on level %zu", l);
+  lv.lambda_max = options_.lambda_safety * lambda;
+  return {};
+}
+
+Status LatticeMultigrid::factor_coarsest() {
+  const Level& lv = levels_.back();
+  const BlockSparseMatrix& a = *lv.a;
+  const Eigen::Index n = static_cast<Eigen::Index>(3 * a.rows());
+  Eigen::MatrixXd dense = Eigen::MatrixXd::Zero(n, n);
+  for (size_t i = 0; i < a.rows(); ++i)
+    for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
+      const Eigen::Index j = a.cols()[static_cast<size_t>(k)];
+      const Mat3d& b = a.values()[static_cast<size_t>(k)];
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          dense(static_cast<Eigen::Index>(3 * i) + r, 3 * j + c) = b.m[r][c];
+    }
+  coarse_.compute(dense);
+  if (coarse_.info() != Eigen::Success || !coarse_.isPositive())
+    return make_error("multigrid: the coarsest operator (%lld unknowns) is not positive definite",
+                      static_cast<long long>(n));
+  coarse_rhs_.resize(n);
+  return {};
+}
+
+// Chebyshev iteration on D^-1 A x = D^-1 b over [lambda_max / ratio, lambda_max] (Saad,
+// Iterative Methods, Alg. 12.1): degree k costs k - 1 products, plus one for the residual when
+// x does not start at zero. The same polynomial before and after the coarse correction keeps
+// the cycle symmetric.
+void LatticeMultigrid::chebyshev(Level& lv, std::span<const Vec3d> b, std::span<Vec3d> x,
+                                 bool zero) const {
+  const BlockSparseMatrix& a = *lv.a;
+  const size_t n = b.size();
+  const double upper = lv.lambda_max, lower = upper / options_.chebyshev_ratio;
+  const double theta = 0.5 * (upper + lower), delta = 0.5 * (upper - lower);
+  const double sigma = theta / delta;
+  double rho = 1.0 / sigma;
+  std::vector<Vec3d>& z = lv.r;
+  std::vector<Vec3d>& d = lv.d;
+  if (zero) {
+    for (size_t i = 0; i < n; ++i) {
+      x[i] = Vec3d{0, 0, 0};
+      z[i] = lv.dinv[i] * b[i];
+    }
+  } else {
+    a.multiply(x, lv.q);
+    for (size_t i = 0; i < n; ++i) z[i] = lv.dinv[i] * (b[i] - lv.q[i]);
+  }
+  for (size_t i = 0; i < n; ++i) d[i] = z[i] / theta;
+  for (int it = 0; it < options_.chebyshev_degree; ++it) {
+    for (size_t i = 0; i < n; ++i) x[i] += d[i];
+    if (it + 1 == options_.chebyshev_degree) break;
+    a.multiply(d, lv.q);
+    const double rho_next = 1.0 / (2.0 * sigma - rho);
+    const double c1 = rho_next * rho, c2 = 2.0 * rho_next / delta;
+    for (size_t i = 0; i < n; ++i) {
+      z[i] -= lv.dinv[i] * lv.q[i];
+      d[i] = c1 * d[i] + c2 * z[i];
+    }
+    rho = rho_next;
+  }
+}
+
+void LatticeMultigrid::cycle(size_t l, std::span<const Vec3d> b, std::span<Vec3d> x) const {
+  if (l + 1 == levels_.size()) {
+    const Eigen::Index n = coarse_rhs_.size();
+    coarse_rhs_ = Eigen::Map<const Eigen::VectorXd>(&b[0].x, n);
+    Eigen::Map<Eigen::VectorXd>(&x[0].x, n) = coarse_.solve(coarse_rhs_);
+    return;
+  }
+  Level& lv = levels_[l];
+  Level& coarse = levels_[l + 1];
+  const size_t n = b.size();
+  chebyshev(lv, b, x, true);
+  // Restrict the residual: b_c = P^T (b - A x).
+  lv.a->multiply(x, lv.q);
+  std::fill(coarse.b.begin(), coarse.b.end(), Vec3d{0, 0, 0});
+  for (size_t i = 0; i < n; ++i) {
+    const Vec3d r = b[i] - lv.q[i];
+    for (int64_t q = lv.p.offsets[i]; q < lv.p.offsets[i + 1]; ++q)
+      coarse.b[static_cast<size_t>(lv.p.nodes[static_cast<size_t>(q)])] +=
+          lv.p.weights[static_cast<size_t>(q)] * r;
+  }
+  cycle(l + 1, coarse.b, coarse.x);
+  // Prolong the correction: x += P x_c.
+  for (size_t i = 0; i < n; ++i)
+    for (int64_t q = lv.p.offsets[i]; q < lv.p.offsets[i + 1]; ++q)
+      x[i] += lv.p.weights[static_cast<size_t>(q)] *
+              coarse.x[static_cast<size_t>(lv.p.nodes[static_cast<size_t>(q)])];
+  chebyshev(lv, b, x, false);
+}
+
+}  // namespace
+
+std::unique_ptr<Preconditioner> make_multigrid(std::span<const Vec3d> positions,
+                                               std::span<const uint8_t> fixed,
+                                               const MultigridOptions& options) {
+  return std::make_unique<LatticeMultigrid>(positions, fixed, options);
+}
+
+}  // namespace zona

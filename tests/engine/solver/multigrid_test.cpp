@@ -1,0 +1,148 @@
+// The lattice multigrid preconditioner on an assembled elastic Hessian (a box of stable
+// neo-Hookean tetrahedra with nodal pressure, its bottom face fixed): CG with it reaches the
+// direct solution in far fewer iterations than with block Jacobi, it is a symmetric positive
+// definite operator, and a reused hierarchy follows a new matrix.
+#include "engine/solver/multigrid.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "engine/fem/elastic_energy.h"
+#include "tests/engine/physics_test_meshes.h"
+
+namespace zona {
+namespace {
+
+using testing::box_mesh;
+
+constexpr double kL = 20e-6;  // box edge [m]
+constexpr int kCells = 12;     // cubes per edge: 2197 vertices, three lattice levels
+
+double dot_all(const std::vector<Vec3d>& a, const std::vector<Vec3d>& b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += dot(a[i], b[i]);
+  return s;
+}
+
+// A smooth non-affine field of unit amplitude (loads and states).
+std::vector<Vec3d> wavy(std::span<const Vec3d> x0, double phase) {
+  std::vector<Vec3d> u(x0.size());
+  for (size_t v = 0; v < u.size(); ++v) {
+    const Vec3d x = x0[v] / kL;
+    u[v] = Vec3d{std::sin(3.0 * x.y + phase) * x.x, std::cos(2.5 * x.z + phase) * x.y + x.x * x.x,
+                 -0.4 * x.z * x.x + std::sin(4.0 * x.y + 2 * phase)};
+  }
+  return u;
+}
+
+class MultigridTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const Mesh mesh = box_mesh(Vec3d{0, 0, 0}, Vec3d{kL, kL, kL}, kCells, kCells, kCells);
+    ModelDesc d;
+    d.constitutive = ConstitutiveModel::kStableNeoHookean;
+    d.material.young = 16.5e3;
+    d.material.poisson = 0.49;
+    d.nodal_pressure = true;
+    Result<Model> m = build_model(mesh, d);
+    ASSERT_TRUE(m.ok()) << m.error().message;
+    model_ = std::move(m).value();
+    fixed_.assign(model_.vertex_count(), 0);
+    for (size_t v = 0; v < fixed_.size(); ++v)
+      fixed_[v] = model_.rest_positions[v].z < 1e-9 * kL ? 1 : 0;
+    h_ = assemble(0.02);
+    b_ = wavy(model_.rest_positions, 0.7);
+    for (size_t v = 0; v < b_.size(); ++v)
+      if (fixed_[v]) b_[v] = Vec3d{0, 0, 0};
+  }
+
+  // The masked projected Hessian at a wavy state of the given strain.
+  BlockSparseMatrix assemble(double strain) {
+    ElasticEnergy term = ElasticEnergy::create(model_).value();
+    std::vector<Vec3d> u = wavy(model_.rest_positions, 0.3);
+    for (Vec3d& x : u) x = strain * kL * x;
+    for (size_t v = 0; v < u.size(); ++v)
+      if (fixed_[v]) u[v] = Vec3d{0, 0, 0};
+    BlockSparseMatrix h = ElasticEnergy::hessian_pattern(model_);
+    term.add_hessian(u, h, true);
+    h.apply_mask(fixed_);
+    return h;
+  }
+
+  // CG from zero to the relative residual `tolerance`: the solution and the iterations.
+  int64_t solve_cg(std::unique_ptr<Preconditioner> p, const BlockSparseMatrix& h,
+                   double tolerance, std::vector<Vec3d>& x) {
+    std::unique_ptr<LinearSolver> cg = make_cg_solver(std::move(p), 20000);
+    EXPECT_TRUE(cg->setup(h).ok());
+    x.assign(b_.size(), Vec3d{0, 0, 0});
+    Result<LinearSolveStats> s = cg->solve(b_, x, tolerance);
+    EXPECT_TRUE(s.ok()) << (s.ok() ? "" : s.error().message);
+    return s.ok() ? s->iterations : -1;
+  }
+
+  Model model_;
+  std::vector<uint8_t> fixed_;
+  BlockSparseMatrix h_;
+  std::vector<Vec3d> b_;
+};
+
+// CG with the multigrid converges to 1e-8, agrees with the direct solve to 1e-6 (relative),
+// and needs far fewer iterations than with block Jacobi. Measured on this box (nu 0.49, to
+// 1e-8): 37 against 533, a ratio of 14; the assertions keep a margin of about 2.
+TEST_F(MultigridTest, ConvergesToTheDirectSolutionInFewIterations) {
+  std::vector<Vec3d> direct(b_.size(), Vec3d{0, 0, 0});
+  std::unique_ptr<LinearSolver> ldlt = make_direct_solver();
+  ASSERT_TRUE(ldlt->setup(h_).ok());
+  ASSERT_TRUE(ldlt->solve(b_, direct, 0).ok());
+
+  std::vector<Vec3d> x_mg, x_jacobi;
+  const int64_t mg =
+      solve_cg(make_multigrid(model_.rest_positions, fixed_), h_, 1e-8, x_mg);
+  const int64_t jacobi = solve_cg(make_block_jacobi(), h_, 1e-8, x_jacobi);
+  double diff = 0, ref = 0;
+  for (size_t v = 0; v < direct.size(); ++v) {
+    diff += dot(x_mg[v] - direct[v], x_mg[v] - direct[v]);
+    ref += dot(direct[v], direct[v]);
+  }
+  EXPECT_LE(std::sqrt(diff / ref), 1e-6);
+  EXPECT_GT(mg, 0);
+  EXPECT_LE(mg, 50);
+  EXPECT_GE(jacobi, 7 * mg) << "multigrid " << mg << ", block Jacobi " << jacobi;
+}
+
+// One V-cycle is a fixed symmetric positive definite operator: x^T M^-1 y = y^T M^-1 x and
+// x^T M^-1 x > 0, as CG requires.
+TEST_F(MultigridTest, IsSymmetricPositiveDefinite) {
+  std::unique_ptr<Preconditioner> p = make_multigrid(model_.rest_positions, fixed_);
+  ASSERT_TRUE(p->setup(h_).ok());
+  std::vector<Vec3d> x = wavy(model_.rest_positions, 0.1), y = wavy(model_.rest_positions, 2.3);
+  for (size_t v = 0; v < x.size(); ++v)
+    if (fixed_[v]) x[v] = y[v] = Vec3d{0, 0, 0};
+  std::vector<Vec3d> mx(x.size()), my(y.size());
+  p->apply(x, mx);
+  p->apply(y, my);
+  const double xmy = dot_all(x, my), ymx = dot_all(y, mx);
+  const double scale = std::sqrt(dot_all(x, mx) * dot_all(y, my));
+  EXPECT_GT(dot_all(x, mx), 0);
+  EXPECT_GT(dot_all(y, my), 0);
+  EXPECT_LE(std::abs(xmy - ymx), 1e-10 * scale) << xmy << " vs " << ymx;
+}
+
+// The hierarchy built at the first setup serves a later matrix (another state, as each Newton
+// iteration brings): its CG iterations are those of a fresh preconditioner.
+TEST_F(MultigridTest, ReusedHierarchyFollowsANewMatrix) {
+  std::unique_ptr<Preconditioner> reused = make_multigrid(model_.rest_positions, fixed_);
+  ASSERT_TRUE(reused->setup(h_).ok());
+  const BlockSparseMatrix strained = assemble(0.2);
+  std::vector<Vec3d> x_reused, x_fresh;
+  const int64_t n_reused = solve_cg(std::move(reused), strained, 1e-8, x_reused);
+  const int64_t n_fresh =
+      solve_cg(make_multigrid(model_.rest_positions, fixed_), strained, 1e-8, x_fresh);
+  EXPECT_GT(n_fresh, 0);
+  EXPECT_LE(std::abs(n_reused - n_fresh), 2);
+}
+
+}  // namespace
+}  // namespace zona
