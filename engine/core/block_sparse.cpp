@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <memory>
 
+#include "engine/core/parallel.h"
+
 namespace zona {
 
 BlockSparseMatrix::BlockSparseMatrix(const std::vector<std::vector<int32_t>>& rows) {
@@ -42,12 +44,18 @@ Mat3d* BlockSparseMatrix::find(int32_t i, int32_t j) {
 
 void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const {
   ZONA_ASSERT(x.size() == rows() && y.size() == rows());
-  for (size_t i = 0; i < rows(); ++i) {
-    Vec3d s{0, 0, 0};
-    for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k)
-      s += values_[static_cast<size_t>(k)] * x[static_cast<size_t>(cols_[static_cast<size_t>(k)])];
-    y[i] = s;
-  }
+  // Rows split over the machine's threads (each row written by one: the same bits for any
+  // count); short matrices stay on the caller's thread.
+  static const int threads = setup_thread_count(0);
+  parallel_ranges(rows(), threads, 1024, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      Vec3d s{0, 0, 0};
+      for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k)
+        s += values_[static_cast<size_t>(k)] *
+             x[static_cast<size_t>(cols_[static_cast<size_t>(k)])];
+      y[i] = s;
+    }
+  });
 }
 
 void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {

@@ -253,9 +253,54 @@ Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const 
 
 }  // namespace
 
+void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
+  const Model& m = *model_;
+  if (indexed_cols_ == h.cols().data() && indexed_blocks_ == h.block_count() &&
+      !element_slot_.empty())
+    return;
+  auto slot = [&](int32_t i, int32_t j) {
+    const Mat3d* p = h.find(i, j);
+    ZONA_ASSERT(p != nullptr);
+    return static_cast<int64_t>(p - h.values().data());
+  };
+  element_slot_.resize(16 * m.tet_count());
+  for (size_t t = 0; t < m.tet_count(); ++t)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b)
+        element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
+  star_offsets_.assign(1, 0);
+  pair_offsets_.assign(1, 0);
+  star_.clear();
+  pair_slot_.clear();
+  if (m.nodal_pressure) {
+    // Each vertex's star in the order add_hessian gathers it (its elements' corners, first
+    // seen first).
+    for (size_t v = 0; v < m.vertex_count(); ++v) {
+      const size_t begin = star_.size();
+      for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
+        const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
+        for (int c = 0; c < 4; ++c) {
+          const int32_t w = m.tets[t][c];
+          if (std::find(star_.begin() + static_cast<std::ptrdiff_t>(begin), star_.end(), w) ==
+              star_.end())
+            star_.push_back(w);
+        }
+      }
+      star_offsets_.push_back(static_cast<int64_t>(star_.size()));
+      for (size_t i = begin; i < star_.size(); ++i)
+        for (size_t j = begin; j < star_.size(); ++j) pair_slot_.push_back(slot(star_[i], star_[j]));
+      pair_offsets_.push_back(static_cast<int64_t>(pair_slot_.size()));
+    }
+  }
+  indexed_cols_ = h.cols().data();
+  indexed_blocks_ = h.block_count();
+}
+
 void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm, bool project) {
   const Model& m = *model_;
   ZONA_ASSERT(u.size() == m.vertex_count() && hm.rows() == u.size());
+  index_blocks(hm);
+  std::span<Mat3d> values = hm.values();
   if (m.nodal_pressure) vertex_pressures(u);
   for (size_t t = 0; t < m.tet_count(); ++t) {
     Vec3d ue[4];
@@ -265,28 +310,32 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
         stress_tangent(law(t), tet_displacement_gradient(s, ue), project);
     // dF = sum_a v_a grad_a^T: F's entry (r, c) moves by grad_a[c] per unit of u_a[r], so block
     // (a, b) is V sum_{c, d} grad_a[c] q(3 r + c, 3 s + d) grad_b[d] for rows r, columns s.
+    // qg(3 r + c, 3 s + b') = sum_d q(3 r + c, 3 s + d) grad_b'[d] first, then grad_a.
+    double qg[9][12];
+    for (int row = 0; row < 9; ++row)
+      for (int col = 0; col < 3; ++col)
+        for (int b = 0; b < 4; ++b) {
+          double sum = 0;
+          for (int d = 0; d < 3; ++d) sum += q(row, 3 * col + d) * s.grad[b][d];
+          qg[row][3 * b + col] = sum;
+        }
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b) {
-        Mat3d block;
+        Mat3d& block = values[static_cast<size_t>(element_slot_[16 * t + static_cast<size_t>(4 * a + b)])];
         for (int r = 0; r < 3; ++r)
           for (int c2 = 0; c2 < 3; ++c2) {
             double sum = 0;
-            for (int c = 0; c < 3; ++c)
-              for (int d = 0; d < 3; ++d)
-                sum += s.grad[a][c] * q(3 * r + c, 3 * c2 + d) * s.grad[b][d];
-            block.m[r][c2] = s.volume * sum;
+            for (int c = 0; c < 3; ++c) sum += s.grad[a][c] * qg[3 * r + c][3 * b + c2];
+            block.m[r][c2] += s.volume * sum;
           }
-        hm.add(m.tets[t][a], m.tets[t][b], block);
       }
   }
   if (!m.nodal_pressure) return;
-  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v gathered over v's elements as in
-  // add_hessian_diagonal.
-  constexpr int kMaxNeighbors = 256;
-  int32_t who[kMaxNeighbors];
-  Vec3d part[kMaxNeighbors];
+  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star: its parts gathered over
+  // v's elements as in add_hessian_diagonal, in the star's order.
   for (size_t v = 0; v < m.vertex_count(); ++v) {
-    int count = 0;
+    const int64_t s0 = star_offsets_[v], count = star_offsets_[v + 1] - s0;
+    star_part_.assign(static_cast<size_t>(count), Vec3d{0, 0, 0});
     for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
       const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
       Vec3d ue[4], dj[4];
@@ -294,19 +343,25 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
       tet_volume_gradient(m.tet_shape[t], ue, dj);
       for (int c = 0; c < 4; ++c) {
         const int32_t w = m.tets[t][c];
-        int slot = 0;
-        while (slot < count && who[slot] != w) ++slot;
-        if (slot == count) {
-          ZONA_ASSERT(count < kMaxNeighbors);
-          who[count] = w;
-          part[count++] = Vec3d{0, 0, 0};
-        }
-        part[slot] += (0.25 * m.tet_shape[t].volume) * dj[c];
+        int64_t i = 0;
+        while (star_[static_cast<size_t>(s0 + i)] != w) ++i;
+        star_part_[static_cast<size_t>(i)] += (0.25 * m.tet_shape[t].volume) * dj[c];
       }
     }
     const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
-    for (int i = 0; i < count; ++i)
-      for (int j = 0; j < count; ++j) hm.add(who[i], who[j], c * outer(part[i], part[j]));
+    const int64_t* slots = pair_slot_.data() + pair_offsets_[v];
+    for (int64_t i = 0; i < count; ++i) {
+      const Vec3d pi = c * star_part_[static_cast<size_t>(i)];
+      for (int64_t j = 0; j < count; ++j) {
+        Mat3d& block = values[static_cast<size_t>(slots[i * count + j])];
+        const Vec3d& pj = star_part_[static_cast<size_t>(j)];
+        for (int r = 0; r < 3; ++r) {
+          block.m[r][0] += pi[r] * pj.x;
+          block.m[r][1] += pi[r] * pj.y;
+          block.m[r][2] += pi[r] * pj.z;
+        }
+      }
+    }
   }
 }
 

@@ -65,6 +65,17 @@ class ElasticEnergy final : public EnergyTerm {
   std::vector<double> pressure_;  // [Pa], (vertex_count)
   std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
   double barrier_volume_ = 0;
+  // Where add_hessian's blocks live in the matrix it was last given (found once per pattern):
+  // 16 per element, (a, b) at 16 t + 4 a + b; per vertex its star (star_offsets_) and the
+  // block of each pair of the star, row-major, from pair_offsets_.
+  void index_blocks(const BlockSparseMatrix& h);
+  const int32_t* indexed_cols_ = nullptr;
+  size_t indexed_blocks_ = 0;
+  std::vector<int64_t> element_slot_;
+  std::vector<int64_t> star_offsets_, pair_offsets_;
+  std::vector<int32_t> star_;
+  std::vector<Vec3d> star_part_;
+  std::vector<int64_t> pair_slot_;
 };
 
 }  // namespace zona

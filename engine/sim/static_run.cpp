@@ -110,6 +110,7 @@ class StaticRun {
   double force_scale_ = 0;  // E_max r_tip^2 [N]
   double speed_ = 0, end_travel_ = 0;
   int export_count_ = 0;
+  int all_slid_steps_ = 0;  // load steps running in which every rim contact slid
 
   // The accepted state.
   std::vector<Vec3d> u_, v_, u_before_;
@@ -396,11 +397,15 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
     result_.status = static_cast<StepStatus>(result_.status | kStepToolBreach);
     return;
   }
-  if (ds > 0 && rim_contacts > 0 && rim_slid == rim_contacts && accepted_.contacts > 0) {
+  // Every rim contact sliding in one load step happens while the needle seats the cell; in
+  // kLostSteps load steps running, the holder has let the cell go.
+  constexpr int kLostSteps = 3;
+  if (ds > 0) all_slid_steps_ = rim_contacts > 0 && rim_slid == rim_contacts ? all_slid_steps_ + 1 : 0;
+  if (all_slid_steps_ >= kLostSteps && accepted_.contacts > 0) {
     char line[240];
     std::snprintf(line, sizeof line,
                   "load step %lld (travel %.4g um): the holder lost the cell: all %lld of its "
-                  "rim contacts slid (at %.3g uN on the needle)",
+                  "rim contacts slid in 3 load steps running (at %.3g uN on the needle)",
                   static_cast<long long>(step_), s * 1e6, static_cast<long long>(rim_contacts),
                   accepted_.force * 1e6);
     stop(line);
