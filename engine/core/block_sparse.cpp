@@ -2,12 +2,39 @@
 #include "engine/core/block_sparse.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <memory>
 
 #include "engine/core/parallel.h"
 
 namespace zona {
+
+double dot_all(std::span<const Vec3d> a, std::span<const Vec3d> b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += dot(a[i], b[i]);
+  return s;
+}
+
+Mat3d inverse3(const Mat3d& a, bool* ok) {
+  const double c00 = a.m[1][1] * a.m[2][2] - a.m[1][2] * a.m[2][1];
+  const double c01 = a.m[1][2] * a.m[2][0] - a.m[1][0] * a.m[2][2];
+  const double c02 = a.m[1][0] * a.m[2][1] - a.m[1][1] * a.m[2][0];
+  const double det = a.m[0][0] * c00 + a.m[0][1] * c01 + a.m[0][2] * c02;
+  const double s = 1.0 / det;
+  Mat3d inv;
+  inv.m[0][0] = s * c00;
+  inv.m[1][0] = s * c01;
+  inv.m[2][0] = s * c02;
+  inv.m[0][1] = s * (a.m[0][2] * a.m[2][1] - a.m[0][1] * a.m[2][2]);
+  inv.m[1][1] = s * (a.m[0][0] * a.m[2][2] - a.m[0][2] * a.m[2][0]);
+  inv.m[2][1] = s * (a.m[0][1] * a.m[2][0] - a.m[0][0] * a.m[2][1]);
+  inv.m[0][2] = s * (a.m[0][1] * a.m[1][2] - a.m[0][2] * a.m[1][1]);
+  inv.m[1][2] = s * (a.m[0][2] * a.m[1][0] - a.m[0][0] * a.m[1][2]);
+  inv.m[2][2] = s * (a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0]);
+  *ok = std::isfinite(s) && det > 0;
+  return inv;
+}
 
 BlockSparseMatrix::BlockSparseMatrix(const std::vector<std::vector<int32_t>>& rows) {
   offsets_.assign(rows.size() + 1, 0);

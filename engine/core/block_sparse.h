@@ -17,6 +17,12 @@
 
 namespace zona {
 
+/// sum_i a_i . b_i over two block vectors of the same length.
+double dot_all(std::span<const Vec3d> a, std::span<const Vec3d> b);
+/// The inverse of a 3 x 3 block by its cofactors; *ok is false where the block is not positive
+/// definite enough to invert (determinant not positive, or the inverse not finite).
+Mat3d inverse3(const Mat3d& a, bool* ok);
+
 class BlockSparseMatrix {
  public:
   BlockSparseMatrix() = default;

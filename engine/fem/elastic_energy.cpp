@@ -19,9 +19,36 @@ Result<ElasticEnergy> ElasticEnergy::create(const Model& model) {
 }
 
 ElasticEnergy::ElasticEnergy(const Model& model) : model_(&model) {
-  if (model.nodal_pressure) {
-    pressure_.assign(model.vertex_count(), 0.0);
-    scratch_.assign(model.vertex_count(), 0.0);
+  if (!model.nodal_pressure) return;
+  pressure_.assign(model.vertex_count(), 0.0);
+  scratch_.assign(model.vertex_count(), 0.0);
+  // Each vertex's star: its elements' corners, first seen first.
+  star_offsets_.assign(1, 0);
+  for (size_t v = 0; v < model.vertex_count(); ++v) {
+    const size_t begin = star_.size();
+    for (int32_t k = model.adjacency.offsets[v]; k < model.adjacency.offsets[v + 1]; ++k)
+      for (int32_t w : model.tets[static_cast<size_t>(model.adjacency.tets[static_cast<size_t>(k)])])
+        if (std::find(star_.begin() + static_cast<std::ptrdiff_t>(begin), star_.end(), w) ==
+            star_.end())
+          star_.push_back(w);
+    star_offsets_.push_back(static_cast<int64_t>(star_.size()));
+  }
+}
+
+void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u) {
+  const Model& m = *model_;
+  const int64_t s0 = star_offsets_[v];
+  star_part_.assign(static_cast<size_t>(star_offsets_[v + 1] - s0), Vec3d{0, 0, 0});
+  for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
+    const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
+    Vec3d ue[4], dj[4];
+    corners(u, t, ue);
+    tet_volume_gradient(m.tet_shape[t], ue, dj);
+    for (int c = 0; c < 4; ++c) {
+      size_t i = 0;
+      while (star_[static_cast<size_t>(s0) + i] != m.tets[t][c]) ++i;
+      star_part_[i] += (0.25 * m.tet_shape[t].volume) * dj[c];
+    }
   }
 }
 
@@ -156,35 +183,15 @@ void ElasticEnergy::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat
     }
   }
   if (!m.nodal_pressure) return;
-  // The rank-one terms' diagonal blocks: for each vertex v and each vertex w of its elements,
+  // The rank-one terms' diagonal blocks: for each vertex v and each vertex w of its star,
   // (lambda_v / V_v) g_v[w] g_v[w]^T with g_v[w] = sum over v's elements holding w of
-  // V_e / 4 dJ_e/du_w. Gathered per v over its elements' corners (a short list).
-  constexpr int kMaxNeighbors = 256;
-  int32_t who[kMaxNeighbors];
-  Vec3d part[kMaxNeighbors];
+  // V_e / 4 dJ_e/du_w.
   for (size_t v = 0; v < m.vertex_count(); ++v) {
-    int count = 0;
-    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
-      const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
-      Vec3d ue[4], dj[4];
-      corners(u, t, ue);
-      tet_volume_gradient(m.tet_shape[t], ue, dj);
-      for (int c = 0; c < 4; ++c) {
-        const int32_t w = m.tets[t][c];
-        int slot = 0;
-        while (slot < count && who[slot] != w) ++slot;
-        if (slot == count) {
-          ZONA_ASSERT(count < kMaxNeighbors);
-          who[count] = w;
-          part[count++] = Vec3d{0, 0, 0};
-        }
-        part[slot] += (0.25 * m.tet_shape[t].volume) * dj[c];
-      }
-    }
+    star_gradient(v, u);
     const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
-    for (int i = 0; i < count; ++i) {
-      Mat3d& block = d[static_cast<size_t>(who[i])];
-      block = block + c * outer(part[i], part[i]);
+    for (size_t i = 0; i < star_part_.size(); ++i) {
+      Mat3d& block = d[static_cast<size_t>(star_[static_cast<size_t>(star_offsets_[v]) + i])];
+      block = block + c * outer(star_part_[i], star_part_[i]);
     }
   }
 }
@@ -268,29 +275,13 @@ void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b)
         element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
-  star_offsets_.assign(1, 0);
   pair_offsets_.assign(1, 0);
-  star_.clear();
   pair_slot_.clear();
-  if (m.nodal_pressure) {
-    // Each vertex's star in the order add_hessian gathers it (its elements' corners, first
-    // seen first).
-    for (size_t v = 0; v < m.vertex_count(); ++v) {
-      const size_t begin = star_.size();
-      for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
-        const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
-        for (int c = 0; c < 4; ++c) {
-          const int32_t w = m.tets[t][c];
-          if (std::find(star_.begin() + static_cast<std::ptrdiff_t>(begin), star_.end(), w) ==
-              star_.end())
-            star_.push_back(w);
-        }
-      }
-      star_offsets_.push_back(static_cast<int64_t>(star_.size()));
-      for (size_t i = begin; i < star_.size(); ++i)
-        for (size_t j = begin; j < star_.size(); ++j) pair_slot_.push_back(slot(star_[i], star_[j]));
-      pair_offsets_.push_back(static_cast<int64_t>(pair_slot_.size()));
-    }
+  for (size_t v = 0; v + 1 < star_offsets_.size(); ++v) {
+    for (int64_t i = star_offsets_[v]; i < star_offsets_[v + 1]; ++i)
+      for (int64_t j = star_offsets_[v]; j < star_offsets_[v + 1]; ++j)
+        pair_slot_.push_back(slot(star_[static_cast<size_t>(i)], star_[static_cast<size_t>(j)]));
+    pair_offsets_.push_back(static_cast<int64_t>(pair_slot_.size()));
   }
   indexed_cols_ = h.cols().data();
   indexed_blocks_ = h.block_count();
@@ -331,23 +322,10 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
       }
   }
   if (!m.nodal_pressure) return;
-  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star: its parts gathered over
-  // v's elements as in add_hessian_diagonal, in the star's order.
+  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star.
   for (size_t v = 0; v < m.vertex_count(); ++v) {
-    const int64_t s0 = star_offsets_[v], count = star_offsets_[v + 1] - s0;
-    star_part_.assign(static_cast<size_t>(count), Vec3d{0, 0, 0});
-    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
-      const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
-      Vec3d ue[4], dj[4];
-      corners(u, t, ue);
-      tet_volume_gradient(m.tet_shape[t], ue, dj);
-      for (int c = 0; c < 4; ++c) {
-        const int32_t w = m.tets[t][c];
-        int64_t i = 0;
-        while (star_[static_cast<size_t>(s0 + i)] != w) ++i;
-        star_part_[static_cast<size_t>(i)] += (0.25 * m.tet_shape[t].volume) * dj[c];
-      }
-    }
+    star_gradient(v, u);
+    const int64_t count = static_cast<int64_t>(star_part_.size());
     const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
     const int64_t* slots = pair_slot_.data() + pair_offsets_[v];
     for (int64_t i = 0; i < count; ++i) {

@@ -65,9 +65,12 @@ class ElasticEnergy final : public EnergyTerm {
   std::vector<double> pressure_;  // [Pa], (vertex_count)
   std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
   double barrier_volume_ = 0;
+  // Nodal pressure: each vertex's star (its elements' corners, first seen first) from
+  // star_offsets_, and star_gradient's g_v over it into star_part_.
+  void star_gradient(size_t v, std::span<const Vec3d> u);
   // Where add_hessian's blocks live in the matrix it was last given (found once per pattern):
-  // 16 per element, (a, b) at 16 t + 4 a + b; per vertex its star (star_offsets_) and the
-  // block of each pair of the star, row-major, from pair_offsets_.
+  // 16 per element, (a, b) at 16 t + 4 a + b; per vertex the block of each pair of its star,
+  // row-major, from pair_offsets_.
   void index_blocks(const BlockSparseMatrix& h);
   const int32_t* indexed_cols_ = nullptr;
   size_t indexed_blocks_ = 0;

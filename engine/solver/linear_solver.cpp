@@ -8,38 +8,16 @@
 namespace zona {
 namespace {
 
-double dot_all(std::span<const Vec3d> a, std::span<const Vec3d> b) {
-  double s = 0;
-  for (size_t i = 0; i < a.size(); ++i) s += dot(a[i], b[i]);
-  return s;
-}
-
-Mat3d inverse3(const Mat3d& a) {
-  const double c00 = a.m[1][1] * a.m[2][2] - a.m[1][2] * a.m[2][1];
-  const double c01 = a.m[1][2] * a.m[2][0] - a.m[1][0] * a.m[2][2];
-  const double c02 = a.m[1][0] * a.m[2][1] - a.m[1][1] * a.m[2][0];
-  const double det = a.m[0][0] * c00 + a.m[0][1] * c01 + a.m[0][2] * c02;
-  Mat3d inv;
-  const double s = 1.0 / det;
-  inv.m[0][0] = s * c00;
-  inv.m[1][0] = s * c01;
-  inv.m[2][0] = s * c02;
-  inv.m[0][1] = s * (a.m[0][2] * a.m[2][1] - a.m[0][1] * a.m[2][2]);
-  inv.m[1][1] = s * (a.m[0][0] * a.m[2][2] - a.m[0][2] * a.m[2][0]);
-  inv.m[2][1] = s * (a.m[0][1] * a.m[2][0] - a.m[0][0] * a.m[2][1]);
-  inv.m[0][2] = s * (a.m[0][1] * a.m[1][2] - a.m[0][2] * a.m[1][1]);
-  inv.m[1][2] = s * (a.m[0][2] * a.m[1][0] - a.m[0][0] * a.m[1][2]);
-  inv.m[2][2] = s * (a.m[0][0] * a.m[1][1] - a.m[0][1] * a.m[1][0]);
-  return inv;
-}
-
 class BlockJacobi final : public Preconditioner {
  public:
   const char* name() const override { return "block Jacobi"; }
   Status setup(const BlockSparseMatrix& a) override {
     a.diagonal(inverse_);
     for (size_t i = 0; i < inverse_.size(); ++i) {
-      inverse_[i] = inverse3(inverse_[i]);
+      // (An indefinite block is kept: the exact Hessian's may be, and CG then reports the
+      // direction of non-positive curvature it meets.)
+      bool positive = false;
+      inverse_[i] = inverse3(inverse_[i], &positive);
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c)
           if (!std::isfinite(inverse_[i].m[r][c]))

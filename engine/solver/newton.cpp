@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <string>
 
 namespace zona {
@@ -116,10 +115,6 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       stats.failure = "no Newton direction on the projected Hessian: " + why;
       return stats;
     }
-    if (std::getenv("ZONA_NEWTON_TRACE"))
-      std::fprintf(stderr, "newton %d: E %.17g |g|max %.3g slope %.3g cg %lld eta %.2g%s\n",
-                   stats.iterations, e, stats.residual, slope,
-                   static_cast<long long>(cg), eta, why.empty() ? "" : " (projected)");
     // Backtracking: halve until the energy falls enough, from the capped step.
     double alpha = 1, e_trial = 0;
     if (options_.max_displacement > 0) {
@@ -147,8 +142,6 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
         return stats;
       }
     }
-    if (std::getenv("ZONA_NEWTON_TRACE"))
-      std::fprintf(stderr, "   alpha %.3g of %.3g\n", alpha, alpha_start);
     u.swap(trial_);
     e = evaluate(u, g_);
     gnorm_prev = gnorm;
