@@ -55,7 +55,11 @@ BlockSparseMatrix::BlockSparseMatrix(std::vector<int64_t> offsets, std::vector<i
   values_.assign(cols_.size(), Mat3d::zero());
 }
 
-void BlockSparseMatrix::set_zero() { std::fill(values_.begin(), values_.end(), Mat3d::zero()); }
+void BlockSparseMatrix::set_zero() {
+  std::fill(values_.begin(), values_.end(), Mat3d::zero());
+  std::fill(coefficients_.begin(), coefficients_.end(), 0.0);
+  std::fill(r1_vectors_.begin(), r1_vectors_.end(), Vec3d{0, 0, 0});
+}
 
 const Mat3d* BlockSparseMatrix::find(int32_t i, int32_t j) const {
   const auto begin = cols_.begin() + offsets_[static_cast<size_t>(i)];
@@ -69,17 +73,60 @@ Mat3d* BlockSparseMatrix::find(int32_t i, int32_t j) {
   return const_cast<Mat3d*>(static_cast<const BlockSparseMatrix*>(this)->find(i, j));
 }
 
+void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
+                                             std::vector<int32_t> vertices) {
+  ZONA_ASSERT(!offsets.empty() && offsets.back() == static_cast<int64_t>(vertices.size()));
+  r1_offsets_ = std::move(offsets);
+  r1_vertices_ = std::move(vertices);
+  const size_t terms = r1_offsets_.size() - 1;
+  coefficients_.assign(terms, 0.0);
+  r1_vectors_.assign(r1_vertices_.size(), Vec3d{0, 0, 0});
+  r1_scratch_.assign(terms, 0.0);
+  r1_term_.resize(r1_vertices_.size());
+  for (size_t k = 0; k < terms; ++k)
+    for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
+      r1_term_[static_cast<size_t>(p)] = static_cast<int32_t>(k);
+  // By row: counting sort of the positions by their vertex.
+  r1_row_offsets_.assign(rows() + 1, 0);
+  for (int32_t v : r1_vertices_) {
+    ZONA_ASSERT(v >= 0 && static_cast<size_t>(v) < rows());
+    ++r1_row_offsets_[static_cast<size_t>(v) + 1];
+  }
+  for (size_t i = 0; i < rows(); ++i) r1_row_offsets_[i + 1] += r1_row_offsets_[i];
+  r1_row_positions_.resize(r1_vertices_.size());
+  std::vector<int64_t> next(r1_row_offsets_.begin(), r1_row_offsets_.end() - 1);
+  for (size_t p = 0; p < r1_vertices_.size(); ++p)
+    r1_row_positions_[static_cast<size_t>(next[static_cast<size_t>(r1_vertices_[p])]++)] =
+        static_cast<int64_t>(p);
+}
+
 void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const {
   ZONA_ASSERT(x.size() == rows() && y.size() == rows());
-  // Rows split over the machine's threads (each row written by one: the same bits for any
-  // count); short matrices stay on the caller's thread.
+  // Rows (and terms) split over the machine's threads (each row written by one: the same bits
+  // for any count); short matrices stay on the caller's thread.
   static const int threads = setup_thread_count(0);
+  const size_t terms = rank_one_terms();
+  if (terms > 0)
+    parallel_ranges(terms, threads, 1024, [&](size_t, size_t begin, size_t end) {
+      for (size_t k = begin; k < end; ++k) {
+        double s = 0;
+        for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
+          s += dot(r1_vectors_[static_cast<size_t>(p)],
+                   x[static_cast<size_t>(r1_vertices_[static_cast<size_t>(p)])]);
+        r1_scratch_[k] = coefficients_[k] * s;
+      }
+    });
   parallel_ranges(rows(), threads, 1024, [&](size_t, size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
       Vec3d s{0, 0, 0};
       for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k)
         s += values_[static_cast<size_t>(k)] *
              x[static_cast<size_t>(cols_[static_cast<size_t>(k)])];
+      if (terms > 0)
+        for (int64_t q = r1_row_offsets_[i]; q < r1_row_offsets_[i + 1]; ++q) {
+          const size_t p = static_cast<size_t>(r1_row_positions_[static_cast<size_t>(q)]);
+          s += r1_scratch_[static_cast<size_t>(r1_term_[p])] * r1_vectors_[p];
+        }
       y[i] = s;
     }
   });
@@ -88,6 +135,12 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
 void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {
   out.resize(rows());
   for (size_t i = 0; i < rows(); ++i) out[i] = *find(static_cast<int32_t>(i), static_cast<int32_t>(i));
+  for (size_t k = 0; k < rank_one_terms(); ++k)
+    for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p) {
+      const Vec3d& g = r1_vectors_[static_cast<size_t>(p)];
+      Mat3d& d = out[static_cast<size_t>(r1_vertices_[static_cast<size_t>(p)])];
+      d = d + coefficients_[k] * outer(g, g);
+    }
 }
 
 void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
@@ -98,55 +151,53 @@ void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
       if (!mask[i] && !mask[j]) continue;
       values_[static_cast<size_t>(k)] = i == j ? Mat3d::identity() : Mat3d::zero();
     }
+  for (size_t p = 0; p < r1_vertices_.size(); ++p)
+    if (mask[static_cast<size_t>(r1_vertices_[p])]) r1_vectors_[p] = Vec3d{0, 0, 0};
 }
 
 Eigen::SparseMatrix<double> BlockSparseMatrix::to_eigen() const {
   const Eigen::Index n = static_cast<Eigen::Index>(3 * rows());
-  Eigen::SparseMatrix<double> a(n, n);
-  std::vector<Eigen::Index> per_column(static_cast<size_t>(n));
-  for (size_t i = 0; i < rows(); ++i)
-    for (int r = 0; r < 3; ++r)
-      per_column[3 * i + static_cast<size_t>(r)] = 3 * (offsets_[i + 1] - offsets_[i]);
-  a.reserve(per_column);
-  // Symmetric: column j of block row i is row j of block column i, so filling columns from
-  // rows keeps each column's entries in ascending order.
+  std::vector<Eigen::Triplet<double>> entries;
+  entries.reserve(9 * cols_.size());
   for (size_t i = 0; i < rows(); ++i)
     for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k) {
       const size_t j = static_cast<size_t>(cols_[static_cast<size_t>(k)]);
       const Mat3d& b = values_[static_cast<size_t>(k)];
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c)
-          a.insert(static_cast<Eigen::Index>(3 * i) + r, static_cast<Eigen::Index>(3 * j) + c) =
-              b.m[r][c];
+          entries.emplace_back(static_cast<Eigen::Index>(3 * i) + r,
+                               static_cast<Eigen::Index>(3 * j) + c, b.m[r][c]);
     }
-  a.makeCompressed();
+  for (size_t k = 0; k < rank_one_terms(); ++k)
+    for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
+      for (int64_t q = r1_offsets_[k]; q < r1_offsets_[k + 1]; ++q) {
+        const Vec3d a = coefficients_[k] * r1_vectors_[static_cast<size_t>(p)];
+        const Vec3d& b = r1_vectors_[static_cast<size_t>(q)];
+        const Eigen::Index i = 3 * r1_vertices_[static_cast<size_t>(p)];
+        const Eigen::Index j = 3 * r1_vertices_[static_cast<size_t>(q)];
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) entries.emplace_back(i + r, j + c, a[r] * b[c]);
+      }
+  Eigen::SparseMatrix<double> a(n, n);
+  a.setFromTriplets(entries.begin(), entries.end());
   return a;
 }
 
 Status BlockSparseMatrix::write_matrix_market(const std::string& path) const {
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "w"), &std::fclose);
   if (!f) return make_error("%s: cannot open for writing", path.c_str());
+  const Eigen::SparseMatrix<double> a = to_eigen();
   int64_t count = 0;
-  for (size_t i = 0; i < rows(); ++i)
-    for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k) {
-      const size_t j = static_cast<size_t>(cols_[static_cast<size_t>(k)]);
-      if (j < i) count += 9;
-      if (j == i) count += 6;
-    }
+  for (Eigen::Index c = 0; c < a.outerSize(); ++c)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(a, c); it; ++it)
+      if (it.row() >= it.col()) ++count;
   std::fprintf(f.get(), "%%%%MatrixMarket matrix coordinate real symmetric\n%zu %zu %lld\n",
                3 * rows(), 3 * rows(), static_cast<long long>(count));
-  for (size_t i = 0; i < rows(); ++i)
-    for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k) {
-      const size_t j = static_cast<size_t>(cols_[static_cast<size_t>(k)]);
-      if (j > i) continue;
-      const Mat3d& b = values_[static_cast<size_t>(k)];
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) {
-          const size_t row = 3 * i + static_cast<size_t>(r), col = 3 * j + static_cast<size_t>(c);
-          if (col > row) continue;
-          std::fprintf(f.get(), "%zu %zu %.17g\n", row + 1, col + 1, b.m[r][c]);
-        }
-    }
+  for (Eigen::Index c = 0; c < a.outerSize(); ++c)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(a, c); it; ++it)
+      if (it.row() >= it.col())
+        std::fprintf(f.get(), "%lld %lld %.17g\n", static_cast<long long>(it.row() + 1),
+                     static_cast<long long>(it.col() + 1), it.value());
   if (std::ferror(f.get())) return make_error("%s: write failed", path.c_str());
   return {};
 }

@@ -1,8 +1,12 @@
 // A symmetric matrix of 3 x 3 blocks on a fixed sparsity pattern (block CSR, every row holding
-// its own diagonal block and both triangles stored): the assembled Hessian a Newton solver
-// factors, multiplies and builds its preconditioner from. The pattern is made once; each
-// evaluation zeroes the values and adds into them (add() finds a block by binary search in its
-// row, which is a few dozen columns long).
+// its own diagonal block and both triangles stored), plus an optional sum of rank-one terms
+// sum_k c_k g_k g_k^T kept as vectors (each g_k on a fixed set of vertices): the Hessian a
+// Newton solver factors, multiplies and builds its preconditioner from. Nodal pressure's
+// vertex terms are such rank-one terms over a vertex's star; assembled, they would couple the
+// 2-ring and multiply the blocks by five, so they stay vectors and every product, diagonal and
+// Galerkin product applies them as such (the direct solver's to_eigen() assembles them). The
+// patterns are made once; each evaluation zeroes the values and adds into them (add() finds a
+// block by binary search in its row, which is a few dozen columns long).
 #pragma once
 
 #include <cstdint>
@@ -48,14 +52,28 @@ class BlockSparseMatrix {
     ZONA_ASSERT(p != nullptr);
     *p = *p + b;
   }
+  /// The rank-one part's pattern: term k's vector lives on vertices[offsets[k] ..
+  /// offsets[k + 1]) (distinct within a term); its values start at zero.
+  void set_rank_one_pattern(std::vector<int64_t> offsets, std::vector<int32_t> vertices);
+  size_t rank_one_terms() const { return coefficients_.size(); }
+  std::span<const int64_t> rank_one_offsets() const { return r1_offsets_; }
+  std::span<const int32_t> rank_one_vertices() const { return r1_vertices_; }
+  /// c_k [matrix units / vector units^2], (terms).
+  std::span<double> rank_one_coefficients() { return coefficients_; }
+  std::span<const double> rank_one_coefficients() const { return coefficients_; }
+  /// The vectors' entries, at the positions of rank_one_vertices().
+  std::span<Vec3d> rank_one_vectors() { return r1_vectors_; }
+  std::span<const Vec3d> rank_one_vectors() const { return r1_vectors_; }
+
   /// y = A x, (rows).
   void multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const;
   /// The diagonal blocks, (rows).
   void diagonal(std::vector<Mat3d>& out) const;
   /// Rows and columns of the vertices with mask[v] != 0 replaced by the identity (fixed
-  /// vertices: the solution there is the right-hand side).
+  /// vertices: the solution there is the right-hand side); the rank-one vectors' entries there
+  /// zeroed.
   void apply_mask(std::span<const uint8_t> mask);
-  /// The scalar matrix (3 rows) x (3 rows), both triangles.
+  /// The scalar matrix (3 rows) x (3 rows), both triangles, the rank-one part assembled.
   Eigen::SparseMatrix<double> to_eigen() const;
   /// Writes the scalar matrix as a Matrix Market file (coordinate real symmetric: the lower
   /// triangle, 1-based).
@@ -65,6 +83,16 @@ class BlockSparseMatrix {
   std::vector<int64_t> offsets_;
   std::vector<int32_t> cols_;
   std::vector<Mat3d> values_;
+  // The rank-one part, and per row the positions of its entries in r1_vectors_ (by row, from
+  // r1_row_offsets_) with each position's term.
+  std::vector<int64_t> r1_offsets_;
+  std::vector<int32_t> r1_vertices_;
+  std::vector<double> coefficients_;
+  std::vector<Vec3d> r1_vectors_;
+  std::vector<int64_t> r1_row_offsets_;
+  std::vector<int64_t> r1_row_positions_;
+  std::vector<int32_t> r1_term_;
+  mutable std::vector<double> r1_scratch_;  // c_k (g_k . x) of the product in progress
 };
 
 }  // namespace zona

@@ -7,7 +7,27 @@
 
 #include <Eigen/Dense>
 
+#include "engine/core/parallel.h"
+
 namespace zona {
+namespace {
+
+// Each vertex's star: its elements' corners, first seen first (offsets (vertex_count + 1)).
+void vertex_stars(const Model& m, std::vector<int64_t>& offsets, std::vector<int32_t>& star) {
+  offsets.assign(1, 0);
+  star.clear();
+  for (size_t v = 0; v < m.vertex_count(); ++v) {
+    const size_t begin = star.size();
+    for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k)
+      for (int32_t w : m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])])
+        if (std::find(star.begin() + static_cast<std::ptrdiff_t>(begin), star.end(), w) ==
+            star.end())
+          star.push_back(w);
+    offsets.push_back(static_cast<int64_t>(star.size()));
+  }
+}
+
+}  // namespace
 
 Result<ElasticEnergy> ElasticEnergy::create(const Model& model) {
   if (model.constitutive == ConstitutiveModel::kSvk &&
@@ -22,23 +42,13 @@ ElasticEnergy::ElasticEnergy(const Model& model) : model_(&model) {
   if (!model.nodal_pressure) return;
   pressure_.assign(model.vertex_count(), 0.0);
   scratch_.assign(model.vertex_count(), 0.0);
-  // Each vertex's star: its elements' corners, first seen first.
-  star_offsets_.assign(1, 0);
-  for (size_t v = 0; v < model.vertex_count(); ++v) {
-    const size_t begin = star_.size();
-    for (int32_t k = model.adjacency.offsets[v]; k < model.adjacency.offsets[v + 1]; ++k)
-      for (int32_t w : model.tets[static_cast<size_t>(model.adjacency.tets[static_cast<size_t>(k)])])
-        if (std::find(star_.begin() + static_cast<std::ptrdiff_t>(begin), star_.end(), w) ==
-            star_.end())
-          star_.push_back(w);
-    star_offsets_.push_back(static_cast<int64_t>(star_.size()));
-  }
+  vertex_stars(model, star_offsets_, star_);
 }
 
-void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u) {
+void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out) const {
   const Model& m = *model_;
   const int64_t s0 = star_offsets_[v];
-  star_part_.assign(static_cast<size_t>(star_offsets_[v + 1] - s0), Vec3d{0, 0, 0});
+  std::fill(out, out + (star_offsets_[v + 1] - s0), Vec3d{0, 0, 0});
   for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
     const size_t t = static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]);
     Vec3d ue[4], dj[4];
@@ -47,7 +57,7 @@ void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u) {
     for (int c = 0; c < 4; ++c) {
       size_t i = 0;
       while (star_[static_cast<size_t>(s0) + i] != m.tets[t][c]) ++i;
-      star_part_[i] += (0.25 * m.tet_shape[t].volume) * dj[c];
+      out[i] += (0.25 * m.tet_shape[t].volume) * dj[c];
     }
   }
 }
@@ -187,7 +197,8 @@ void ElasticEnergy::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat
   // (lambda_v / V_v) g_v[w] g_v[w]^T with g_v[w] = sum over v's elements holding w of
   // V_e / 4 dJ_e/du_w.
   for (size_t v = 0; v < m.vertex_count(); ++v) {
-    star_gradient(v, u);
+    star_part_.resize(static_cast<size_t>(star_offsets_[v + 1] - star_offsets_[v]));
+    star_gradient(v, u, star_part_.data());
     const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
     for (size_t i = 0; i < star_part_.size(); ++i) {
       Mat3d& block = d[static_cast<size_t>(star_[static_cast<size_t>(star_offsets_[v]) + i])];
@@ -209,28 +220,20 @@ double ElasticEnergy::min_volume_ratio(std::span<const Vec3d> u) const {
 
 BlockSparseMatrix ElasticEnergy::hessian_pattern(const Model& m) {
   const size_t n = m.vertex_count();
-  // The star of each vertex: the corners of its elements.
-  std::vector<std::vector<int32_t>> star(n);
-  for (size_t v = 0; v < n; ++v) {
+  // Row v: the corners of v's elements.
+  std::vector<std::vector<int32_t>> rows(n);
+  for (size_t v = 0; v < n; ++v)
     for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k)
       for (int32_t w : m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])])
-        star[v].push_back(w);
-    std::sort(star[v].begin(), star[v].end());
-    star[v].erase(std::unique(star[v].begin(), star[v].end()), star[v].end());
+        rows[v].push_back(w);
+  BlockSparseMatrix h(rows);
+  if (m.nodal_pressure) {
+    std::vector<int64_t> offsets;
+    std::vector<int32_t> star;
+    vertex_stars(m, offsets, star);
+    h.set_rank_one_pattern(std::move(offsets), std::move(star));
   }
-  if (!m.nodal_pressure) return BlockSparseMatrix(star);
-  // Vertex v's rank-one term couples every pair of its star: row w gets the stars of the
-  // vertices in w's star.
-  std::vector<std::vector<int32_t>> rows(n);
-  for (size_t w = 0; w < n; ++w) {
-    for (int32_t v : star[w]) {
-      const std::vector<int32_t>& s = star[static_cast<size_t>(v)];
-      rows[w].insert(rows[w].end(), s.begin(), s.end());
-    }
-    std::sort(rows[w].begin(), rows[w].end());
-    rows[w].erase(std::unique(rows[w].begin(), rows[w].end()), rows[w].end());
-  }
-  return BlockSparseMatrix(rows);
+  return h;
 }
 
 namespace {
@@ -240,12 +243,19 @@ namespace {
 Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const Mat3d& h,
                                            bool project) {
   Eigen::Matrix<double, 9, 9> q;
-  for (int k = 0; k < 9; ++k) {
-    Mat3d df = Mat3d::zero();
-    df.m[k / 3][k % 3] = 1;
-    const Mat3d dp = element_stress_differential(law, h, df);
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
+  if (law.model == ConstitutiveModel::kStableNeoHookean) {
+    double closed[9][9];
+    snh_stress_tangent(law, h, closed);
+    for (int r = 0; r < 9; ++r)
+      for (int c = 0; c < 9; ++c) q(r, c) = closed[r][c];
+  } else {
+    for (int k = 0; k < 9; ++k) {
+      Mat3d df = Mat3d::zero();
+      df.m[k / 3][k % 3] = 1;
+      const Mat3d dp = element_stress_differential(law, h, df);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
+    }
   }
   q = 0.5 * (q + q.transpose()).eval();
   if (!project) return q;
@@ -275,14 +285,33 @@ void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b)
         element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
-  pair_offsets_.assign(1, 0);
-  pair_slot_.clear();
-  for (size_t v = 0; v + 1 < star_offsets_.size(); ++v) {
-    for (int64_t i = star_offsets_[v]; i < star_offsets_[v + 1]; ++i)
-      for (int64_t j = star_offsets_[v]; j < star_offsets_[v + 1]; ++j)
-        pair_slot_.push_back(slot(star_[static_cast<size_t>(i)], star_[static_cast<size_t>(j)]));
-    pair_offsets_.push_back(static_cast<int64_t>(pair_slot_.size()));
+  // Greedy colouring: each element takes the first colour that no element sharing a corner
+  // with it has yet.
+  std::vector<int32_t> colour(m.tet_count(), -1);
+  std::vector<uint8_t> taken;
+  int32_t colours = 0;
+  for (size_t t = 0; t < m.tet_count(); ++t) {
+    taken.assign(static_cast<size_t>(colours) + 1, 0);
+    for (int32_t v : m.tets[t])
+      for (int32_t k = m.adjacency.offsets[static_cast<size_t>(v)];
+           k < m.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
+        const int32_t c = colour[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])];
+        if (c >= 0) taken[static_cast<size_t>(c)] = 1;
+      }
+    int32_t c = 0;
+    while (taken[static_cast<size_t>(c)]) ++c;
+    colour[t] = c;
+    colours = std::max(colours, c + 1);
   }
+  colour_offsets_.assign(static_cast<size_t>(colours) + 1, 0);
+  for (int32_t c : colour) ++colour_offsets_[static_cast<size_t>(c) + 1];
+  for (size_t c = 0; c < static_cast<size_t>(colours); ++c)
+    colour_offsets_[c + 1] += colour_offsets_[c];
+  colour_tets_.resize(m.tet_count());
+  std::vector<int64_t> next(colour_offsets_.begin(), colour_offsets_.end() - 1);
+  for (size_t t = 0; t < m.tet_count(); ++t)
+    colour_tets_[static_cast<size_t>(next[static_cast<size_t>(colour[t])]++)] =
+        static_cast<int32_t>(t);
   indexed_cols_ = h.cols().data();
   indexed_blocks_ = h.block_count();
 }
@@ -293,7 +322,8 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   index_blocks(hm);
   std::span<Mat3d> values = hm.values();
   if (m.nodal_pressure) vertex_pressures(u);
-  for (size_t t = 0; t < m.tet_count(); ++t) {
+  static const int threads = setup_thread_count(0);
+  auto element = [&](size_t t) {
     Vec3d ue[4];
     corners(u, t, ue);
     const TetShape<double>& s = m.tet_shape[t];
@@ -320,27 +350,30 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
             block.m[r][c2] += s.volume * sum;
           }
       }
+  };
+  // No two elements of a colour share a block: each colour's elements run side by side, and
+  // every block sums its elements in colour order (the same bits for any thread count).
+  for (size_t c = 0; c + 1 < colour_offsets_.size(); ++c) {
+    const size_t begin = static_cast<size_t>(colour_offsets_[c]);
+    parallel_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, threads, 512,
+                    [&](size_t, size_t b, size_t e) {
+                      for (size_t k = begin + b; k < begin + e; ++k)
+                        element(static_cast<size_t>(colour_tets_[k]));
+                    });
   }
   if (!m.nodal_pressure) return;
-  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star.
-  for (size_t v = 0; v < m.vertex_count(); ++v) {
-    star_gradient(v, u);
-    const int64_t count = static_cast<int64_t>(star_part_.size());
-    const double c = m.vertex_lambda[v] * m.vertex_inverse_volume[v];
-    const int64_t* slots = pair_slot_.data() + pair_offsets_[v];
-    for (int64_t i = 0; i < count; ++i) {
-      const Vec3d pi = c * star_part_[static_cast<size_t>(i)];
-      for (int64_t j = 0; j < count; ++j) {
-        Mat3d& block = values[static_cast<size_t>(slots[i * count + j])];
-        const Vec3d& pj = star_part_[static_cast<size_t>(j)];
-        for (int r = 0; r < 3; ++r) {
-          block.m[r][0] += pi[r] * pj.x;
-          block.m[r][1] += pi[r] * pj.y;
-          block.m[r][2] += pi[r] * pj.z;
-        }
-      }
+  // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star, as the matrix's rank-one
+  // part (hessian_pattern's, in star order).
+  ZONA_ASSERT(hm.rank_one_terms() == m.vertex_count() &&
+              hm.rank_one_vectors().size() == star_.size());
+  std::span<double> coefficient = hm.rank_one_coefficients();
+  std::span<Vec3d> vectors = hm.rank_one_vectors();
+  parallel_ranges(m.vertex_count(), threads, 1024, [&](size_t, size_t begin, size_t end) {
+    for (size_t v = begin; v < end; ++v) {
+      coefficient[v] = m.vertex_lambda[v] * m.vertex_inverse_volume[v];  // this term's alone
+      star_gradient(v, u, vectors.data() + star_offsets_[v]);
     }
-  }
+  });
 }
 
 }  // namespace zona

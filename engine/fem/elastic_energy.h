@@ -40,11 +40,13 @@ class ElasticEnergy final : public EnergyTerm {
   /// Adds the Hessian's 3 x 3 diagonal blocks to d [N/m].
   void add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat3d> d) override;
   /// The element parts' 12 x 12 Hessians, each exact or projected to positive semi-definite
-  /// (its 9 x 9 d^2 Psi / dF^2 clamped at zero eigenvalues), plus nodal pressure's rank-one
-  /// vertex terms exact (they are positive semi-definite).
+  /// (its 9 x 9 d^2 Psi / dF^2 clamped at zero eigenvalues), assembled element colour by
+  /// element colour over the machine's threads; plus nodal pressure's rank-one vertex terms
+  /// exact (they are positive semi-definite), as the matrix's rank-one part (one term per
+  /// vertex, its vector over the vertex's star).
   void add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& h, bool project) override;
-  /// The pattern of the Hessian: vertices sharing an element and, with nodal pressure, vertices
-  /// sharing a vertex's elements (the rank-one terms couple a vertex's whole star).
+  /// The pattern of the Hessian: vertices sharing an element; with nodal pressure, the
+  /// rank-one part's pattern (each vertex's star, in this term's order).
   static BlockSparseMatrix hessian_pattern(const Model& model);
   /// The volume barrier (elastic_term.h's volume_barrier) below volume ratio j0, of stiffness mu
   /// per element, on the stable neo-Hookean law; 0: off.
@@ -66,19 +68,20 @@ class ElasticEnergy final : public EnergyTerm {
   std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
   double barrier_volume_ = 0;
   // Nodal pressure: each vertex's star (its elements' corners, first seen first) from
-  // star_offsets_, and star_gradient's g_v over it into star_part_.
-  void star_gradient(size_t v, std::span<const Vec3d> u);
+  // star_offsets_; star_gradient writes g_v over it to out (star size).
+  void star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out) const;
   // Where add_hessian's blocks live in the matrix it was last given (found once per pattern):
-  // 16 per element, (a, b) at 16 t + 4 a + b; per vertex the block of each pair of its star,
-  // row-major, from pair_offsets_.
+  // 16 per element, (a, b) at 16 t + 4 a + b; and the elements by colour (no two of a colour
+  // share a vertex), colour c from colour_offsets_[c].
   void index_blocks(const BlockSparseMatrix& h);
   const int32_t* indexed_cols_ = nullptr;
   size_t indexed_blocks_ = 0;
   std::vector<int64_t> element_slot_;
-  std::vector<int64_t> star_offsets_, pair_offsets_;
+  std::vector<int64_t> star_offsets_;
   std::vector<int32_t> star_;
   std::vector<Vec3d> star_part_;
-  std::vector<int64_t> pair_slot_;
+  std::vector<int64_t> colour_offsets_;
+  std::vector<int32_t> colour_tets_;
 };
 
 }  // namespace zona

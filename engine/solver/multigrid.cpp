@@ -98,6 +98,9 @@ struct Level {
   std::vector<Mat3d> t_values;
   std::vector<int32_t> t_target;  // per (block k of A, pair of P's row cols[k])
   std::vector<int32_t> c_target;  // per (row i, pair of P's row i, block of T's row i)
+  // The rank-one part's restriction P^T g_k: per (position p of A's rank-one vectors, pair of
+  // P's row at p's vertex) the position in the coarser operator's rank-one vectors.
+  std::vector<int32_t> r1_target;
   // Chebyshev smoothing on D^-1 A.
   std::vector<Mat3d> dinv;
   double lambda_max = 0;
@@ -233,6 +236,36 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
           fine.c_target.push_back(static_cast<int32_t>(
               coarse.galerkin.find(ci, fine.t_cols[static_cast<size_t>(t)]) - base));
       }
+    // The rank-one part restricts to rank-one terms P^T g_k over the coarse nodes of the
+    // term's vertices (kept as vectors on every level, as on the finest).
+    if (pattern->rank_one_terms() > 0) {
+      std::span<const int64_t> off = pattern->rank_one_offsets();
+      std::span<const int32_t> vert = pattern->rank_one_vertices();
+      std::vector<int64_t> c_off(1, 0);
+      std::vector<int32_t> c_vert, nodes;
+      fine.r1_target.clear();
+      for (size_t k = 0; k + 1 < off.size(); ++k) {
+        nodes.clear();
+        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
+          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
+          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+            nodes.push_back(ip.nodes[static_cast<size_t>(q)]);
+        }
+        std::sort(nodes.begin(), nodes.end());
+        nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
+          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
+          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+            fine.r1_target.push_back(static_cast<int32_t>(
+                c_off.back() + (std::lower_bound(nodes.begin(), nodes.end(),
+                                                 ip.nodes[static_cast<size_t>(q)]) -
+                                nodes.begin())));
+        }
+        c_vert.insert(c_vert.end(), nodes.begin(), nodes.end());
+        c_off.push_back(static_cast<int64_t>(c_vert.size()));
+      }
+      coarse.galerkin.set_rank_one_pattern(std::move(c_off), std::move(c_vert));
+    }
     levels_.push_back(std::move(coarse));
     levels_.back().a = &levels_.back().galerkin;
     // levels_ may have moved: the pattern of the next round is the new coarse operator.
@@ -280,6 +313,18 @@ void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
         c = c + w * fine.t_values[static_cast<size_t>(t)];
       }
     }
+  if (a.rank_one_terms() == 0) return;
+  std::span<const int32_t> vert = a.rank_one_vertices();
+  std::span<const Vec3d> g = a.rank_one_vectors();
+  std::span<Vec3d> gc = coarse.rank_one_vectors();
+  std::copy(a.rank_one_coefficients().begin(), a.rank_one_coefficients().end(),
+            coarse.rank_one_coefficients().begin());
+  pos = 0;
+  for (size_t p = 0; p < vert.size(); ++p) {
+    const size_t j = static_cast<size_t>(vert[p]);
+    for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+      gc[static_cast<size_t>(fine.r1_target[pos++])] += ip.weights[static_cast<size_t>(q)] * g[p];
+  }
 }
 
 Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
@@ -324,6 +369,18 @@ Status LatticeMultigrid::factor_coarsest() {
         for (int c = 0; c < 3; ++c)
           dense(static_cast<Eigen::Index>(3 * i) + r, 3 * j + c) = b.m[r][c];
     }
+  std::span<const int64_t> off = a.rank_one_offsets();
+  std::span<const int32_t> vert = a.rank_one_vertices();
+  std::span<const Vec3d> g = a.rank_one_vectors();
+  for (size_t k = 0; k < a.rank_one_terms(); ++k)
+    for (int64_t p = off[k]; p < off[k + 1]; ++p)
+      for (int64_t q = off[k]; q < off[k + 1]; ++q) {
+        const Vec3d x = a.rank_one_coefficients()[k] * g[static_cast<size_t>(p)];
+        const Vec3d& y = g[static_cast<size_t>(q)];
+        const Eigen::Index i = 3 * vert[static_cast<size_t>(p)], j = 3 * vert[static_cast<size_t>(q)];
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) dense(i + r, j + c) += x[r] * y[c];
+      }
   coarse_.compute(dense);
   if (coarse_.info() != Eigen::Success || !coarse_.isPositive())
     return make_error("multigrid: the coarsest operator (%lld unknowns) is not positive definite",

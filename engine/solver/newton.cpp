@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <string>
+#include <cstdlib>
 
 namespace zona {
 
@@ -151,6 +152,9 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     stats.residual = max_imbalance(g_);
     stats.energy = e;
     ++stats.iterations;
+    if (std::getenv("ZONA_NEWTON_TRACE"))
+      std::fprintf(stderr, "  it %d res %.3e alpha %.3g/%.3g cg %lld proj %d e %.9e\n", stats.iterations,
+                   stats.residual, alpha, alpha_start, (long long)cg, stats.projected, e);
   }
   stats.converged = true;
   return stats;

@@ -203,6 +203,38 @@ TEST(ElasticTerm, ElementProductIsTheElementStiffnessTimesTheDirection) {
   }
 }
 
+// The stable neo-Hookean tangent in closed form is the stress differential's columns, with and
+// without nodal pressure, the volume barrier active (J below its threshold) or not.
+TEST(ElasticTerm, ClosedFormNeoHookeanTangentIsTheStressDifferential) {
+  const Mat3d stretched{{{0.3, 0.1, -0.05}, {0.02, -0.2, 0.15}, {0.1, 0.04, 0.25}}};
+  const Mat3d crushed{{{-0.93, 0.1, 0.02}, {0.05, 0.02, -0.1}, {0.01, 0.03, 0.04}}};
+  for (const Mat3d& h : {stretched, crushed})
+    for (bool nodal : {false, true})
+      for (double barrier : {0.0, 0.1}) {
+        ElementLaw<double> law;
+        law.lambda = 4e5;
+        law.mu = 6e3;
+        law.nodal = nodal;
+        law.pressure = nodal ? 2.5e3 : 0.0;
+        law.barrier_volume = barrier;
+        law.barrier_stiffness = barrier > 0 ? law.mu : 0.0;
+        double q[9][9];
+        snh_stress_tangent(law, h, q);
+        double scale = 0;
+        for (auto& row : q)
+          for (double x : row) scale = std::max(scale, std::abs(x));
+        for (int k = 0; k < 9; ++k) {
+          Mat3d df = Mat3d::zero();
+          df.m[k / 3][k % 3] = 1;
+          const Mat3d dp = element_stress_differential(law, h, df);
+          for (int r = 0; r < 9; ++r)
+            EXPECT_NEAR(q[r][k], dp.m[r / 3][r % 3], 1e-12 * scale)
+                << "nodal " << nodal << " barrier " << barrier << " J - 1 "
+                << snh_volume_change(h) << " entry " << r << "," << k;
+        }
+      }
+}
+
 TEST(ElasticTerm, TheClampedSvkLawHasNoEnergyTerm) {
   const Mesh mesh = box_mesh({0, 0, 0}, {kL, kL, kL}, 1, 1, 1);
   ModelDesc d;
