@@ -285,33 +285,37 @@ void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b)
         element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
-  // Greedy colouring: each element takes the first colour that no element sharing a corner
-  // with it has yet.
-  std::vector<int32_t> colour(m.tet_count(), -1);
+  // Greedy colouring of runs of kRun consecutive elements (the mesh's order keeps a run's
+  // blocks close in memory): each run takes the first colour that no run sharing a corner with
+  // it has yet.
+  const size_t runs = (m.tet_count() + kRun - 1) / kRun;
+  std::vector<int32_t> colour(runs, -1);
   std::vector<uint8_t> taken;
   int32_t colours = 0;
-  for (size_t t = 0; t < m.tet_count(); ++t) {
+  for (size_t r = 0; r < runs; ++r) {
     taken.assign(static_cast<size_t>(colours) + 1, 0);
-    for (int32_t v : m.tets[t])
-      for (int32_t k = m.adjacency.offsets[static_cast<size_t>(v)];
-           k < m.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
-        const int32_t c = colour[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])];
-        if (c >= 0) taken[static_cast<size_t>(c)] = 1;
-      }
+    for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
+      for (int32_t v : m.tets[t])
+        for (int32_t k = m.adjacency.offsets[static_cast<size_t>(v)];
+             k < m.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
+          const int32_t c =
+              colour[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]) / kRun];
+          if (c >= 0) taken[static_cast<size_t>(c)] = 1;
+        }
     int32_t c = 0;
     while (taken[static_cast<size_t>(c)]) ++c;
-    colour[t] = c;
+    colour[r] = c;
     colours = std::max(colours, c + 1);
   }
   colour_offsets_.assign(static_cast<size_t>(colours) + 1, 0);
   for (int32_t c : colour) ++colour_offsets_[static_cast<size_t>(c) + 1];
   for (size_t c = 0; c < static_cast<size_t>(colours); ++c)
     colour_offsets_[c + 1] += colour_offsets_[c];
-  colour_tets_.resize(m.tet_count());
+  colour_runs_.resize(runs);
   std::vector<int64_t> next(colour_offsets_.begin(), colour_offsets_.end() - 1);
-  for (size_t t = 0; t < m.tet_count(); ++t)
-    colour_tets_[static_cast<size_t>(next[static_cast<size_t>(colour[t])]++)] =
-        static_cast<int32_t>(t);
+  for (size_t r = 0; r < runs; ++r)
+    colour_runs_[static_cast<size_t>(next[static_cast<size_t>(colour[r])]++)] =
+        static_cast<int32_t>(r);
   indexed_cols_ = h.cols().data();
   indexed_blocks_ = h.block_count();
 }
@@ -351,14 +355,17 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
           }
       }
   };
-  // No two elements of a colour share a block: each colour's elements run side by side, and
-  // every block sums its elements in colour order (the same bits for any thread count).
+  // No two runs of a colour share a block: each colour's runs go side by side, and every
+  // block sums its elements in colour order (the same bits for any thread count).
   for (size_t c = 0; c + 1 < colour_offsets_.size(); ++c) {
     const size_t begin = static_cast<size_t>(colour_offsets_[c]);
-    parallel_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, threads, 512,
+    parallel_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, threads, 8,
                     [&](size_t, size_t b, size_t e) {
-                      for (size_t k = begin + b; k < begin + e; ++k)
-                        element(static_cast<size_t>(colour_tets_[k]));
+                      for (size_t k = begin + b; k < begin + e; ++k) {
+                        const size_t r = static_cast<size_t>(colour_runs_[k]);
+                        for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
+                          element(t);
+                      }
                     });
   }
   if (!m.nodal_pressure) return;

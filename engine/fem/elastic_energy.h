@@ -71,8 +71,8 @@ class ElasticEnergy final : public EnergyTerm {
   // star_offsets_; star_gradient writes g_v over it to out (star size).
   void star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out) const;
   // Where add_hessian's blocks live in the matrix it was last given (found once per pattern):
-  // 16 per element, (a, b) at 16 t + 4 a + b; and the elements by colour (no two of a colour
-  // share a vertex), colour c from colour_offsets_[c].
+  // 16 per element, (a, b) at 16 t + 4 a + b; and runs of kRun consecutive elements by colour
+  // (no two runs of a colour share a vertex), colour c's from colour_offsets_[c].
   void index_blocks(const BlockSparseMatrix& h);
   const int32_t* indexed_cols_ = nullptr;
   size_t indexed_blocks_ = 0;
@@ -81,7 +81,8 @@ class ElasticEnergy final : public EnergyTerm {
   std::vector<int32_t> star_;
   std::vector<Vec3d> star_part_;
   std::vector<int64_t> colour_offsets_;
-  std::vector<int32_t> colour_tets_;
+  static constexpr size_t kRun = 64;
+  std::vector<int32_t> colour_runs_;
 };
 
 }  // namespace zona

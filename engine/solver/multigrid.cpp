@@ -157,18 +157,34 @@ class LatticeMultigrid final : public Preconditioner {
 void LatticeMultigrid::build(const BlockSparseMatrix& a) {
   levels_.clear();
   pattern_blocks_ = a.block_count();
-  // The lattice spacing follows the mean distance between coupled free vertices.
+  // The lattice spacing follows the mean distance between coupled free vertices (the blocks'
+  // pairs and, with a rank-one part, every pair of a term's vertices: the assembled matrix's
+  // pattern).
+  std::vector<std::vector<int32_t>> coupled(a.rows());
+  for (size_t i = 0; i < a.rows(); ++i)
+    coupled[i].assign(a.cols().begin() + a.offsets()[i], a.cols().begin() + a.offsets()[i + 1]);
+  std::span<const int64_t> r1_off = a.rank_one_offsets();
+  std::span<const int32_t> r1_vert = a.rank_one_vertices();
+  for (size_t k = 0; k < a.rank_one_terms(); ++k)
+    for (int64_t e = r1_off[k]; e < r1_off[k + 1]; ++e) {
+      std::vector<int32_t>& row = coupled[static_cast<size_t>(r1_vert[static_cast<size_t>(e)])];
+      row.insert(row.end(), r1_vert.begin() + r1_off[k], r1_vert.begin() + r1_off[k + 1]);
+    }
   double sum = 0;
   int64_t count = 0;
   for (size_t i = 0; i < a.rows(); ++i) {
+    std::vector<int32_t>& row = coupled[i];
+    std::sort(row.begin(), row.end());
+    row.erase(std::unique(row.begin(), row.end()), row.end());
     if (!fixed_.empty() && fixed_[i]) continue;
-    for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
-      const size_t j = static_cast<size_t>(a.cols()[static_cast<size_t>(k)]);
+    for (int32_t jj : row) {
+      const size_t j = static_cast<size_t>(jj);
       if (j == i || (!fixed_.empty() && fixed_[j])) continue;
       sum += norm(positions_[i] - positions_[j]);
       ++count;
     }
   }
+  coupled.clear();
   double h = options_.spacing_factor * (count > 0 ? sum / static_cast<double>(count) : 1.0);
 
   std::vector<Vec3d> points = positions_, coarse_points;
@@ -342,7 +358,9 @@ Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   // is close to this one.
   std::vector<Vec3d>& v = lv.power;
   double lambda = 0;
-  for (int it = 0; it < options_.power_iterations; ++it) {
+  const int iterations = lv.lambda_max > 0 ? options_.power_iterations_warm
+                                           : options_.power_iterations;
+  for (int it = 0; it < iterations; ++it) {
     a.multiply(v, lv.q);
     for (size_t i = 0; i < v.size(); ++i) lv.q[i] = lv.dinv[i] * lv.q[i];
     const double vn = std::sqrt(dot_all(v, v)), qn = std::sqrt(dot_all(lv.q, lv.q));
