@@ -72,15 +72,15 @@ class StaticRun {
     result_.stopped_early = true;
     result_.stop_reason = reason;
   }
-  // The released load's factor at travel s: the release, plus the shaft's drag
-  // shaft_friction x inserted length over the load the needle carried.
+  // The shaft's drag at travel s [N]: shaft_friction x the inserted length.
   double released_ramp(double s) const {
-    const double f = std::fabs(puncture_.force);
-    const double drag = p_.puncture.shaft_friction * std::max(0.0, s - punctured_travel_);
-    return released_scale_ + (f > 0 ? drag / f : 0.0);
+    return p_.puncture.shaft_friction * std::max(0.0, s - punctured_travel_);
   }
+  // The convergence tolerance [N]: solver.tolerance x max(E r^2, the needle force), the force
+  // of the last accepted state or, while the release seeks a load, of that load.
   double force_tolerance() const {
-    return def_.tolerance * std::max(force_scale_, std::fabs(accepted_.force));
+    const double f = seek_force_ >= 0 ? seek_force_ : std::fabs(accepted_.force);
+    return def_.tolerance * std::max(force_scale_, f);
   }
   double wall() const {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
@@ -96,12 +96,16 @@ class StaticRun {
   ElasticEnergy elastic_;
   std::unique_ptr<PenaltyContactTerm> needle_, rim_;
   std::unique_ptr<SuctionTerm> suction_;
-  // After the puncture: the needle's load as a dead load (released_scale_ of it, plus the
-  // shaft's drag).
+  // After the puncture: the tip held at the puncture's pose, its contact scaled so that it
+  // carries the released load (needle_scale_), and the shaft's drag along the axis as a dead
+  // load shared by the vertices the tip touched (per newton of drag).
   std::unique_ptr<SuctionTerm> released_;
   std::vector<int32_t> released_vertex_;
   std::vector<Vec3d> released_load_;
-  double released_scale_ = 1, punctured_travel_ = 0;
+  double punctured_travel_ = 0;
+  double held_travel_ = 0;  // where the tip's contact is held after the puncture [m]
+  double last_force_before_ = 0;  // the needle force of the state at travel_before_ [N]
+  double seek_force_ = -1;        // the load the release seeks [N]; < 0: none
   std::unique_ptr<InertiaTerm> inertia_;
   std::unique_ptr<NewtonSolver> newton_;
   std::vector<int32_t> suction_vertex_;
@@ -251,7 +255,8 @@ ToolField StaticRun::needle_field(double travel) const {
 
 bool StaticRun::solve_at(double s, double scale, std::vector<Vec3d>& u, NewtonStats* stats) {
   if (needle_) {
-    needle_->set_field(needle_field(s));
+    // After the puncture the tip stays where the membrane gave way (the explicit step's rule).
+    needle_->set_field(needle_field(punctured_ ? held_travel_ : s));
     needle_->set_scale(scale);
   }
   if (suction_) suction_->set_ramp(suction_ramp_);
@@ -275,18 +280,18 @@ Measures StaticRun::measure(std::span<const Vec3d> u, double travel) {
       e += p_.record.entry_weight[c] * u[static_cast<size_t>(p_.record.entry_vertex[c])];
     m.deformation = dot(e, dir);
   }
-  if (released_) {
-    const double r = released_ramp(travel);
-    for (const Vec3d& f : released_load_) m.force_vector += r * f;
-    m.force = dot(m.force_vector, dir);
-    m.contacts = static_cast<int64_t>(released_vertex_.size());
-  } else if (needle_) {
-    needle_->set_field(needle_field(travel));  // the state's own pose
+  if (needle_) {
+    needle_->set_field(needle_field(punctured_ ? held_travel_ : travel));  // its pose
     const PenaltyContactTerm::Load l = needle_->load(u);
     m.force_vector = l.force;
     m.force = dot(l.force, dir);
     m.contacts = l.contacts;
     m.depth = l.depth;
+  }
+  if (released_) {
+    const double r = released_ramp(travel);
+    for (const Vec3d& f : released_load_) m.force_vector += r * f;
+    m.force = dot(m.force_vector, dir);
   }
   if (rim_) {
     Vec3d h = rim_->load(u).force;
@@ -354,6 +359,7 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
   for (size_t i = 0; i < u.size(); ++i) v_[i] = (1.0 / h) * (u[i] - u_[i]);
   ++step_;
   // Measured with the friction the state was solved with (before the anchors move).
+  if (ds > 0) last_force_before_ = accepted_.force;
   accepted_ = measure(u, s);
   int64_t rim_slid = 0, rim_contacts = 0;
   if (needle_) {
@@ -572,8 +578,7 @@ RunResult StaticRun::run() {
         }
       }
       if (result_.stopped_early) break;
-      // The needle's load on each vertex at the puncture, with the friction it was solved with
-      // (before accept moves the anchors).
+      // The vertices the tip loads at the puncture (they share the shaft's drag later).
       std::vector<Vec3d> g_needle(u_hi.size(), Vec3d{0, 0, 0});
       needle_->set_field(needle_field(hi));
       needle_->set_scale(1);
@@ -589,39 +594,74 @@ RunResult StaticRun::run() {
       puncture_.force = m_hi.force;
       puncture_.energy = m_hi.elastic;
       puncture_.force_vector = m_hi.force_vector;
-      // The release. The membrane has given way: the needle's contact becomes the load it
-      // carried at the puncture, as a dead load on the same vertices (the same equilibrium),
-      // which then falls by force_drop; past it, the shaft's drag grows with the inserted
-      // length (puncture.shaft_friction) on the same vertices, along the axis.
+      punctured_travel_ = hi;
+      held_travel_ = hi;
+      // The release. The membrane has given way: the needle's load falls by force_drop and
+      // stays there while the shaft's drag grows. The explicit step holds the tip and scales its
+      // contact down until it carries the released load; here the contact's law is kept and its
+      // pose is drawn back along the axis until it carries that load (a secant on the pose
+      // against the load, which falls monotonically as it draws back), on the same branch of
+      // equilibria the loading came up, so every state on the way is a stable minimum. Holding
+      // the contact and scaling it (or replacing it by the dead load it carried, which is the
+      // same equilibrium at the puncture but not a stable one) leaves the minimiser to crawl or
+      // run away under a point load on a deep indentation.
       {
         const std::vector<Vec3d>& g = g_needle;
+        int64_t touched = 0;
+        for (const Vec3d& v : g) touched += (v.x != 0 || v.y != 0 || v.z != 0) ? 1 : 0;
         for (size_t v = 0; v < g.size(); ++v)
           if (g[v].x != 0 || g[v].y != 0 || g[v].z != 0) {
             released_vertex_.push_back(static_cast<int32_t>(v));
-            released_load_.push_back(-1.0 * g[v]);
+            released_load_.push_back((1.0 / static_cast<double>(touched)) * p_.needle.direction);
           }
         released_ = std::make_unique<SuctionTerm>(released_vertex_, released_load_,
-                                                  "released needle load");
+                                                  "shaft drag");
         newton_->add_term(released_.get());
-        needle_->set_scale(0);
-        needle_scale_ = 0;
-        punctured_travel_ = hi;
       }
-      double scale = 1, dscale = 0.5;
+      const double f0 = puncture_.force;
       const double released = 1.0 - pp.force_drop;
+      // The loading branch's slope at the puncture [N/m], for the first guess.
+      const double slope0 = std::max(
+          travel_before_ >= 0 && hi > travel_before_
+              ? (f0 - last_force_before_) / (hi - travel_before_) : 0.0,
+          std::fabs(f0) / std::max(hi, 1e-9));
       std::vector<Vec3d> ur = u_;
-      while (scale > released && !result_.stopped_early) {
-        const double next = std::max(released, scale - dscale);
-        released_scale_ = next;
+      double fraction = 1, dfraction = 0.5;
+      while (fraction > released && !result_.stopped_early) {
+        const double next = std::max(released, fraction - dfraction);
+        const double target = next * f0;
+        seek_force_ = std::fabs(target);
         std::vector<Vec3d> trial_r = ur;
-        if (solve_at(hi, 0, trial_r, &stats)) {
-          scale = next;
+        const double held = held_travel_;
+        double e = held - (fraction - next) * f0 / slope0, force = 0;
+        double e_lo = held, f_lo = fraction * f0;
+        bool ok = false;
+        for (int it = 0; it < 12; ++it) {
+          held_travel_ = e;
+          if (!solve_at(hi, 1, trial_r, &stats)) break;
+          force = measure(trial_r, hi).force;
+          if (std::fabs(force - target) <= 1e-3 * std::fabs(f0)) {
+            ok = true;
+            break;
+          }
+          const double slope = force != f_lo && e != e_lo ? (force - f_lo) / (e - e_lo) : slope0;
+          e_lo = e;
+          f_lo = force;
+          e -= (force - target) / (slope > 0 ? slope : slope0);
+        }
+        if (ok) {
+          fraction = next;
           ur.swap(trial_r);
-        } else if ((dscale *= 0.5) < 1e-3) {
-          stop("the state after the puncture's release did not converge at " +
-               std::to_string(scale) + " of the puncture load: " + failure_);
+        } else {
+          held_travel_ = held;
+          if ((dfraction *= 0.5) < 1e-3)
+            stop("the state after the puncture's release did not converge at " +
+                 std::to_string(fraction) + " of the puncture load: " +
+                 (failure_.empty() ? std::string("the tip's load did not reach its target")
+                                   : failure_));
         }
       }
+      seek_force_ = -1;
       if (result_.stopped_early) break;
       accept(ur, hi, stats);
       next_target = targets.size();  // rows at set deformations are the loading branch's
