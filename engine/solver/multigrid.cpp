@@ -358,15 +358,20 @@ Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   // is close to this one.
   std::vector<Vec3d>& v = lv.power;
   double lambda = 0;
-  const int iterations = lv.lambda_max > 0 ? options_.power_iterations_warm
-                                           : options_.power_iterations;
-  for (int it = 0; it < iterations; ++it) {
+  // Warm (a setup after the first): at least power_iterations_warm, on until the estimate
+  // moves by under 1 % (a matrix far from the last one takes the full count).
+  const bool warm = lv.lambda_max > 0;
+  for (int it = 0; it < options_.power_iterations; ++it) {
     a.multiply(v, lv.q);
     for (size_t i = 0; i < v.size(); ++i) lv.q[i] = lv.dinv[i] * lv.q[i];
     const double vn = std::sqrt(dot_all(v, v)), qn = std::sqrt(dot_all(lv.q, lv.q));
     if (!(qn > 0)) break;
+    const double previous = lambda;
     lambda = qn / vn;
     for (size_t i = 0; i < v.size(); ++i) v[i] = lv.q[i] / qn;
+    if (warm && it + 1 >= options_.power_iterations_warm &&
+        std::fabs(lambda - previous) <= 1e-2 * lambda)
+      break;
   }
   if (!(lambda > 0) || !std::isfinite(lambda))
     return make_error("multigrid: no spectral bound on level %zu", l);

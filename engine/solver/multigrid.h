@@ -37,7 +37,8 @@ struct MultigridOptions {
   /// Power iterations estimating lambda_max(D^-1 A) per level and setup (warm-started from the
   /// last setup's vector), and the safety factor on the estimate.
   int power_iterations = 10;
-  /// The same at each later setup, started from the last one's vector (the matrices of
+  /// At each later setup, started from the last one's vector: at least this many, then on
+  /// (up to power_iterations) until the estimate moves by under 1 % (the matrices of
   /// successive Newton iterations are close).
   int power_iterations_warm = 3;
   double lambda_safety = 1.1;
