@@ -23,7 +23,6 @@ NewtonSolver::NewtonSolver(std::vector<EnergyTerm*> terms, BlockSparseMatrix pat
   g_.resize(n);
   d_.resize(n);
   trial_.resize(n);
-  gt_.resize(n);
   rhs_.resize(n);
 }
 
@@ -116,13 +115,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       stats.failure = "no Newton direction on the projected Hessian: " + why;
       return stats;
     }
-    // Line search along d from the capped step. Where the energy still falls at its end, the
-    // step is taken if it lowers the energy enough (Armijo). Where it rises again there (a
-    // contact point met on the way, whose stiffness this iteration's Hessian did not see), the
-    // minimiser along d is bracketed and found by regula falsi on the directional derivative
-    // g(u + alpha d) . d (the energy is piecewise smooth along d, so the bracket closes in a few
-    // gradients), instead of halving to a step that stops short of it; backtracking on the
-    // energy stays the fallback.
+    // Backtracking: halve until the energy falls enough, from the capped step.
     double alpha = 1, e_trial = 0;
     if (options_.max_displacement > 0) {
       double longest = 0;
@@ -130,51 +123,10 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       if (longest > options_.max_displacement) alpha = options_.max_displacement / longest;
     }
     const double alpha_start = alpha;
-    auto armijo = [&](double a, double et) {
-      return std::isfinite(et) && et <= e + options_.armijo * a * slope;
-    };
-    auto at = [&](double a, double* dphi) {
-      for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + a * d_[i];
-      const double et = evaluate(trial_, gt_);
-      *dphi = std::isfinite(et) ? dot_all(gt_, d_) : INFINITY;
-      return et;
-    };
-    double dphi = 0;
-    e_trial = at(alpha, &dphi);
-    bool found = armijo(alpha, e_trial) && dphi <= 0.1 * std::fabs(slope);
-    if (!found && std::isfinite(e_trial) && dphi > 0) {
-      // phi'(0) = slope < 0 < phi'(alpha): regula falsi (Illinois) on phi'.
-      double a_lo = 0, d_lo = slope, a_hi = alpha, d_hi = dphi;
-      int side = 0;
-      for (int k = 0; k < 8; ++k) {
-        const double a = a_hi - d_hi * (a_hi - a_lo) / (d_hi - d_lo);
-        if (!(a > a_lo && a < a_hi)) break;
-        const double et = at(a, &dphi);
-        if (!std::isfinite(et)) break;
-        if (armijo(a, et) && std::fabs(dphi) <= 0.1 * std::fabs(slope)) {
-          alpha = a;
-          e_trial = et;
-          found = true;
-          break;
-        }
-        if (dphi > 0) {
-          a_hi = a;
-          d_hi = dphi;
-          if (side == 1) d_lo *= 0.5;
-          side = 1;
-        } else {
-          a_lo = a;
-          d_lo = dphi;
-          if (side == -1) d_hi *= 0.5;
-          side = -1;
-        }
-      }
-      if (!found) alpha = alpha_start;
-    }
-    while (!found) {
+    for (;;) {
       for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + alpha * d_[i];
       e_trial = evaluate(trial_, {});
-      if (armijo(alpha, e_trial)) break;
+      if (std::isfinite(e_trial) && e_trial <= e + options_.armijo * alpha * slope) break;
       // At round-off the energy cannot tell; a full step that does not raise it is taken.
       if (alpha == alpha_start && std::isfinite(e_trial) &&
           std::fabs(e_trial - e) <= 1e-13 * std::fabs(e) + 1e-300)
@@ -190,7 +142,6 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
         return stats;
       }
     }
-    for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + alpha * d_[i];
     u.swap(trial_);
     e = evaluate(u, g_);
     gnorm_prev = gnorm;

@@ -84,7 +84,7 @@ class NewtonSolver {
   std::vector<uint8_t> fixed_;
   std::unique_ptr<LinearSolver> linear_;
   NewtonOptions options_;
-  std::vector<Vec3d> g_, d_, trial_, rhs_, gt_;
+  std::vector<Vec3d> g_, d_, trial_, rhs_;
 };
 
 }  // namespace zona
