@@ -285,11 +285,16 @@ void convergence_command(const ConvergenceArgs& given) {
   ConvergenceStudy so_far;
   so_far.scene_name = scenes->front().name;
   so_far.deformations = *deformations;
+  const bool static_solver = scenes->front().solver.method == SolverMethod::kStatic;
   options.finished = [&](const ConvergenceRun& r) {
     progress.finish();
     for (const std::string& note : r.notes)
       std::fprintf(stderr, "zona study: note: %s\n", note.c_str());
-    if (r.vertices > 0)
+    if (r.vertices > 0 && static_solver)
+      std::printf("%lld vertices, %lld tets: %lld load steps (static), setup %.1f s, wall %.1f s; ",
+                  static_cast<long long>(r.vertices), static_cast<long long>(r.tets),
+                  static_cast<long long>(r.steps), r.setup_seconds, r.wall_seconds);
+    else if (r.vertices > 0)
       std::printf("%lld vertices, %lld tets: %lld steps of %.3g s, setup %.1f s, wall %.1f s; ",
                   static_cast<long long>(r.vertices), static_cast<long long>(r.tets),
                   static_cast<long long>(r.steps), r.dt, r.setup_seconds, r.wall_seconds);

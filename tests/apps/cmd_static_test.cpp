@@ -125,6 +125,33 @@ TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
     EXPECT_NEAR(ca["force_N"][i], cb["force_N"][i], 1e-3 * peak) << "row " << i;
 }
 
+// `zona study convergence --solver static`: each size is a static run (its line counts load
+// steps, not time steps), and the summary compares the sizes' forces at 10 um.
+TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  const CliRun r = run_zona("study convergence " + scene.string() +
+                                " --solver static --vertices 300,600 --deformations 10 --quiet "
+                                "--set needle.max_travel=11um --out " +
+                                (dir.path / "study").string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  size_t lines = 0;
+  for (size_t at = r.out.find("load steps (static)"); at != std::string::npos;
+       at = r.out.find("load steps (static)", at + 1))
+    ++lines;
+  EXPECT_EQ(lines, 2u) << r.out;
+  EXPECT_EQ(r.out.find("steps of"), std::string::npos) << r.out;
+  std::ifstream summary(dir.path / "study" / "convergence_summary.csv");
+  ASSERT_TRUE(summary.good());
+  std::string line;
+  size_t rows = 0;
+  while (std::getline(summary, line))
+    if (!line.empty() && line[0] != '#') ++rows;
+  EXPECT_GE(rows, 3u);  // the header and a row per size
+}
+
 TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
   TempDir dir;
   const fs::path scene = dir.path / "tiny_static.json";
