@@ -163,9 +163,14 @@ def pcg(a, b, apply, tols=(1e-2, 1e-6), max_iter=5000):
     return [hits.get(t, -1) for t in tols], x
 
 
+def _centred(x):
+    """Positions about their centroid, scaled into [-1, 1]."""
+    d = x - x.mean(axis=0)
+    return d / np.abs(d).max()
+
+
 def rigid_modes(x, fixed):
-    c = x.mean(axis=0)
-    d = (x - c) / np.abs(x - c).max()
+    d = _centred(x)
     n = x.shape[0]
     b = np.zeros((n, 3, 6))
     for k in range(3):
@@ -179,8 +184,7 @@ def rigid_modes(x, fixed):
 
 
 def affine_modes(x, fixed):
-    c = x.mean(axis=0)
-    d = (x - c) / np.abs(x - c).max()
+    d = _centred(x)
     n = x.shape[0]
     b = np.zeros((n, 3, 12))
     for k in range(3):

@@ -60,9 +60,9 @@ class StaticRun {
  private:
   void build();
   ToolField needle_field(double travel) const;
-  // Solves at needle travel s with the needle term scaled by `scale`, from the accepted state
-  // and the guess in u (updated). False with a reason in failure_.
-  bool solve_at(double s, double scale, std::vector<Vec3d>& u, NewtonStats* stats);
+  // Solves at needle travel s (after the puncture, with the tip's contact at held_travel_),
+  // from the accepted state and the guess in u (updated). False with a reason in failure_.
+  bool solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats);
   Measures measure(std::span<const Vec3d> u, double travel);
   // Accepts u at travel s: commit, velocity, lag for the next step, the row.
   void accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats, bool row = true);
@@ -96,9 +96,9 @@ class StaticRun {
   ElasticEnergy elastic_;
   std::unique_ptr<PenaltyContactTerm> needle_, rim_;
   std::unique_ptr<SuctionTerm> suction_;
-  // After the puncture: the tip held at the puncture's pose, its contact scaled so that it
-  // carries the released load (needle_scale_), and the shaft's drag along the axis as a dead
-  // load shared by the vertices the tip touched (per newton of drag).
+  // After the puncture: the tip's contact held at held_travel_, where it carries the released
+  // load, and the shaft's drag along the axis as a dead load shared by the vertices the tip
+  // touched (per newton of drag).
   std::unique_ptr<SuctionTerm> released_;
   std::vector<int32_t> released_vertex_;
   std::vector<Vec3d> released_load_;
@@ -121,7 +121,6 @@ class StaticRun {
   double travel_ = 0, travel_before_ = -1;
   int64_t step_ = 0;
   Measures accepted_;
-  double needle_scale_ = 1;
   bool punctured_ = false;
   PunctureRecord puncture_;
 
@@ -253,11 +252,10 @@ ToolField StaticRun::needle_field(double travel) const {
   return f;
 }
 
-bool StaticRun::solve_at(double s, double scale, std::vector<Vec3d>& u, NewtonStats* stats) {
+bool StaticRun::solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
   if (needle_) {
     // After the puncture the tip stays where the membrane gave way (the explicit step's rule).
     needle_->set_field(needle_field(punctured_ ? held_travel_ : s));
-    needle_->set_scale(scale);
   }
   if (suction_) suction_->set_ramp(suction_ramp_);
   if (released_) released_->set_ramp(released_ramp(s));
@@ -442,7 +440,7 @@ RunResult StaticRun::run() {
       // contacts are lagged.
       const int max_iterations = newton_->options().max_iterations;
       if (!full) newton_->options().max_iterations = kRampIterations;
-      const bool converged = solve_at(0, 1, u, &stats);
+      const bool converged = solve_at(0, u, &stats);
       newton_->options().max_iterations = max_iterations;
       if (converged && full) {
         accept(u, 0, stats, false);
@@ -481,7 +479,7 @@ RunResult StaticRun::run() {
       const double f = (s - travel_) / (travel_ - travel_before_);
       for (size_t i = 0; i < trial.size(); ++i) trial[i] += f * (u_[i] - u_before_[i]);
     }
-    if (!solve_at(s, needle_scale_, trial, &stats)) {
+    if (!solve_at(s, trial, &stats)) {
       step *= 0.5;
       if (step < def_.min_travel_step) {
         char line[400];
@@ -519,7 +517,7 @@ RunResult StaticRun::run() {
         std::vector<Vec3d> ux = u_;
         const double w = (x - travel_) / (hi - travel_);
         for (size_t i = 0; i < ux.size(); ++i) ux[i] += w * (u_hi[i] - u_[i]);
-        if (!solve_at(x, needle_scale_, ux, &st)) break;
+        if (!solve_at(x, ux, &st)) break;
         mm = measure(ux, x);
         const double fx = mm.deformation - target;
         if ((fx > 0) == (fhi > 0)) {
@@ -562,7 +560,7 @@ RunResult StaticRun::run() {
         const double w = (x - travel_) / (hi - travel_);
         for (size_t i = 0; i < ux.size(); ++i) ux[i] += w * (u_hi[i] - u_[i]);
         NewtonStats st;
-        if (!solve_at(x, needle_scale_, ux, &st)) {
+        if (!solve_at(x, ux, &st)) {
           stop("the puncture's bisection did not converge at " + std::to_string(x * 1e6) +
                " um of travel: " + failure_);
           break;
@@ -581,7 +579,6 @@ RunResult StaticRun::run() {
       // The vertices the tip loads at the puncture (they share the shaft's drag later).
       std::vector<Vec3d> g_needle(u_hi.size(), Vec3d{0, 0, 0});
       needle_->set_field(needle_field(hi));
-      needle_->set_scale(1);
       needle_->add_gradient(u_hi, g_needle);
       accept(u_hi, hi, st_hi);
       if (result_.stopped_early) break;
@@ -638,7 +635,7 @@ RunResult StaticRun::run() {
         bool ok = false;
         for (int it = 0; it < 12; ++it) {
           held_travel_ = e;
-          if (!solve_at(hi, 1, trial_r, &stats)) break;
+          if (!solve_at(hi, trial_r, &stats)) break;
           force = measure(trial_r, hi).force;
           if (std::fabs(force - target) <= 1e-3 * std::fabs(f0)) {
             ok = true;

@@ -67,7 +67,7 @@ double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
     const Lagged& l = lagged_[i];
     if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
   }
-  return scale_ * e;
+  return e;
 }
 
 Vec3d PenaltyContactTerm::point_gradient(std::span<const Vec3d> u, size_t i) const {
@@ -85,7 +85,7 @@ void PenaltyContactTerm::add_gradient(std::span<const Vec3d> u, std::span<Vec3d>
     if (gi.x == 0 && gi.y == 0 && gi.z == 0) continue;
     const ContactPoint& p = points_[i];
     for (int c = 0; c < 3; ++c)
-      if (p.weight[c] != 0) g[static_cast<size_t>(p.vertex[c])] += (scale_ * p.weight[c]) * gi;
+      if (p.weight[c] != 0) g[static_cast<size_t>(p.vertex[c])] += p.weight[c] * gi;
   }
 }
 
@@ -118,7 +118,7 @@ void PenaltyContactTerm::add_hessian_product(std::span<const Vec3d> u, std::span
       if (p.weight[c] != 0) vp += p.weight[c] * v[static_cast<size_t>(p.vertex[c])];
     const Vec3d hv = point_hessian(u, i, false) * vp;
     for (int c = 0; c < 3; ++c)
-      if (p.weight[c] != 0) y[static_cast<size_t>(p.vertex[c])] += (scale_ * p.weight[c]) * hv;
+      if (p.weight[c] != 0) y[static_cast<size_t>(p.vertex[c])] += p.weight[c] * hv;
   }
 }
 
@@ -131,7 +131,7 @@ void PenaltyContactTerm::add_hessian_diagonal(std::span<const Vec3d> u, std::spa
       for (int b = 0; b < 3; ++b) {
         if (p.weight[a] == 0 || p.weight[b] == 0 || p.vertex[a] != p.vertex[b]) continue;
         Mat3d& block = d[static_cast<size_t>(p.vertex[a])];
-        block = block + (scale_ * p.weight[a] * p.weight[b]) * h;
+        block = block + (p.weight[a] * p.weight[b]) * h;
       }
   }
 }
@@ -145,7 +145,7 @@ void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b)
         if (p.weight[a] != 0 && p.weight[b] != 0)
-          hm.add(p.vertex[a], p.vertex[b], (scale_ * p.weight[a] * p.weight[b]) * h);
+          hm.add(p.vertex[a], p.vertex[b], (p.weight[a] * p.weight[b]) * h);
   }
 }
 
@@ -193,7 +193,7 @@ PenaltyContactTerm::Load PenaltyContactTerm::load(std::span<const Vec3d> u) cons
       ++out.contacts;
       out.depth = std::max(out.depth, -phi);
     }
-    out.force -= scale_ * point_gradient(u, i);
+    out.force -= point_gradient(u, i);
   }
   return out;
 }

@@ -56,8 +56,7 @@ std::vector<ContactPoint> face_contact_points(std::span<const std::array<int32_t
 /// Penalty contact of a tool on surface points, with Coulomb friction as an incremental
 /// potential. Per point: energy k phi^2 / 2 inside the tool (k = kappa x area) plus, where the
 /// lagged state was in contact, the friction potential about its anchor; a face point's
-/// energy is that of its position, so its gradient reaches the corners by their weights. Every
-/// value is scaled by set_scale (the needle's release after a puncture).
+/// energy is that of its position, so its gradient reaches the corners by their weights.
 ///
 /// (The explicit step's face law pushes along the triangle's normal where the triangle faces
 /// away from the tool, which is no gradient; here the load follows the distance field's normal,
@@ -86,7 +85,6 @@ class PenaltyContactTerm final : public EnergyTerm {
   void set_field(const ToolField& field) { field_ = field; }
   const ToolField& field() const { return field_; }
   /// Scales the term (energy, gradient, Hessian) by s >= 0.
-  void set_scale(double s) { scale_ = s; }
   /// Holds the friction's normal, cap and anchor of each point from the accepted state u for
   /// the coming step `step` (a point out of contact there gets none).
   void lag(std::span<const Vec3d> u, int64_t step);
@@ -122,7 +120,6 @@ class PenaltyContactTerm final : public EnergyTerm {
   std::span<const Vec3d> rest_;
   std::vector<ContactPoint> points_;
   double kappa_, mu_;
-  double scale_ = 1;
   int64_t step_ = 0;
   std::vector<Lagged> lagged_;       // (point count)
   std::vector<StickAnchor> anchor_;  // committed anchors, (point count)
