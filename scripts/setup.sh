@@ -2,7 +2,8 @@
 # Installs what zona needs on Debian 12 (apt), then the project's Python environment .venv
 # (a plain venv of Debian's python3, filled from PyPI with python/requirements.txt: nanobind for
 # the Python module, numpy, pytest, matplotlib, h5py and meshio). libhdf5-dev is for the XDMF +
-# HDF5 frame output (output.format "xdmf"; zona builds without it and refuses that format).
+# HDF5 frame output (output.format "xdmf"; zona builds without it and refuses that format);
+# libsuitesparse-dev (CHOLMOD, with OpenBLAS under it) is the static solver's direct oracle.
 # Idempotent: installs only what is missing.
 set -euo pipefail
 
@@ -12,7 +13,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libvulkan-dev glslc libglfw3-dev libstb-dev mesa-vulkan-drivers vulkan-validationlayers
   libimgui-dev fonts-dejavu-core
-  libhdf5-dev
+  libhdf5-dev libsuitesparse-dev libopenblas0-pthread
   python3 python3-matplotlib python3-numpy python3-dev python3-venv
 )
 

@@ -243,7 +243,8 @@ void read_integrator(Reader& root, Scene& scene) {
 void read_solver(Reader& root, Scene& scene) {
   Reader r = root.object("solver", {"method", "note", "travel_step", "min_travel_step",
                                     "tolerance", "linear", "preconditioner", "barrier_volume",
-                                    "medium_viscosity", "puncture_tolerance", "suction_steps"});
+                                    "medium_viscosity", "puncture_tolerance", "suction_steps",
+                                    "oracle"});
   if (!r.present()) return;
   SolverDef& s = scene.solver;
   r.choice("method",
@@ -268,6 +269,9 @@ void read_solver(Reader& root, Scene& scene) {
   r.quantity("puncture_tolerance", dim::kLength, &s.puncture_tolerance, Range::positive());
   int64_t steps = s.suction_steps;
   if (r.integer("suction_steps", &steps, 1, 1000)) s.suction_steps = static_cast<int>(steps);
+  r.boolean("oracle", &s.oracle);
+  if (s.oracle && s.linear == LinearSolverKind::kDirect)
+    r.fail("oracle", "checks the CG solves against the direct solver; linear is already \"direct\"");
   if (s.min_travel_step > s.travel_step) r.fail("min_travel_step", "larger than travel_step");
 }
 

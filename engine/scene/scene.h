@@ -132,6 +132,10 @@ struct SolverDef {
   double puncture_tolerance = 10e-9;
   /// Suction is ramped in over this many load steps before the needle moves.
   int suction_steps = 4;
+  /// Verification: every load step that converges with CG is solved again from the same start
+  /// by Newton on the direct solver, and the largest difference of the two goes to the summary
+  /// (docs/static.md, "The direct oracle"). Slow: for checking, not for results.
+  bool oracle = false;
 };
 
 /// Time stepping (explicit centred difference, Ladjal et al. eq. 7).

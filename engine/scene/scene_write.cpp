@@ -157,6 +157,7 @@ json scene_to_json(const Scene& scene) {
   solver["medium_viscosity"] = quantity_json(sv.medium_viscosity, kPressure * kTime);
   solver["puncture_tolerance"] = quantity_json(sv.puncture_tolerance, kLength);
   solver["suction_steps"] = sv.suction_steps;
+  solver["oracle"] = sv.oracle;
   j["solver"] = solver;
 
   json boundary = json::array();

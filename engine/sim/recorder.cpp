@@ -343,6 +343,10 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
       {"mass_raises", run.mass_raises},
       {"samples", run.samples.size()}};
   if (run.stopped_early) j["numerics"]["stop_reason"] = run.stop_reason;
+  if (run.oracle_solves > 0 || run.oracle_failures > 0)
+    j["numerics"]["oracle"] = {{"solves", run.oracle_solves},
+                               {"failures", run.oracle_failures},
+                               {"max_relative_difference", run.oracle_max_difference}};
   if (const ParticleModel* pm = sim.particle_model()) {
     // Particle model (Asgari et al.): how well eq. 6 kept the volume, and the model's size.
     j["volume_change_max_rel"] = sim.volume_change_max_rel();

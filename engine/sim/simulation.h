@@ -423,6 +423,11 @@ struct RunResult {
   /// Vertex masses raised by the dynamic mass scaling (penalty step; 0 elsewhere).
   int64_t mass_raises = 0;
   bool interrupted = false;           ///< RunOptions::stop ended the run before its end
+  /// The static solver's direct oracle (solver.oracle): load steps solved both ways, the ones
+  /// where the direct Newton did not converge, and the largest difference of the two solutions
+  /// over all of them, max_v |u_cg - u_direct| / max_v |u_direct| [-] (-1: none compared).
+  int64_t oracle_solves = 0, oracle_failures = 0;
+  double oracle_max_difference = -1;
   /// The quasi-static check over the run (the last report's): worst values, first failure.
   QuasiStaticState quasi;
   /// The limits it was judged by; quasi_limits.enforce: the experiment is quasi-static.

@@ -64,6 +64,9 @@ class StaticRun {
   // from the accepted state and the guess in u (updated). False with a reason in failure_.
   bool solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats);
   Measures measure(std::span<const Vec3d> u, double travel);
+  // solver.oracle: the solve just made, again from its start on the direct solver; the
+  // difference of the two solutions into the result.
+  void compare_with_oracle(std::span<const Vec3d> u);
   // Accepts u at travel s: commit, velocity, lag for the next step, the row.
   void accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats, bool row = true);
   ForceSample sample(const Measures& m, const NewtonStats& stats) const;
@@ -108,6 +111,7 @@ class StaticRun {
   double seek_force_ = -1;        // the load the release seeks [N]; < 0: none
   std::unique_ptr<InertiaTerm> inertia_;
   std::unique_ptr<NewtonSolver> newton_;
+  std::unique_ptr<NewtonSolver> oracle_;  // solver.oracle: the same solves on the direct solver
   std::vector<int32_t> suction_vertex_;
   std::vector<Vec3d> suction_load_;
   double suction_ramp_ = 0;
@@ -115,6 +119,8 @@ class StaticRun {
   double speed_ = 0, end_travel_ = 0;
   int export_count_ = 0;
   int all_slid_steps_ = 0;  // load steps running in which every rim contact slid
+
+  std::vector<Vec3d> oracle_start_;
 
   // The accepted state.
   std::vector<Vec3d> u_, v_, u_before_;
@@ -208,6 +214,9 @@ void StaticRun::build() {
       0.25 * (p_.needle.on ? p_.needle.radius : p_.rim.inner_radius);
   newton_ = std::make_unique<NewtonSolver>(terms, ElasticEnergy::hessian_pattern(model_),
                                            model_.vertex_fixed, std::move(linear), newton);
+  if (def_.oracle)
+    oracle_ = std::make_unique<NewtonSolver>(terms, ElasticEnergy::hessian_pattern(model_),
+                                             model_.vertex_fixed, make_direct_solver(), newton);
   // ZONA_EXPORT_HESSIAN=DIR: every Newton iteration's matrix (Matrix Market), the positions
   // rest + u and the right-hand side, for the preconditioner study (docs/static.md).
   if (const char* dir = std::getenv("ZONA_EXPORT_HESSIAN")) {
@@ -263,9 +272,28 @@ bool StaticRun::solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
   const double h = (ds > 0 ? ds : def_.travel_step) / speed_;
   inertia_->set_step(h, u_, v_);
   if (!std::isfinite(newton_->evaluate(u, {}))) u = u_;  // a guess past the barrier
+  if (oracle_) oracle_start_ = u;
   *stats = newton_->solve(u, force_tolerance());
   if (!stats->converged) failure_ = stats->failure;
+  if (oracle_ && stats->converged) compare_with_oracle(u);
   return stats->converged;
+}
+
+void StaticRun::compare_with_oracle(std::span<const Vec3d> u) {
+  std::vector<Vec3d> direct = oracle_start_;
+  const NewtonStats st = oracle_->solve(direct, force_tolerance());
+  if (!st.converged) {
+    ++result_.oracle_failures;
+    return;
+  }
+  double diff = 0, size = 0;
+  for (size_t i = 0; i < u.size(); ++i) {
+    diff = std::max(diff, norm(u[i] - direct[i]));
+    size = std::max(size, norm(direct[i]));
+  }
+  ++result_.oracle_solves;
+  result_.oracle_max_difference =
+      std::max(result_.oracle_max_difference, size > 0 ? diff / size : 0.0);
 }
 
 Measures StaticRun::measure(std::span<const Vec3d> u, double travel) {
@@ -614,6 +642,7 @@ RunResult StaticRun::run() {
         released_ = std::make_unique<SuctionTerm>(released_vertex_, released_load_,
                                                   "shaft drag");
         newton_->add_term(released_.get());
+        if (oracle_) oracle_->add_term(released_.get());
       }
       const double f0 = puncture_.force;
       const double released = 1.0 - pp.force_drop;

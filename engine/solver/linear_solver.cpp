@@ -4,6 +4,9 @@
 #include <cmath>
 
 #include <Eigen/SparseCholesky>
+#ifdef ZONA_HAVE_CHOLMOD
+#include <Eigen/CholmodSupport>
+#endif
 
 namespace zona {
 namespace {
@@ -33,30 +36,49 @@ class BlockJacobi final : public Preconditioner {
   std::vector<Mat3d> inverse_;
 };
 
+// The exact oracle: CHOLMOD's supernodal Cholesky (Debian's libsuitesparse-dev, multithreaded
+// through its BLAS) where the build found it, else Eigen's simplicial LDL^T. Both refuse a matrix
+// that is not positive definite, so that Newton takes the projected Hessian instead.
 class DirectSolver final : public LinearSolver {
  public:
-  const char* name() const override { return "direct (LDL^T)"; }
+#ifdef ZONA_HAVE_CHOLMOD
+  // A matrix that is not positive definite is an answer here (Newton projects), not a warning.
+  DirectSolver() { factor_.cholmod().print = 0; }
+#endif
+  const char* name() const override {
+#ifdef ZONA_HAVE_CHOLMOD
+    return "direct (CHOLMOD supernodal LL^T)";
+#else
+    return "direct (Eigen simplicial LDL^T)";
+#endif
+  }
   Status setup(const BlockSparseMatrix& a) override {
     matrix_ = a.to_eigen();
     if (!analysed_) {
-      ldlt_.analyzePattern(matrix_);
+      factor_.analyzePattern(matrix_);
       analysed_ = true;
     }
-    ldlt_.factorize(matrix_);
-    if (ldlt_.info() != Eigen::Success)
+    factor_.factorize(matrix_);
+#ifdef ZONA_HAVE_CHOLMOD
+    if (factor_.info() != Eigen::Success)
+      return make_error("the Hessian is not positive definite (CHOLMOD, %zu unknowns)",
+                        static_cast<size_t>(matrix_.rows()));
+#else
+    if (factor_.info() != Eigen::Success)
       return make_error("the direct solver could not factor the Hessian (%zu unknowns)",
                         static_cast<size_t>(matrix_.rows()));
-    if (!(ldlt_.vectorD().minCoeff() > 0))
+    if (!(factor_.vectorD().minCoeff() > 0))
       return make_error("the Hessian is not positive definite (a pivot of %.3g)",
-                        ldlt_.vectorD().minCoeff());
+                        factor_.vectorD().minCoeff());
+#endif
     return {};
   }
   Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
                                  double) override {
     const Eigen::Index n = matrix_.rows();
     Eigen::Map<const Eigen::VectorXd> rhs(&b[0].x, n);
-    Eigen::VectorXd x = ldlt_.solve(rhs);
-    if (ldlt_.info() != Eigen::Success || !x.allFinite())
+    Eigen::VectorXd x = factor_.solve(rhs);
+    if (factor_.info() != Eigen::Success || !x.allFinite())
       return make_error("the direct solve of the Newton step failed");
     Eigen::Map<Eigen::VectorXd>(&d[0].x, n) = x;
     LinearSolveStats stats;
@@ -67,7 +89,11 @@ class DirectSolver final : public LinearSolver {
 
  private:
   Eigen::SparseMatrix<double> matrix_;
-  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> ldlt_;
+#ifdef ZONA_HAVE_CHOLMOD
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> factor_;
+#else
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> factor_;
+#endif
   bool analysed_ = false;
 };
 

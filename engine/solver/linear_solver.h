@@ -46,7 +46,8 @@ class LinearSolver {
                                          double tolerance) = 0;
 };
 
-/// Eigen's simplicial LDL^T with AMD ordering (the pattern analysed once).
+/// The sparse direct solver (the pattern analysed once): CHOLMOD's supernodal Cholesky where
+/// the build has libcholmod (ZONA_HAVE_CHOLMOD), else Eigen's simplicial LDL^T with AMD ordering.
 std::unique_ptr<LinearSolver> make_direct_solver();
 /// CG preconditioned by `preconditioner`, at most max_iterations.
 std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,

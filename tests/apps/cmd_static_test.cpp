@@ -125,6 +125,34 @@ TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
     EXPECT_NEAR(ca["force_N"][i], cb["force_N"][i], 1e-3 * peak) << "row " << i;
 }
 
+// solver.oracle: every load step solved again from its start by Newton on the direct solver.
+// The two solutions differ by what the tolerance leaves (tighter tolerance, smaller difference),
+// and at 1e-8 by less than 1e-6 of the largest displacement.
+TEST(CmdRunStatic, TheDirectOracleAgreesWithCgToTheTolerance) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  auto oracle = [&](const std::string& tolerance) {
+    const fs::path out = dir.path / ("tol" + tolerance);
+    const CliRun r = run_zona("run " + scene.string() +
+                                  " --headless --no-frames --set needle.max_travel=5um "
+                                  "--set solver.oracle=true --set solver.tolerance=" +
+                                  tolerance + " --out " + out.string(),
+                              dir.path);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.out.find("direct oracle:"), std::string::npos) << r.out;
+    nlohmann::json s = nlohmann::json::parse(std::ifstream(out / "summary.json"));
+    const nlohmann::json& o = s["numerics"]["oracle"];
+    EXPECT_GE(o["solves"].get<int64_t>(), 5) << o.dump();
+    EXPECT_EQ(o["failures"].get<int64_t>(), 0) << o.dump();
+    return o["max_relative_difference"].get<double>();
+  };
+  const double loose = oracle("1e-5"), tight = oracle("1e-8");
+  EXPECT_LT(tight, 1e-6);
+  EXPECT_LT(tight, loose);
+  EXPECT_GE(tight, 0.0);
+}
+
 // `zona study convergence --solver static`: each size is a static run (its line counts load
 // steps, not time steps), and the summary compares the sizes' forces at 10 um.
 TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
@@ -168,6 +196,7 @@ TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
   one_line_error("--backend cuda", "runs on the CPU");
   one_line_error("--set solver.linear=qr", "solver.linear");
   one_line_error("--set solver.tolerance=0", "solver.tolerance");
+  one_line_error("--set solver.linear=direct --set solver.oracle=true", "solver.oracle");
 }
 
 }  // namespace
