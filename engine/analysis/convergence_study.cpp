@@ -285,7 +285,8 @@ ConvergenceStudy run_convergence_study(std::span<const Scene> scenes,
       run = summarize_convergence_run(target, result, deformations);
       run.vertices = static_cast<int64_t>(sim.mesh().vertex_count());
       run.tets = static_cast<int64_t>(sim.mesh().tet_count());
-      run.dt = sim.model().dt;
+      // A static run has load steps, not a time step.
+      run.dt = sim.scene().solver.method == SolverMethod::kStatic ? 0.0 : sim.model().dt;
       run.setup_seconds = setup_seconds;
       run.backend = sim.backend_description();
       run.notes = sim.notes();
@@ -328,7 +329,7 @@ std::string convergence_summary_csv(const ConvergenceStudy& study,
     std::vector<std::string> f = {std::to_string(r.target_vertices),
                                   std::to_string(r.vertices),
                                   std::to_string(r.tets),
-                                  ran ? format(r.dt) : "",
+                                  ran && r.dt > 0 ? format(r.dt) : "",
                                   std::to_string(r.steps),
                                   ran ? format(r.setup_seconds, "%.3f") : "",
                                   ran ? format(r.wall_seconds, "%.3f") : "",

@@ -74,7 +74,7 @@ struct ConvergenceRun {
   int64_t target_vertices = 0;  ///< the count asked of the mesher
   int64_t vertices = 0;         ///< the mesh's count (0 when setup failed)
   int64_t tets = 0;
-  double dt = 0;  ///< [s]
+  double dt = 0;  ///< [s]; 0 for a static run (its steps are load steps)
   int64_t steps = 0;
   double setup_seconds = 0;  ///< mesh, model and backend [s]
   double wall_seconds = 0;   ///< the run [s]

@@ -343,6 +343,10 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
       {"mass_raises", run.mass_raises},
       {"samples", run.samples.size()}};
   if (run.stopped_early) j["numerics"]["stop_reason"] = run.stop_reason;
+  if (scene.solver.method == SolverMethod::kStatic)
+    j["numerics"]["static"] = {{"newton_iterations", run.newton_iterations},
+                               {"krylov_iterations", run.krylov_iterations},
+                               {"failed_solves", run.failed_solves}};
   if (run.oracle_solves > 0 || run.oracle_failures > 0)
     j["numerics"]["oracle"] = {{"solves", run.oracle_solves},
                                {"failures", run.oracle_failures},

@@ -427,6 +427,9 @@ struct RunResult {
   /// where the direct Newton did not converge, and the largest difference of the two solutions
   /// over all of them, max_v |u_cg - u_direct| / max_v |u_direct| [-] (-1: none compared).
   int64_t oracle_solves = 0, oracle_failures = 0;
+  /// The static solver's work over the run, every solve counted (those that failed and were
+  /// retried with a shorter load step, the bisections' and the release's included).
+  int64_t newton_iterations = 0, krylov_iterations = 0, failed_solves = 0;
   double oracle_max_difference = -1;
   /// The quasi-static check over the run (the last report's): worst values, first failure.
   QuasiStaticState quasi;

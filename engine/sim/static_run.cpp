@@ -274,7 +274,12 @@ bool StaticRun::solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
   if (!std::isfinite(newton_->evaluate(u, {}))) u = u_;  // a guess past the barrier
   if (oracle_) oracle_start_ = u;
   *stats = newton_->solve(u, force_tolerance());
-  if (!stats->converged) failure_ = stats->failure;
+  result_.newton_iterations += stats->iterations;
+  result_.krylov_iterations += stats->krylov;
+  if (!stats->converged) {
+    failure_ = stats->failure;
+    ++result_.failed_solves;
+  }
   if (oracle_ && stats->converged) compare_with_oracle(u);
   return stats->converged;
 }

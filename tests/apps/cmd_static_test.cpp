@@ -175,8 +175,21 @@ TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
   ASSERT_TRUE(summary.good());
   std::string line;
   size_t rows = 0;
-  while (std::getline(summary, line))
-    if (!line.empty() && line[0] != '#') ++rows;
+  while (std::getline(summary, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    ++rows;
+    // target_vertices, vertices, tets, dt_s, steps: a static run has no time step.
+    std::vector<std::string> cells;
+    std::stringstream row(line);
+    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    ASSERT_GE(cells.size(), 5u) << line;
+    if (rows == 1) {
+      EXPECT_EQ(cells[3], "dt_s");
+    } else {
+      EXPECT_EQ(cells[3], "") << line;
+      EXPECT_GT(std::stoll(cells[4]), 0) << line;
+    }
+  }
   EXPECT_GE(rows, 3u);  // the header and a row per size
 }
 
