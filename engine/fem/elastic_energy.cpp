@@ -239,23 +239,26 @@ BlockSparseMatrix ElasticEnergy::hessian_pattern(const Model& m) {
 namespace {
 
 // The 9 x 9 matrix d^2 Psi / dF^2 of a law at h (row and column k = 3 r + c for F's entry
-// (r, c)), symmetrised; with `project`, its negative eigenvalues clamped to zero.
+// (r, c)), symmetrised; with `project`, its negative eigenvalues clamped to zero (in closed
+// form for the stable neo-Hookean law, by a 9 x 9 eigendecomposition for the others).
 Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const Mat3d& h,
                                            bool project) {
   Eigen::Matrix<double, 9, 9> q;
   if (law.model == ConstitutiveModel::kStableNeoHookean) {
+    // Closed form, and its projection too (snh_project_tangent): no eigendecomposition.
     double closed[9][9];
     snh_stress_tangent(law, h, closed);
+    if (project) snh_project_tangent(law, h, closed);
     for (int r = 0; r < 9; ++r)
       for (int c = 0; c < 9; ++c) q(r, c) = closed[r][c];
-  } else {
-    for (int k = 0; k < 9; ++k) {
-      Mat3d df = Mat3d::zero();
-      df.m[k / 3][k % 3] = 1;
-      const Mat3d dp = element_stress_differential(law, h, df);
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
-    }
+    return q;
+  }
+  for (int k = 0; k < 9; ++k) {
+    Mat3d df = Mat3d::zero();
+    df.m[k / 3][k % 3] = 1;
+    const Mat3d dp = element_stress_differential(law, h, df);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
   }
   q = 0.5 * (q + q.transpose()).eval();
   if (!project) return q;

@@ -183,6 +183,58 @@ ZONA_HOST_DEVICE ZONA_INLINE void snh_stress_tangent(const ElementLaw<T>& law, c
     }
 }
 
+/// snh_stress_tangent's Q projected to positive semi-definite in closed form: Q = mu I + a g g^T
+/// + b H_J has the eigensystem of d^2 J / dF^2 (Smith, de Goes and Kim, "Analytic eigensystems
+/// for isotropic distortion energies", 2019). With F = U diag(sigma) V^T (rotation_svd3), for each
+/// axis m and the other two i < k: the twist (u_i v_k^T - u_k v_i^T) / sqrt 2 with eigenvalue
+/// mu + b sigma_m and the flip (u_i v_k^T + u_k v_i^T) / sqrt 2 with mu - b sigma_m; the three
+/// scalings sum_j d_j u_j v_j^T with d the eigenvectors of the 3 x 3 mu I + a c c^T + b S,
+/// c = (sigma_2 sigma_3, sigma_1 sigma_3, sigma_1 sigma_2), S = [[0, s3, s2], [s3, 0, s1],
+/// [s2, s1, 0]]. Each negative eigenvalue's pair is taken out of q (which holds Q on entry).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void snh_project_tangent(const ElementLaw<T>& law, const Mat3<T>& h,
+                                                      T q[9][9]) {
+  const T jm1 = snh_volume_change(h);
+  const T lam = law.nodal ? snh_lambda(T(0), law.mu) : snh_lambda(law.lambda, law.mu);
+  T a = lam, b = lam * jm1 - law.mu + (law.nodal ? law.pressure : T(0));
+  if (law.barrier_volume > T(0)) {
+    const BarrierValue<T> bv =
+        volume_barrier(T(1) + jm1, law.barrier_volume, law.barrier_stiffness);
+    a += bv.d2;
+    b += bv.d1;
+  }
+  Vec3<T> uc[3], vc[3];
+  T sig[3];
+  rotation_svd3(h, uc, sig, vc);
+  // q -= lambda vec(E) vec(E)^T for a negative lambda (E of unit Frobenius norm).
+  auto remove = [&](T lambda, const Mat3<T>& e) {
+    if (!(lambda < T(0))) return;
+    for (int r = 0; r < 9; ++r)
+      for (int c = 0; c < 9; ++c)
+        q[r][c] -= lambda * e.m[r / 3][r % 3] * e.m[c / 3][c % 3];
+  };
+  const T inv_sqrt2 = T(0.70710678118654752440);
+  for (int m = 0; m < 3; ++m) {
+    const int i = m == 0 ? 1 : 0, k = m == 2 ? 1 : 2;
+    const Mat3<T> ik = outer(uc[i], vc[k]), ki = outer(uc[k], vc[i]);
+    remove(law.mu + b * sig[m], inv_sqrt2 * (ik - ki));
+    remove(law.mu - b * sig[m], inv_sqrt2 * (ik + ki));
+  }
+  const T c[3] = {sig[1] * sig[2], sig[0] * sig[2], sig[0] * sig[1]};
+  Mat3<T> scaling;
+  for (int r = 0; r < 3; ++r)
+    for (int col = 0; col < 3; ++col)
+      scaling.m[r][col] = a * c[r] * c[col] + (r == col ? law.mu : b * sig[3 - r - col]);
+  T ev[3];
+  Mat3<T> d;
+  symmetric_eigen3(scaling, ev, &d);
+  for (int e = 0; e < 3; ++e) {
+    Mat3<T> mode = Mat3<T>::zero();
+    for (int j = 0; j < 3; ++j) mode = mode + d.m[j][e] * outer(uc[j], vc[j]);
+    remove(ev[e], mode);
+  }
+}
+
 /// The element's energy [J] (element part) and its gradient dW/du at the corners [N] (the
 /// negated elastic forces of the explicit step), at corner displacements u [m].
 template <class T>

@@ -833,12 +833,13 @@ ZONA_HOST_DEVICE ZONA_INLINE void symmetric_eigen3(Mat3<T> a, T eval[3], Mat3<T>
   *evec = v;
 }
 
-/// Inversion-safe SVK first Piola-Kirchhoff stress [Pa] (see above). Returns the energy density
-/// [J/m^3] of the clamped state extended linearly below the clamp (continuous, but the clamped
-/// force is not exactly its gradient: use it for dynamics, not for energy checks).
+/// The rotation-variant SVD of F = I + h: F = U diag(sigma) V^T with U and V rotations (their
+/// columns `uc`, `vc`) and sigma_3 signed (negative when the element is inverted), sigma_1 >=
+/// sigma_2 >= |sigma_3| up to the sign. V from the eigenvectors of F^T F, U by Gram-Schmidt on
+/// F v1, F v2 (robust when a sigma is near zero), sigma_i = u_i . F v_i.
 template <class T>
-ZONA_HOST_DEVICE ZONA_INLINE T svk_first_piola_clamped(const Mat3<T>& h, T lambda, T mu,
-                                                      T stretch_min, Mat3<T>* p) {
+ZONA_HOST_DEVICE ZONA_INLINE void rotation_svd3(const Mat3<T>& h, Vec3<T> uc[3], T sig[3],
+                                               Vec3<T> vc[3]) {
   Mat3<T> f = h;
   for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
   T ev[3];
@@ -853,14 +854,12 @@ ZONA_HOST_DEVICE ZONA_INLINE T svk_first_piola_clamped(const Mat3<T>& h, T lambd
         o[j] = o[j + 1];
         o[j + 1] = tmp;
       }
-  Vec3<T> vc[3];
   for (int i = 0; i < 3; ++i) vc[i] = Vec3<T>{v.m[0][o[i]], v.m[1][o[i]], v.m[2][o[i]]};
   // V must be a rotation; flipping v3 moves the sign of det F onto s3 below.
   if (dot(vc[0], cross(vc[1], vc[2])) < T(0)) vc[2] = -vc[2];
   Vec3<T> fv[3];
   for (int i = 0; i < 3; ++i) fv[i] = f * vc[i];
   // U by Gram-Schmidt on F v1, F v2 (robust when an s_i is near zero); u3 completes a rotation.
-  Vec3<T> uc[3];
   const T n0 = norm(fv[0]);
   uc[0] = n0 > T(0) ? fv[0] / n0 : Vec3<T>{1, 0, 0};
   Vec3<T> w = fv[1] - dot(uc[0], fv[1]) * uc[0];
@@ -873,10 +872,21 @@ ZONA_HOST_DEVICE ZONA_INLINE T svk_first_piola_clamped(const Mat3<T>& h, T lambd
   }
   uc[1] = w / n1;
   uc[2] = cross(uc[0], uc[1]);
-  T sig[3], sh[3], eh[3];
+  for (int i = 0; i < 3; ++i) sig[i] = dot(uc[i], fv[i]);
+}
+
+/// Inversion-safe SVK first Piola-Kirchhoff stress [Pa] (see above). Returns the energy density
+/// [J/m^3] of the clamped state extended linearly below the clamp (continuous, but the clamped
+/// force is not exactly its gradient: use it for dynamics, not for energy checks).
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE T svk_first_piola_clamped(const Mat3<T>& h, T lambda, T mu,
+                                                      T stretch_min, Mat3<T>* p) {
+  Vec3<T> uc[3], vc[3];
+  T sig[3];
+  rotation_svd3(h, uc, sig, vc);
+  T sh[3], eh[3];
   T tr = 0;
   for (int i = 0; i < 3; ++i) {
-    sig[i] = dot(uc[i], fv[i]);  // signed principal stretch
     sh[i] = sig[i] > stretch_min ? sig[i] : stretch_min;
     eh[i] = T(0.5) * (sh[i] * sh[i] - T(1));
     tr += eh[i];

@@ -242,7 +242,8 @@ void read_integrator(Reader& root, Scene& scene) {
 
 void read_solver(Reader& root, Scene& scene) {
   Reader r = root.object("solver", {"method", "note", "travel_step", "min_travel_step",
-                                    "tolerance", "linear", "preconditioner", "barrier_volume",
+                                    "tolerance", "max_iterations", "linear", "preconditioner",
+                                    "barrier_volume",
                                     "medium_viscosity", "puncture_tolerance", "suction_steps",
                                     "oracle"});
   if (!r.present()) return;
@@ -267,6 +268,8 @@ void read_solver(Reader& root, Scene& scene) {
   r.quantity("medium_viscosity", dim::kPressure * dim::kTime, &s.medium_viscosity,
              Range::non_negative());
   r.quantity("puncture_tolerance", dim::kLength, &s.puncture_tolerance, Range::positive());
+  int64_t newton = s.max_iterations;
+  if (r.integer("max_iterations", &newton, 1, 1000)) s.max_iterations = static_cast<int>(newton);
   int64_t steps = s.suction_steps;
   if (r.integer("suction_steps", &steps, 1, 1000)) s.suction_steps = static_cast<int>(steps);
   r.boolean("oracle", &s.oracle);

@@ -119,6 +119,8 @@ struct SolverDef {
   /// Converged: the largest vertex force imbalance at most this fraction of the force scale,
   /// max(needle axial force, E_max tip_radius^2) [-].
   double tolerance = 1e-5;
+  /// A load step's Newton iterations before it counts as not converged (and is halved).
+  int max_iterations = 30;
   LinearSolverKind linear = LinearSolverKind::kCg;
   // Block Jacobi by default for now: with the multigrid the tiny held cell of
   // tests/apps/cmd_static_test.cpp ends "holder lost" at 2 um where the direct oracle does not

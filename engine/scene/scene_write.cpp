@@ -150,6 +150,7 @@ json scene_to_json(const Scene& scene) {
   solver["travel_step"] = quantity_json(sv.travel_step, kLength);
   solver["min_travel_step"] = quantity_json(sv.min_travel_step, kLength);
   solver["tolerance"] = sv.tolerance;
+  solver["max_iterations"] = sv.max_iterations;
   solver["linear"] = sv.linear == LinearSolverKind::kDirect ? "direct" : "cg";
   solver["preconditioner"] =
       sv.preconditioner == PreconditionerKind::kMultigrid ? "multigrid" : "jacobi";

@@ -208,6 +208,7 @@ void StaticRun::build() {
                                : make_block_jacobi(),
                            20000);
   NewtonOptions newton;
+  newton.max_iterations = def_.max_iterations;
   // A quarter of the tip's radius (the rim's bore without a needle) per trial: the contact's
   // length scale.
   newton.max_displacement =

@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -233,6 +235,50 @@ TEST(ElasticTerm, ClosedFormNeoHookeanTangentIsTheStressDifferential) {
                 << snh_volume_change(h) << " entry " << r << "," << k;
         }
       }
+}
+
+// The closed-form projection of the stable neo-Hookean tangent (its analytic eigensystem) is the
+// numeric one: Q with its negative eigenvalues clamped by a 9 x 9 eigendecomposition, on states
+// where Q is indefinite (an inverted element, a crushed one, a twisted one under nodal pressure)
+// and where it is not (then nothing changes).
+TEST(ElasticTerm, ClosedFormProjectionIsTheClampedEigendecomposition) {
+  const Mat3d states[] = {
+      Mat3d{{{0.3, 0.1, -0.05}, {0.02, -0.2, 0.15}, {0.1, 0.04, 0.25}}},    // stretched
+      Mat3d{{{-0.93, 0.1, 0.02}, {0.05, 0.02, -0.1}, {0.01, 0.03, 0.04}}},  // crushed
+      Mat3d{{{-1.4, 0.2, 0.0}, {0.1, -0.1, 0.05}, {0.0, 0.1, 0.1}}},        // inverted (J < 0)
+      Mat3d{{{0.0, 0.6, 0.0}, {-0.6, 0.0, 0.0}, {0.0, 0.0, 0.0}}},          // twisted
+      Mat3d{{{0.2, 0.0, 0.0}, {0.0, 0.2, 0.0}, {0.0, 0.0, 0.2}}},           // repeated stretches
+  };
+  int indefinite = 0;
+  for (const Mat3d& h : states)
+    for (bool nodal : {false, true})
+      for (double barrier : {0.0, 0.1}) {
+        ElementLaw<double> law;
+        law.lambda = 4e5;
+        law.mu = 6e3;
+        law.nodal = nodal;
+        law.pressure = nodal ? 8e4 : 0.0;
+        law.barrier_volume = barrier;
+        law.barrier_stiffness = barrier > 0 ? law.mu : 0.0;
+        double q[9][9];
+        snh_stress_tangent(law, h, q);
+        Eigen::Matrix<double, 9, 9> m;
+        for (int r = 0; r < 9; ++r)
+          for (int c = 0; c < 9; ++c) m(r, c) = q[r][c];
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(m);
+        indefinite += eig.eigenvalues().minCoeff() < 0 ? 1 : 0;
+        const Eigen::Matrix<double, 9, 9> clamped = eig.eigenvectors() *
+                                                    eig.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                                                    eig.eigenvectors().transpose();
+        snh_project_tangent(law, h, q);
+        const double scale = m.cwiseAbs().maxCoeff();
+        for (int r = 0; r < 9; ++r)
+          for (int c = 0; c < 9; ++c)
+            EXPECT_NEAR(q[r][c], clamped(r, c), 1e-9 * scale)
+                << "nodal " << nodal << " barrier " << barrier << " J - 1 "
+                << snh_volume_change(h) << " entry " << r << "," << c;
+      }
+  EXPECT_GE(indefinite, 4);  // the states do reach the projection
 }
 
 TEST(ElasticTerm, TheClampedSvkLawHasNoEnergyTerm) {
