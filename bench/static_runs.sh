@@ -3,8 +3,9 @@
 # side by side (one process each), every run stopped with SIGINT after LIMIT seconds (it then
 # writes what it has, and the row says "interrupted"). One CSV row per case: wall time, load
 # steps, Newton and CG iterations (CG per Newton iteration: mean and the largest row's), the
-# largest residual, and the force at 10 / 20 / 30 / 40 um of deformation (linear between rows;
-# the rows at those deformations are exact, docs/static.md).
+# largest residual, the force at 10 / 20 / 30 / 40 um of deformation (linear between rows;
+# the rows at those deformations are exact, docs/static.md), and every solve's Newton and CG
+# iterations with the failed solves (summary.json; the row columns count accepted steps only).
 #
 #   bench/static_runs.sh ZONA OUT_DIR LIMIT CASE...
 #   CASE = name:scene:vertices:preconditioner[:key=value,key=value...]
@@ -43,18 +44,26 @@ done
 for p in "${pids[@]}"; do wait "$p" || true; done
 
 csv="$out/static_runs.csv"
-echo "case,vertices,preconditioner,exit,wall_s,rows,newton,cg,cg_per_newton,cg_per_newton_max,residual_max_N,F10_uN,F20_uN,F30_uN,F40_uN" > "$csv"
+echo "case,vertices,preconditioner,exit,wall_s,rows,newton,cg,cg_per_newton,cg_per_newton_max,residual_max_N,F10_uN,F20_uN,F30_uN,F40_uN,newton_all,cg_all,failed_solves" > "$csv"
 for spec in "$@"; do
   IFS=: read -r name scene vertices precond extra <<< "$spec"
   read -r rc wall < "$out/$name/wall.txt"
   f="$out/$name/force.csv"
   if [ ! -s "$f" ]; then
-    echo "$name,$vertices,$precond,$rc,$wall,0,,,,,,,,," >> "$csv"
+    echo "$name,$vertices,$precond,$rc,$wall,0,,,,,,,,,,,," >> "$csv"
     continue
   fi
   # Columns by name (schema 4): deformation_m, force_N, newton_iterations, krylov_iterations,
   # residual_N.
-  awk -F, -v name="$name" -v v="$vertices" -v p="$precond" -v rc="$rc" -v wall="$wall" '
+  # Every solve of the run (summary.json numerics.static: the failed ones included).
+  all=",,"
+  if [ -s "$out/$name/summary.json" ]; then
+    n_all=$(grep -o '"newton_iterations": [0-9]*' "$out/$name/summary.json" | grep -o '[0-9]*$' || true)
+    k_all=$(grep -o '"krylov_iterations": [0-9]*' "$out/$name/summary.json" | grep -o '[0-9]*$' || true)
+    f_all=$(grep -o '"failed_solves": [0-9]*' "$out/$name/summary.json" | grep -o '[0-9]*$' || true)
+    all="$n_all,$k_all,$f_all"
+  fi
+  awk -F, -v name="$name" -v v="$vertices" -v p="$precond" -v rc="$rc" -v wall="$wall" -v all="$all" '
     /^#/ { next }
     !hdr { for (i = 1; i <= NF; i++) col[$i] = i; hdr = 1; next }
     {
@@ -72,7 +81,7 @@ for spec in "$@"; do
       printf "%s,%s,%s,%s,%.1f,%d,%d,%d,%.1f,%.1f,%.3g", name, v, p, rc, wall, rows, newton, cg,
              (newton > 0 ? cg / newton : 0), kmax, rmax
       for (t = 10; t <= 40; t += 10) printf ",%s", ((t in at) ? sprintf("%.4f", at[t]) : "")
-      printf "\n"
+      printf ",%s\n", all
     }' "$f" >> "$csv"
 done
 cat "$csv"
