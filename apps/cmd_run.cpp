@@ -445,10 +445,11 @@ void run_command(const RunArgs& args) {
                 run.peak_force * 1e6, static_cast<long long>(run.steps), sim.model().dt,
                 sim.model().mass_scaling, run.wall_seconds);
   if (run.oracle_solves > 0 || run.oracle_failures > 0)
-    std::printf("direct oracle: %lld load steps solved both ways, largest difference %.3g of the "
-                "largest displacement; %lld where the direct Newton did not converge\n",
-                static_cast<long long>(run.oracle_solves), run.oracle_max_difference,
-                static_cast<long long>(run.oracle_failures));
+    std::printf(
+        "direct oracle: %lld load steps solved both ways, largest difference %.3g of the "
+        "largest displacement; %lld where the direct Newton did not converge\n",
+        static_cast<long long>(run.oracle_solves), run.oracle_max_difference,
+        static_cast<long long>(run.oracle_failures));
   if (run.status != kStepOk) {
     std::string flags;
     for (const std::string& name : step_flag_names(run.status)) flags += (flags.empty() ? "" : ", ") + name;

@@ -210,8 +210,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void snh_project_tangent(const ElementLaw<T>& law, 
   auto remove = [&](T lambda, const Mat3<T>& e) {
     if (!(lambda < T(0))) return;
     for (int r = 0; r < 9; ++r)
-      for (int c = 0; c < 9; ++c)
-        q[r][c] -= lambda * e.m[r / 3][r % 3] * e.m[c / 3][c % 3];
+      for (int c = 0; c < 9; ++c) q[r][c] -= lambda * e.m[r / 3][r % 3] * e.m[c / 3][c % 3];
   };
   const T inv_sqrt2 = T(0.70710678118654752440);
   for (int m = 0; m < 3; ++m) {

@@ -839,7 +839,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void symmetric_eigen3(Mat3<T> a, T eval[3], Mat3<T>
 /// F v1, F v2 (robust when a sigma is near zero), sigma_i = u_i . F v_i.
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE void rotation_svd3(const Mat3<T>& h, Vec3<T> uc[3], T sig[3],
-                                               Vec3<T> vc[3]) {
+                                                Vec3<T> vc[3]) {
   Mat3<T> f = h;
   for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
   T ev[3];
@@ -880,7 +880,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void rotation_svd3(const Mat3<T>& h, Vec3<T> uc[3],
 /// force is not exactly its gradient: use it for dynamics, not for energy checks).
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE T svk_first_piola_clamped(const Mat3<T>& h, T lambda, T mu,
-                                                      T stretch_min, Mat3<T>* p) {
+                                                       T stretch_min, Mat3<T>* p) {
   Vec3<T> uc[3], vc[3];
   T sig[3];
   rotation_svd3(h, uc, sig, vc);

@@ -241,11 +241,10 @@ void read_integrator(Reader& root, Scene& scene) {
 }
 
 void read_solver(Reader& root, Scene& scene) {
-  Reader r = root.object("solver", {"method", "note", "travel_step", "min_travel_step",
-                                    "tolerance", "max_iterations", "linear", "preconditioner",
-                                    "barrier_volume",
-                                    "medium_viscosity", "puncture_tolerance", "suction_steps",
-                                    "oracle"});
+  Reader r =
+      root.object("solver", {"method", "note", "travel_step", "min_travel_step", "tolerance",
+                             "max_iterations", "linear", "preconditioner", "barrier_volume",
+                             "medium_viscosity", "puncture_tolerance", "suction_steps", "oracle"});
   if (!r.present()) return;
   SolverDef& s = scene.solver;
   r.choice("method",
@@ -274,7 +273,8 @@ void read_solver(Reader& root, Scene& scene) {
   if (r.integer("suction_steps", &steps, 1, 1000)) s.suction_steps = static_cast<int>(steps);
   r.boolean("oracle", &s.oracle);
   if (s.oracle && s.linear == LinearSolverKind::kDirect)
-    r.fail("oracle", "checks the CG solves against the direct solver; linear is already \"direct\"");
+    r.fail("oracle",
+           "checks the CG solves against the direct solver; linear is already \"direct\"");
   if (s.min_travel_step > s.travel_step) r.fail("min_travel_step", "larger than travel_step");
 }
 

@@ -43,7 +43,9 @@ class DirectSolver final : public LinearSolver {
  public:
 #ifdef ZONA_HAVE_CHOLMOD
   // A matrix that is not positive definite is an answer here (Newton projects), not a warning.
-  DirectSolver() { factor_.cholmod().print = 0; }
+  DirectSolver() {
+    factor_.cholmod().print = 0;
+  }
 #endif
   const char* name() const override {
 #ifdef ZONA_HAVE_CHOLMOD
@@ -92,7 +94,8 @@ class DirectSolver final : public LinearSolver {
 #ifdef ZONA_HAVE_CHOLMOD
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> factor_;
 #else
-  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> factor_;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int> >
+      factor_;
 #endif
   bool analysed_ = false;
 };

@@ -7,7 +7,6 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
-
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -275,8 +274,8 @@ TEST(ElasticTerm, ClosedFormProjectionIsTheClampedEigendecomposition) {
         for (int r = 0; r < 9; ++r)
           for (int c = 0; c < 9; ++c)
             EXPECT_NEAR(q[r][c], clamped(r, c), 1e-9 * scale)
-                << "nodal " << nodal << " barrier " << barrier << " J - 1 "
-                << snh_volume_change(h) << " entry " << r << "," << c;
+                << "nodal " << nodal << " barrier " << barrier << " J - 1 " << snh_volume_change(h)
+                << " entry " << r << "," << c;
       }
   EXPECT_GE(indefinite, 4);  // the states do reach the projection
 }
