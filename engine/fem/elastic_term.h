@@ -142,6 +142,22 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLa
   }
 }
 
+/// The coefficients of the stable neo-Hookean tangent Q = mu I + a g g^T + b H_J at J - 1 = jm1
+/// (snh_stress_tangent): a = lambda_s + psi_b'', b = lambda_s (J - 1) - mu + p + psi_b'.
+template <class T>
+ZONA_HOST_DEVICE ZONA_INLINE void snh_tangent_coefficients(const ElementLaw<T>& law, T jm1, T* a,
+                                                           T* b) {
+  const T lam = law.nodal ? snh_lambda(T(0), law.mu) : snh_lambda(law.lambda, law.mu);
+  *a = lam;
+  *b = lam * jm1 - law.mu + (law.nodal ? law.pressure : T(0));
+  if (law.barrier_volume > T(0)) {
+    const BarrierValue<T> bv =
+        volume_barrier(T(1) + jm1, law.barrier_volume, law.barrier_stiffness);
+    *a += bv.d2;
+    *b += bv.d1;
+  }
+}
+
 /// The stable neo-Hookean law's d^2 Psi / dF^2 in closed form, q[3 r + c][3 s + d] = d P_rc /
 /// d F_sd [Pa] at displacement gradient h (the columns of element_stress_differential for the
 /// law, at a ninth of its cost):
@@ -155,14 +171,8 @@ ZONA_HOST_DEVICE ZONA_INLINE void snh_stress_tangent(const ElementLaw<T>& law, c
   for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
   const Mat3<T> cof = snh_cofactor_of_f(h);
   const T jm1 = snh_volume_change(h);
-  const T lam = law.nodal ? snh_lambda(T(0), law.mu) : snh_lambda(law.lambda, law.mu);
-  T a = lam, b = lam * jm1 - law.mu + (law.nodal ? law.pressure : T(0));
-  if (law.barrier_volume > T(0)) {
-    const BarrierValue<T> bv =
-        volume_barrier(T(1) + jm1, law.barrier_volume, law.barrier_stiffness);
-    a += bv.d2;
-    b += bv.d1;
-  }
+  T a, b;
+  snh_tangent_coefficients(law, jm1, &a, &b);
   for (int r = 0; r < 9; ++r)
     for (int c = 0; c < 9; ++c)
       q[r][c] = a * cof.m[r / 3][r % 3] * cof.m[c / 3][c % 3] + (r == c ? law.mu : T(0));
@@ -195,14 +205,8 @@ template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE void snh_project_tangent(const ElementLaw<T>& law, const Mat3<T>& h,
                                                       T q[9][9]) {
   const T jm1 = snh_volume_change(h);
-  const T lam = law.nodal ? snh_lambda(T(0), law.mu) : snh_lambda(law.lambda, law.mu);
-  T a = lam, b = lam * jm1 - law.mu + (law.nodal ? law.pressure : T(0));
-  if (law.barrier_volume > T(0)) {
-    const BarrierValue<T> bv =
-        volume_barrier(T(1) + jm1, law.barrier_volume, law.barrier_stiffness);
-    a += bv.d2;
-    b += bv.d1;
-  }
+  T a, b;
+  snh_tangent_coefficients(law, jm1, &a, &b);
   Vec3<T> uc[3], vc[3];
   T sig[3];
   rotation_svd3(h, uc, sig, vc);

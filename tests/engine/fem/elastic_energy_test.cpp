@@ -204,6 +204,19 @@ TEST(ElasticTerm, ElementProductIsTheElementStiffnessTimesTheDirection) {
   }
 }
 
+// A stable neo-Hookean element law (lambda 400 kPa, mu 6 kPa), with nodal pressure p held or not,
+// the volume barrier from `barrier` (0: off).
+ElementLaw<double> snh_law(bool nodal, double pressure, double barrier) {
+  ElementLaw<double> law;
+  law.lambda = 4e5;
+  law.mu = 6e3;
+  law.nodal = nodal;
+  law.pressure = nodal ? pressure : 0.0;
+  law.barrier_volume = barrier;
+  law.barrier_stiffness = barrier > 0 ? law.mu : 0.0;
+  return law;
+}
+
 // The stable neo-Hookean tangent in closed form is the stress differential's columns, with and
 // without nodal pressure, the volume barrier active (J below its threshold) or not.
 TEST(ElasticTerm, ClosedFormNeoHookeanTangentIsTheStressDifferential) {
@@ -212,13 +225,7 @@ TEST(ElasticTerm, ClosedFormNeoHookeanTangentIsTheStressDifferential) {
   for (const Mat3d& h : {stretched, crushed})
     for (bool nodal : {false, true})
       for (double barrier : {0.0, 0.1}) {
-        ElementLaw<double> law;
-        law.lambda = 4e5;
-        law.mu = 6e3;
-        law.nodal = nodal;
-        law.pressure = nodal ? 2.5e3 : 0.0;
-        law.barrier_volume = barrier;
-        law.barrier_stiffness = barrier > 0 ? law.mu : 0.0;
+        const ElementLaw<double> law = snh_law(nodal, 2.5e3, barrier);
         double q[9][9];
         snh_stress_tangent(law, h, q);
         double scale = 0;
@@ -252,13 +259,7 @@ TEST(ElasticTerm, ClosedFormProjectionIsTheClampedEigendecomposition) {
   for (const Mat3d& h : states)
     for (bool nodal : {false, true})
       for (double barrier : {0.0, 0.1}) {
-        ElementLaw<double> law;
-        law.lambda = 4e5;
-        law.mu = 6e3;
-        law.nodal = nodal;
-        law.pressure = nodal ? 8e4 : 0.0;
-        law.barrier_volume = barrier;
-        law.barrier_stiffness = barrier > 0 ? law.mu : 0.0;
+        const ElementLaw<double> law = snh_law(nodal, 8e4, barrier);
         double q[9][9];
         snh_stress_tangent(law, h, q);
         Eigen::Matrix<double, 9, 9> m;
