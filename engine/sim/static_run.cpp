@@ -466,6 +466,8 @@ RunResult StaticRun::run() {
   // lagged; the full suction is then solved to the tolerance, re-lagged up to
   // kSettleSteps times.
   constexpr int kSettleSteps = 4, kRampIterations = 6;
+  // The first release step, as a fraction of the puncture load.
+  constexpr double kReleaseFirstStep = 0.125;
   if (suction_) {
     for (int k = 1; k <= def_.suction_steps + kSettleSteps && !result_.stopped_early; ++k) {
       suction_ramp_ = std::min(1.0, static_cast<double>(k) / def_.suction_steps);
@@ -650,6 +652,11 @@ RunResult StaticRun::run() {
         newton_->add_term(released_.get());
         if (oracle_) oracle_->add_term(released_.get());
       }
+      // Release steps: each draws the pose back by the load the loading branch's slope (then
+      // the release's own secant slope) says, from a guess continued from the last release
+      // step. A step on the way is a continuation state, not a result: it takes the load it
+      // lands on. The last one is matched to the released load by a secant on the pose (to 1e-3
+      // of the puncture load). A step that does not converge is halved.
       const double f0 = puncture_.force;
       const double released = 1.0 - pp.force_drop;
       // The loading branch's slope at the puncture [N/m], for the first guess.
@@ -657,33 +664,42 @@ RunResult StaticRun::run() {
           travel_before_ >= 0 && hi > travel_before_
               ? (f0 - last_force_before_) / (hi - travel_before_) : 0.0,
           std::fabs(f0) / std::max(hi, 1e-9));
-      std::vector<Vec3d> ur = u_;
-      double fraction = 1, dfraction = 0.5;
-      while (fraction > released && !result_.stopped_early) {
+      std::vector<Vec3d> ur = u_, ur_prev;
+      double pose_prev = 0, fraction = 1, dfraction = kReleaseFirstStep, slope = slope0;
+      while (fraction > released * (1 + 1e-9) && !result_.stopped_early) {
         const double next = std::max(released, fraction - dfraction);
+        const bool last = next == released;
         const double target = next * f0;
         seek_force_ = std::fabs(target);
-        std::vector<Vec3d> trial_r = ur;
         const double held = held_travel_;
-        double e = held - (fraction - next) * f0 / slope0, force = 0;
+        double e = held - (fraction - next) * f0 / slope, force = 0;
+        std::vector<Vec3d> trial_r = ur;
+        if (!ur_prev.empty() && held != pose_prev) {
+          const double w = (e - held) / (held - pose_prev);
+          for (size_t i = 0; i < trial_r.size(); ++i) trial_r[i] += w * (ur[i] - ur_prev[i]);
+        }
         double e_lo = held, f_lo = fraction * f0;
         bool ok = false;
         for (int it = 0; it < 12; ++it) {
           held_travel_ = e;
           if (!solve_at(hi, trial_r, &stats)) break;
           force = measure(trial_r, hi).force;
-          if (std::fabs(force - target) <= 1e-3 * std::fabs(f0)) {
+          if (!last || std::fabs(force - target) <= 1e-3 * std::fabs(f0)) {
             ok = true;
             break;
           }
-          const double slope = force != f_lo && e != e_lo ? (force - f_lo) / (e - e_lo) : slope0;
+          const double s_it = force != f_lo && e != e_lo ? (force - f_lo) / (e - e_lo) : slope;
           e_lo = e;
           f_lo = force;
-          e -= (force - target) / (slope > 0 ? slope : slope0);
+          e -= (force - target) / (s_it > 0 ? s_it : slope);
         }
-        if (ok) {
-          fraction = next;
+        if (ok && force < fraction * f0) {
+          if (e != held) slope = std::max((fraction * f0 - force) / (held - e), 1e-3 * slope0);
+          fraction = last ? released : force / f0;
+          ur_prev.swap(ur);
           ur.swap(trial_r);
+          pose_prev = held;
+          if (stats.iterations <= 4) dfraction *= 1.5;
         } else {
           held_travel_ = held;
           if ((dfraction *= 0.5) < 1e-3)
