@@ -699,6 +699,8 @@ RunResult StaticRun::run() {
           ur_prev.swap(ur);
           ur.swap(trial_r);
           pose_prev = held;
+          // A load step of its own: its friction committed and lagged, as the loading's are.
+          if (!last) accept(ur, hi, stats, false);
           if (stats.iterations <= 4) dfraction *= 1.5;
         } else {
           held_travel_ = held;
@@ -712,6 +714,7 @@ RunResult StaticRun::run() {
       seek_force_ = -1;
       if (result_.stopped_early) break;
       accept(ur, hi, stats);
+      travel_before_ = -1;  // the predictor continues no step across the release
       next_target = targets.size();  // rows at set deformations are the loading branch's
       if (options_.stop_after_puncture >= 0) break;
       continue;
