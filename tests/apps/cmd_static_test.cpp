@@ -104,6 +104,32 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   EXPECT_TRUE(fs::exists(out / "frames.pvd"));
 }
 
+// After the release the needle carries the released load and keeps it (no shaft drag here),
+// with the needle's friction on: the release unloads in load steps whose friction is committed
+// and lagged as the loading's are. (Friction held from the puncture state through the whole
+// unloading left the needle 21 % above the released load one step later.)
+TEST(CmdRunStatic, TheReleasedLoadStaysWithTheNeedlesFriction) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  const fs::path out = dir.path / "out";
+  const CliRun r = run_zona("run " + scene.string() +
+                                " --headless --no-frames --set needle.friction=0.3 "
+                                "--set needle.max_travel=17um --out " + out.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto c = read_csv(out / "force.csv");
+  const std::vector<double>& f = c["force_N"];
+  const std::vector<double>& punct = c["punctured"];
+  size_t first = 0;
+  while (first < punct.size() && punct[first] == 0) ++first;
+  ASSERT_LT(first + 3, punct.size()) << "the travel goes on past the release";
+  const double released = f[first];
+  EXPECT_NEAR(released, 0.06e-6, 1e-3 * 0.6e-6);
+  for (size_t i = first + 1; i < f.size(); ++i)
+    EXPECT_NEAR(f[i], released, 0.05 * released) << "row " << i;
+}
+
 // The regulariser (the real mass and the medium's drag) holds the cell's spin on the rim and
 // nothing else: ten times the viscosity leaves the curve where it was.
 TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
