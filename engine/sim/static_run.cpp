@@ -213,11 +213,16 @@ void StaticRun::build() {
   // length scale.
   newton.max_displacement =
       0.25 * (p_.needle.on ? p_.needle.radius : p_.rim.inner_radius);
+  // ZONA_NEWTON_TRACE=1: a line per Newton iteration and per solve on stderr.
+  if (const char* t = std::getenv("ZONA_NEWTON_TRACE"); t != nullptr && t[0] != '0')
+    newton.trace = stderr;
   newton_ = std::make_unique<NewtonSolver>(terms, ElasticEnergy::hessian_pattern(model_),
                                            model_.vertex_fixed, std::move(linear), newton);
-  if (def_.oracle)
+  if (def_.oracle) {
+    newton.trace = nullptr;
     oracle_ = std::make_unique<NewtonSolver>(terms, ElasticEnergy::hessian_pattern(model_),
                                              model_.vertex_fixed, make_direct_solver(), newton);
+  }
   // ZONA_EXPORT_HESSIAN=DIR: every Newton iteration's matrix (Matrix Market), the positions
   // rest + u and the right-hand side, for the preconditioner study (docs/static.md).
   if (const char* dir = std::getenv("ZONA_EXPORT_HESSIAN")) {
@@ -274,6 +279,9 @@ bool StaticRun::solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
   inertia_->set_step(h, u_, v_);
   if (!std::isfinite(newton_->evaluate(u, {}))) u = u_;  // a guess past the barrier
   if (oracle_) oracle_start_ = u;
+  if (newton_->options().trace)
+    std::fprintf(newton_->options().trace, "solve travel_um %.6g from_um %.6g suction %.4g\n",
+                 s * 1e6, travel_ * 1e6, suction_ramp_);
   *stats = newton_->solve(u, force_tolerance());
   result_.newton_iterations += stats->iterations;
   result_.krylov_iterations += stats->krylov;

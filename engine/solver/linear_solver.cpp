@@ -116,6 +116,11 @@ class CgSolver final : public LinearSolver {
     q_.resize(n);
     return preconditioner_->setup(a);
   }
+  Status refresh(const BlockSparseMatrix& a) override {
+    if (a_ == nullptr || a.rows() != r_.size()) return setup(a);
+    a_ = &a;
+    return preconditioner_->refresh(a);
+  }
   Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> x,
                                  double tolerance) override {
     const size_t n = b.size();

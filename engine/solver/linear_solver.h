@@ -19,8 +19,12 @@ class Preconditioner {
  public:
   virtual ~Preconditioner() = default;
   virtual const char* name() const = 0;
-  /// Builds from the matrix (after its mask); called once per Newton iteration.
+  /// Builds from the matrix (after its mask).
   virtual Status setup(const BlockSparseMatrix& a) = 0;
+  /// Takes a matrix of the pattern of the last setup whose values moved a little (the next
+  /// Newton iteration's): whatever is cheap to redo is redone, the rest is kept from the last
+  /// setup, and M stays symmetric positive definite. By default the whole setup.
+  virtual Status refresh(const BlockSparseMatrix& a) { return setup(a); }
   virtual void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const = 0;
 };
 
@@ -40,6 +44,9 @@ class LinearSolver {
   virtual const char* name() const = 0;
   /// Takes the matrix of this Newton iteration (masked; kept by reference until the solve).
   virtual Status setup(const BlockSparseMatrix& a) = 0;
+  /// The same for a matrix close to the last setup's (Preconditioner::refresh); by default the
+  /// whole setup.
+  virtual Status refresh(const BlockSparseMatrix& a) { return setup(a); }
   /// Solves to a relative residual `tolerance` (the direct solver ignores it); d is the
   /// starting guess on entry (CG), the solution on exit.
   virtual Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,

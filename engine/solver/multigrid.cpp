@@ -134,6 +134,15 @@ class LatticeMultigrid final : public Preconditioner {
     return factor_coarsest();
   }
 
+  // The finest level's smoother follows the matrix (its diagonal blocks and spectral bound);
+  // the coarse operators and the coarsest factor stay the last setup's, which keeps the cycle
+  // symmetric positive definite (each level's smoother is the one of its own operator).
+  Status refresh(const BlockSparseMatrix& a) override {
+    if (levels_.empty() || a.block_count() != pattern_blocks_) return setup(a);
+    levels_[0].a = &a;
+    return smoother(levels_[0], 0);
+  }
+
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override { cycle(0, r, z); }
 
  private:

@@ -65,6 +65,8 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
   for (const Vec3d& v : g_) gnorm += dot(v, v);
   gnorm = std::sqrt(gnorm);
   double gnorm_prev = 0, eta = options_.forcing_max;
+  bool last_project = false;
+  int64_t cg_at_setup = 0, last_cg = 0;
   stats.residual = max_imbalance(g_);
   stats.energy = e;
   while (stats.residual > tolerance) {
@@ -75,6 +77,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
                     "tolerance %.3g N)",
                     options_.max_iterations, stats.residual, tolerance);
       stats.failure = line;
+      if (options_.trace) std::fprintf(options_.trace, "newton end failed (iterations)\n");
       return stats;
     }
     // Forcing term: loose far from the answer, tight near it.
@@ -84,11 +87,18 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     // The exact Hessian first; the projected one where the exact one is not positive definite.
     double slope = 0;
     int64_t cg = 0;
+    int project_used = 0;
     std::string why;
     for (bool project : {false, true}) {
       const BlockSparseMatrix& h = hessian(u, project);
       if (on_hessian) on_hessian(h, u, g_);
-      if (Status st = linear_->setup(h); !st) {
+      // The preconditioner's whole setup at a solve's first iteration, on a change between the
+      // exact and the projected Hessian, and where the last refreshed one let CG take more than
+      // twice the iterations of the last whole setup; a refresh otherwise.
+      const bool full = stats.iterations == 0 || project != last_project ||
+                        last_cg > 2 * cg_at_setup + 4;
+      last_project = project;
+      if (Status st = full ? linear_->setup(h) : linear_->refresh(h); !st) {
         why = st.error().message;
         continue;
       }
@@ -102,10 +112,13 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
         continue;
       }
       cg += ls->iterations;
+      last_cg = ls->iterations;
+      if (full) cg_at_setup = ls->iterations;
       slope = 0;
       for (size_t i = 0; i < n; ++i) slope += dot(g_[i], d_[i]);
       if (slope < 0) {
         stats.projected += project ? 1 : 0;
+        project_used = project ? 1 : 0;
         break;
       }
       why = "the Newton direction does not descend";
@@ -139,8 +152,19 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
                       "(force imbalance %.3g N)",
                       stats.residual);
         stats.failure = line;
+        if (options_.trace) std::fprintf(options_.trace, "newton end failed (line search)\n");
         return stats;
       }
+    }
+    if (options_.trace) {
+      size_t at = 0;
+      for (size_t i = 0; i < n; ++i)
+        if (norm(g_[i]) > norm(g_[at])) at = i;
+      std::fprintf(options_.trace,
+                   "newton iteration %d residual %.4e at_vertex %zu step %.4g of %.4g "
+                   "energy_change %.4e slope %.4e cg %lld projected %d\n",
+                   stats.iterations, stats.residual, at, alpha / alpha_start, alpha_start,
+                   e_trial - e, slope, static_cast<long long>(cg), project_used);
     }
     u.swap(trial_);
     e = evaluate(u, g_);
@@ -153,6 +177,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     ++stats.iterations;
   }
   stats.converged = true;
+  if (options_.trace) std::fprintf(options_.trace, "newton end converged %d\n", stats.iterations);
   return stats;
 }
 

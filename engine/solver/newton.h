@@ -13,6 +13,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <functional>
 #include <span>
 #include <string>
@@ -38,6 +39,10 @@ struct NewtonOptions {
   /// tool) and the cell's weakly held rigid motions make full steps overshoot by orders of
   /// magnitude; a cap of a fraction of the contact's length scale keeps each trial local.
   double max_displacement = 0;
+  /// Where each iteration writes one line (its residual and the vertex it sits at, the line
+  /// search's step, the energy change, CG iterations) and each solve its end; null: nowhere.
+  /// The diagnostic of docs/static.md's "Cost" (ZONA_NEWTON_TRACE).
+  std::FILE* trace = nullptr;
 };
 
 /// How a solve went.

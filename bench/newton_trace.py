@@ -1,0 +1,55 @@
+#!/usr/bin/env python3
+"""Summarise a static run's Newton trace (ZONA_NEWTON_TRACE=1 zona run ... --solver static 2> T).
+
+Prints the solves (converged / failed) with their Newton iterations, the line search's steps
+(how far below the capped step it backtracked: 2^-k), the vertices where the residual sat in
+the iterations that backtracked, and, with --solves, every solve's travel and outcome.
+
+    python3 bench/newton_trace.py T [--solves]
+"""
+import collections
+import math
+import sys
+
+
+def main():
+    if len(sys.argv) < 2:
+        print(__doc__.strip(), file=sys.stderr)
+        return 2
+    solves = []
+    for line in open(sys.argv[1]):
+        f = line.split()
+        if not f:
+            continue
+        if f[0] == "solve":
+            solves.append({"travel": float(f[2]), "its": [], "end": None})
+        elif f[0] == "newton" and f[1] == "iteration" and solves:
+            solves[-1]["its"].append(dict(zip(f[3::2], f[4::2])))
+        elif f[0] == "newton" and f[1] == "end" and solves:
+            solves[-1]["end"] = f[2]
+    ok = [s for s in solves if s["end"] == "converged"]
+    bad = [s for s in solves if s["end"] == "failed"]
+    count = lambda ss: sum(len(s["its"]) for s in ss)
+    print(f"solves {len(solves)}: converged {len(ok)} ({count(ok)} Newton iterations), "
+          f"failed {len(bad)} ({count(bad)})")
+    steps = collections.Counter()
+    where = collections.Counter()
+    for s in solves:
+        for it in s["its"]:
+            a = float(it["step"])
+            k = round(-math.log2(a)) if a > 0 else 99
+            steps[k] += 1
+            if k > 0:
+                where[it["at_vertex"]] += 1
+    print("line search steps 2^-k (k: iterations):",
+          ", ".join(f"{k}: {n}" for k, n in sorted(steps.items())))
+    print("residual's vertex in backtracked iterations (vertex: iterations):",
+          ", ".join(f"{v}: {n}" for v, n in where.most_common(12)))
+    if "--solves" in sys.argv:
+        for s in solves:
+            print(f"  travel {s['travel']:.4f} um  {s['end']}  {len(s['its'])}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
