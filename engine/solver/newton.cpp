@@ -46,10 +46,19 @@ const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u, bool pr
   return h_;
 }
 
+size_t NewtonSolver::largest_imbalance_vertex(std::span<const Vec3d> g) const {
+  size_t at = 0;
+  double r = -1;
+  for (size_t i = 0; i < g.size(); ++i)
+    if (const double x = norm(g[i]); x > r) {
+      r = x;
+      at = i;
+    }
+  return at;
+}
+
 double NewtonSolver::max_imbalance(std::span<const Vec3d> g) const {
-  double r = 0;
-  for (const Vec3d& v : g) r = std::max(r, norm(v));
-  return r;
+  return g.empty() ? 0.0 : norm(g[largest_imbalance_vertex(g)]);
 }
 
 NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
@@ -157,13 +166,10 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       }
     }
     if (options_.trace) {
-      size_t at = 0;
-      for (size_t i = 0; i < n; ++i)
-        if (norm(g_[i]) > norm(g_[at])) at = i;
       std::fprintf(options_.trace,
                    "newton iteration %d residual %.4e at_vertex %zu step %.4g of %.4g "
                    "energy_change %.4e slope %.4e cg %lld projected %d\n",
-                   stats.iterations, stats.residual, at, alpha / alpha_start, alpha_start,
+                   stats.iterations, stats.residual, largest_imbalance_vertex(g_), alpha / alpha_start, alpha_start,
                    e_trial - e, slope, static_cast<long long>(cg), project_used);
     }
     u.swap(trial_);

@@ -83,6 +83,7 @@ class NewtonSolver {
 
  private:
   double max_imbalance(std::span<const Vec3d> g) const;
+  size_t largest_imbalance_vertex(std::span<const Vec3d> g) const;
 
   std::vector<EnergyTerm*> terms_;
   BlockSparseMatrix h_;

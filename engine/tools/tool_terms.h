@@ -84,7 +84,6 @@ class PenaltyContactTerm final : public EnergyTerm {
   /// The tool's pose for the coming step.
   void set_field(const ToolField& field) { field_ = field; }
   const ToolField& field() const { return field_; }
-  /// Scales the term (energy, gradient, Hessian) by s >= 0.
   /// Holds the friction's normal, cap and anchor of each point from the accepted state u for
   /// the coming step `step` (a point out of contact there gets none).
   void lag(std::span<const Vec3d> u, int64_t step);
