@@ -104,10 +104,9 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   ZONA_ASSERT(x.size() == rows() && y.size() == rows());
   // Rows (and terms) split over the machine's threads (each row written by one: the same bits
   // for any count); short matrices stay on the caller's thread.
-  static const int threads = setup_thread_count(0);
   const size_t terms = rank_one_terms();
   if (terms > 0)
-    parallel_ranges(terms, threads, 1024, [&](size_t, size_t begin, size_t end) {
+    pooled_ranges(terms, 1024, [&](size_t, size_t begin, size_t end) {
       for (size_t k = begin; k < end; ++k) {
         double s = 0;
         for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
@@ -116,7 +115,7 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
         r1_scratch_[k] = coefficients_[k] * s;
       }
     });
-  parallel_ranges(rows(), threads, 1024, [&](size_t, size_t begin, size_t end) {
+  pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
       Vec3d s{0, 0, 0};
       for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k)

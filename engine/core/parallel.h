@@ -1,13 +1,17 @@
 // A static split of an index range over short-lived threads, for setup (model build, mass
 // scaling): each range is a fixed function of (n, threads), so work that writes only what its
 // indices own, and reductions combined in range order, give the same bits for any thread count.
-// The step's parallel passes use ThreadPool instead (long-lived workers, claimed chunks).
+// The step's parallel passes use ThreadPool instead (long-lived workers, claimed chunks);
+// passes that run many times a second outside a step take pooled_ranges (the same ranges on the
+// shared ThreadPool).
 #pragma once
 
 #include <algorithm>
 #include <cstddef>
 #include <thread>
 #include <vector>
+
+#include "engine/core/thread_pool.h"
 
 namespace zona {
 
@@ -40,6 +44,30 @@ size_t parallel_ranges(size_t n, int threads, size_t min_per_range, const F& wor
   work(size_t{0}, size_t{0}, n / ranges);
   for (std::thread& t : pool) t.join();
   return ranges;
+}
+
+/// parallel_ranges on the process's shared ThreadPool (try_acquire_shared_pool) instead of
+/// threads started per call, with the ranges parallel_ranges makes for the pool's thread count
+/// (so the same bits); on threads of its own while another caller holds the pool.
+template <class F>
+size_t pooled_ranges(size_t n, size_t min_per_range, const F& work) {
+  ThreadPool* pool = try_acquire_shared_pool();
+  if (pool == nullptr) return parallel_ranges(n, setup_thread_count(0), min_per_range, work);
+  struct Job {
+    const F* work;
+    size_t n, ranges;
+  } job{&work, n, parallel_range_count(n, pool->thread_count(), min_per_range)};
+  if (job.ranges == 1) {
+    work(size_t{0}, size_t{0}, n);
+  } else {
+    pool->run(static_cast<int64_t>(job.ranges), [](void* context, int64_t begin, int64_t end) {
+      const Job& j = *static_cast<const Job*>(context);
+      for (size_t r = static_cast<size_t>(begin); r < static_cast<size_t>(end); ++r)
+        (*j.work)(r, j.n * r / j.ranges, j.n * (r + 1) / j.ranges);
+    }, &job);
+  }
+  release_shared_pool();
+  return job.ranges;
 }
 
 /// Sorts [first, last) by `comp`: ranges sorted side by side, then merged pairwise, the pairs

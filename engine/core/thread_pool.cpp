@@ -3,6 +3,7 @@
 #include "engine/core/thread_pool.h"
 
 #include <algorithm>
+#include <mutex>
 
 #include "engine/core/base.h"
 
@@ -149,5 +150,18 @@ void ThreadPool::worker_main(int index) {
     drain(index);
   }
 }
+
+namespace {
+std::mutex shared_pool_mutex;
+}  // namespace
+
+ThreadPool* try_acquire_shared_pool() {
+  if (!shared_pool_mutex.try_lock()) return nullptr;
+  static std::unique_ptr<ThreadPool> pool;  // started under the lock, on first use
+  if (!pool) pool = std::make_unique<ThreadPool>(0);
+  return pool.get();
+}
+
+void release_shared_pool() { shared_pool_mutex.unlock(); }
 
 }  // namespace zona

@@ -85,4 +85,11 @@ class ThreadPool {
   uint32_t job_ = 0;
 };
 
+/// The process's shared pool of the hardware's threads, for passes that run many times a
+/// second outside a backend's step (the static solver's matrix products and Hessian assembly:
+/// parallel.h's pooled_ranges), started on first use; null while another caller holds it (two
+/// static runs on threads of one process). Give it back with release_shared_pool.
+ThreadPool* try_acquire_shared_pool();
+void release_shared_pool();
+
 }  // namespace zona

@@ -329,7 +329,6 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   index_blocks(hm);
   std::span<Mat3d> values = hm.values();
   if (m.nodal_pressure) vertex_pressures(u);
-  static const int threads = setup_thread_count(0);
   auto element = [&](size_t t) {
     Vec3d ue[4];
     corners(u, t, ue);
@@ -362,14 +361,14 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   // block sums its elements in colour order (the same bits for any thread count).
   for (size_t c = 0; c + 1 < colour_offsets_.size(); ++c) {
     const size_t begin = static_cast<size_t>(colour_offsets_[c]);
-    parallel_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, threads, 8,
-                    [&](size_t, size_t b, size_t e) {
-                      for (size_t k = begin + b; k < begin + e; ++k) {
-                        const size_t r = static_cast<size_t>(colour_runs_[k]);
-                        for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
-                          element(t);
-                      }
-                    });
+    pooled_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, 8,
+                  [&](size_t, size_t b, size_t e) {
+                    for (size_t k = begin + b; k < begin + e; ++k) {
+                      const size_t r = static_cast<size_t>(colour_runs_[k]);
+                      for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
+                        element(t);
+                    }
+                  });
   }
   if (!m.nodal_pressure) return;
   // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star, as the matrix's rank-one
@@ -378,7 +377,7 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
               hm.rank_one_vectors().size() == star_.size());
   std::span<double> coefficient = hm.rank_one_coefficients();
   std::span<Vec3d> vectors = hm.rank_one_vectors();
-  parallel_ranges(m.vertex_count(), threads, 1024, [&](size_t, size_t begin, size_t end) {
+  pooled_ranges(m.vertex_count(), 1024, [&](size_t, size_t begin, size_t end) {
     for (size_t v = begin; v < end; ++v) {
       coefficient[v] = m.vertex_lambda[v] * m.vertex_inverse_volume[v];  // this term's alone
       star_gradient(v, u, vectors.data() + star_offsets_[v]);
