@@ -7,10 +7,11 @@
 // the centre particle form a "body mesh" whose tetrahedra are the fans from the centre to each
 // membrane triangle. That mesh gives the shared Model (rest positions, masses, fixed vertices,
 // dt, contact search adjacency) and the ContactSurface, so the needle, holding pipette,
-// puncture, measurement and recording code of engine/sim/ (the host step) run unchanged; only the
-// internal forces and the update differ: particle_step() replaces zona::step() (same State, same
-// prescribed-vertex and status semantics), and a particle Backend replaces the FEM one
-// (engine/sim/backend_cpu.h's make_particle_cpu_backend, kernels/particle_backend.h). This
+// puncture, measurement and recording stages of the job's step (engine/sim/) run unchanged; only
+// the internal forces and the update differ: particle_step() replaces zona::step() (same State,
+// same prescribed-vertex and status semantics; engine/sim/particle_body.h), in place or on a
+// particle Backend (engine/sim/backend_cpu.h's make_particle_cpu_backend,
+// kernels/particle_backend.h). This
 // folder sits below engine/sim/: it knows the Model, the State and the step's status flags
 // (engine/fem/), not the simulation or its Backend interface.
 #pragma once

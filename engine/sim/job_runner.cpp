@@ -19,8 +19,8 @@ namespace {
 
 class CpuJobRunner final : public JobRunner {
  public:
-  CpuJobRunner(Model& model, State& state, const JobSetup& setup)
-      : model_(model), state_(state), setup_(setup), records_(setup.sample_capacity) {
+  CpuJobRunner(Model& model, State& state, const JobSetup& setup, BodyStep* body)
+      : model_(model), state_(state), setup_(setup), body_(body), records_(setup.sample_capacity) {
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
@@ -65,6 +65,7 @@ class CpuJobRunner final : public JobRunner {
   int64_t mass_raises() override { return mass_raises_; }
 
   std::string description() const override {
+    if (body_) return "cpu: tool stages on the host; body: " + body_->description();
     return "cpu: " + std::to_string(state_.pool->thread_count()) +
            " thread(s), float64, stages in place";
   }
@@ -275,9 +276,9 @@ class CpuJobRunner final : public JobRunner {
   }
 
   // StepStage::kElastic and kIntegrate: the element pass and the centred-difference update
-  // (integrator.cpp's step).
+  // (integrator.cpp's step), or the body's own (the particle model).
   StepStatus elastic_and_integrate() {
-    StepStatus status = step(model_, state_);
+    StepStatus status = body_ ? body_->step(model_, state_) : step(model_, state_);
     // The integrator's own energy test counts the damping loads as work put in; the job's
     // budget (tools only) replaces it.
     status &= ~static_cast<StepStatus>(kStepEnergyBlowUp);
@@ -327,6 +328,7 @@ class CpuJobRunner final : public JobRunner {
   Model& model_;
   State& state_;
   JobSetup setup_;
+  BodyStep* body_ = nullptr;  // the body's elastic and integrate stages, else the FEM pass
   JobState job_;
   std::vector<Vec3d> force_prev_;  // f(u_{n-2}) for the damping stage [N], (vertex_count)
   std::vector<Vec3d> tool_force_;     // this step's tool loads [N], (tool vertex count)
@@ -389,9 +391,9 @@ std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model
   return marks;
 }
 
-std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
-                                               const JobSetup& setup) {
-  return std::make_unique<CpuJobRunner>(model, state, setup);
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state, const JobSetup& setup,
+                                               BodyStep* body) {
+  return std::make_unique<CpuJobRunner>(model, state, setup, body);
 }
 
 }  // namespace zona

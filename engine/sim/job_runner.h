@@ -13,6 +13,7 @@
 #include "engine/sim/job.h"
 #include "engine/fem/model.h"
 #include "engine/fem/state.h"
+#include "engine/fem/step_status.h"
 
 namespace zona {
 
@@ -112,8 +113,22 @@ class JobRunner {
 std::vector<uint8_t> job_contact_marks(const JobSetup& setup, const Model& model,
                                        const State& state, Vec3d tip);
 
-/// The CPU runner over the simulation's own model and state (kept by reference).
-std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state,
-                                               const JobSetup& setup);
+/// The elastic and integrate stages of a body whose internal forces are not the FEM element
+/// pass (the particle model's springs, dashpots and hydraulic pressure): one explicit step with
+/// zona::step's contract over `state` (the tools' loads in state.external_force; u, u_prev,
+/// force, diag and time advanced in place, also when the body runs on a Backend).
+class BodyStep {
+ public:
+  virtual ~BodyStep() = default;
+  virtual StepStatus step(const Model& model, State& state) = 0;
+  /// One line: where the body's stages run.
+  virtual std::string description() const = 0;
+};
+
+/// The CPU runner over the simulation's own model and state (kept by reference). `body`, when
+/// given (and kept by reference), runs the elastic and integrate stages instead of the FEM
+/// element pass (zona::step).
+std::unique_ptr<JobRunner> make_cpu_job_runner(Model& model, State& state, const JobSetup& setup,
+                                               BodyStep* body = nullptr);
 
 }  // namespace zona

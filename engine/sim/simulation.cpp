@@ -537,8 +537,7 @@ Status Simulation::setup_quasi_static(SetupContext&) {
 // The device-resident job (penalty contact): its setup may raise masses for the contact's
 // stable step, so it comes before the backend takes the model (simulation_job.cpp).
 Status Simulation::setup_job(SetupContext& setup) {
-  setup.job_path = scene_.contact.model == ContactModel::kPenalty && !particles_ &&
-                   indent_vertices_.empty() &&
+  setup.job_path = scene_.contact.model == ContactModel::kPenalty && indent_vertices_.empty() &&
                    (has_needle_ || (holding_ && holding_->mode == HoldingMode::kSuction));
   return setup.job_path ? prepare_job() : Status::ok_status();
 }

@@ -3,10 +3,11 @@
 // simulation.cpp), stepped in two halves so that the haptic thread can hand in the needle pose
 // between them (as mj_step1 / mj_step2 do in MuJoCo; simulation_step.cpp).
 //
-// The step is the job's (engine/sim/job.h, stages named in step_stage.h) for every FEM scene
-// with a tool: step2 hands one step to the runner, the pose entering through JobRunner::set_tip.
-// The particle model, an indentation boundary and contact.model "kinematic" take the host step
-// of the kinematic contact (docs/architecture.md, "One engine"):
+// The step is the job's (engine/sim/job.h, stages named in step_stage.h) for every scene with a
+// tool, the particle model's too (its body stages: particle_body.h): step2 hands one step to the
+// runner, the pose entering through JobRunner::set_tip. An indentation boundary and
+// contact.model "kinematic" take the host step of the kinematic contact (docs/architecture.md,
+// "One engine"):
 //
 //   step1:  1. tools      needle pose at t_{n+1} from its script
 //           -- set_needle_tip() may replace the pose here --
@@ -38,6 +39,7 @@
 #include "engine/fem/model.h"
 #include "engine/tools/needle.h"
 #include "engine/particles/particle_model.h"
+#include "engine/sim/particle_body.h"
 #include "engine/tools/puncture.h"
 #include "engine/sim/quasi_static.h"
 #include "engine/scene/scene.h"
@@ -229,9 +231,13 @@ class Simulation {
   /// The particle model (scene model "particles"), else null.
   const ParticleModel* particle_model() const { return particles_.get(); }
   /// Particle model: relative change of the enclosed volume at the last step, (V - V0) / V0 [-].
-  double volume_change_rel() const { return volume_change_rel_; }
+  double volume_change_rel() const {
+    return particle_body_ ? particle_body_->volume_change_rel() : volume_change_rel_;
+  }
   /// Particle model: largest |V - V0| / V0 seen so far [-].
-  double volume_change_max_rel() const { return volume_change_max_rel_; }
+  double volume_change_max_rel() const {
+    return particle_body_ ? particle_body_->volume_change_max_rel() : volume_change_max_rel_;
+  }
 
  private:
   Simulation() = default;
@@ -342,6 +348,7 @@ class Simulation {
 
   // Job path.
   JobSetup job_setup_;
+  std::unique_ptr<ParticleBody> particle_body_;  // the particle model's stages on the job step
   std::unique_ptr<JobRunner> cpu_job_;  // the CPU runner (a GPU backend owns its own)
   JobRunner* job_ = nullptr;
   PunctureRecord job_puncture_;

@@ -32,13 +32,37 @@ Status Simulation::prepare_job() {
   // tool's radius, so that it is a property of the tool and the cell, not of the mesh.
   double young_max = 0;
   for (const Material& m : model_.materials) young_max = std::max(young_max, m.young);
+  if (particles_) young_max = particles_->membrane_modulus;  // the body's material is a placeholder
   const bool suction = holding_ && holding_->mode == HoldingMode::kSuction;
   const double radius =
       has_needle_ ? scene_.needle.tip_radius : (suction ? holding_->geometry.inner_radius : 0.0);
   if (!(radius > 0) || !(young_max > 0))
     return make_error("%s: contact: no tool radius or material modulus to scale the contact "
                       "stiffness with", name.c_str());
-  const double kappa = scene_.contact.stiffness * young_max / radius;
+  double kappa = scene_.contact.stiffness * young_max / radius;
+  if (particles_) {
+    // The particle model's membrane is as stiff as its explicit step carries (dt_safety up to
+    // 0.9 of the springs' limit), and its masses are already scaled for it: raising them for a
+    // contact spring of the FEM's scale would multiply the membrane's inertia (by 168 on the
+    // 642-particle cell). Its penalty is the stiffest that the step carries without a raise,
+    // kappa A_v dt^2 <= m_v / 4 at every free membrane vertex (omega^2 dt^2 grows by at most
+    // 1/4 over the springs' own); contact.stiffness does not apply.
+    double cap = std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < surface_.vertices.size(); ++i) {
+      const size_t v = static_cast<size_t>(surface_.vertices[i]);
+      const double area = surface_.vertex_area[i];
+      if (model_.vertex_fixed[v] || !(area > 0)) continue;
+      cap = std::min(cap, 0.25 * model_.vertex_mass[v] / (area * model_.dt * model_.dt));
+    }
+    if (!std::isfinite(cap))
+      return make_error("%s: contact: no free membrane particle for the needle to touch", name.c_str());
+    kappa = cap;
+    char line[200];
+    std::snprintf(line, sizeof line,
+                  "contact: the particle membrane's penalty %.4g Pa/m (the stiffest its step "
+                  "carries without a mass raise)", kappa);
+    notes_.push_back(line);
+  }
 
   if (has_needle_) {
     if (!script_.trajectory.time.empty())
@@ -155,6 +179,7 @@ Status Simulation::prepare_job() {
     const double m = model_.vertex_mass[v];
     if (!(need > m) || model_.vertex_fixed[v]) continue;
     set_vertex_mass(model_, v, need);
+    if (particles_) particles_->mass[v] = need;  // particle_step's own masses
     added += need - m;
     ++raised;
   }
@@ -235,8 +260,14 @@ Status Simulation::prepare_job() {
 Status Simulation::start_job() {
   // A CPU backend object is only a test hook of the kinematic path: the CPU runner works on the
   // simulation's own state in place.
-  if (backend_ && std::string(backend_->name()) == "cpu") backend_.reset();
-  if (backend_) {
+  if (backend_ && std::string(backend_->name()) == "cpu" && !particles_) backend_.reset();
+  if (particles_) {
+    // The particle model: the job's tool, measure and record stages on the host around its
+    // own elastic and integrate stages (in place, or on its Backend: ParticleBody).
+    particle_body_ = std::make_unique<ParticleBody>(*particles_, backend_.get());
+    cpu_job_ = make_cpu_job_runner(model_, state_, job_setup_, particle_body_.get());
+    job_ = cpu_job_.get();
+  } else if (backend_) {
     Result<JobRunner*> runner = backend_->start_job(job_setup_);
     if (!runner.ok()) return make_error("%s: %s", scene_.name.c_str(), runner.error().message.c_str());
     job_ = *runner;

@@ -1,7 +1,7 @@
 // The injection experiment's split step (step1 / step2, as mj_step1 / mj_step2): the job's
 // stages (engine/sim/job.h, through Simulation::runner()) on the penalty-contact path, else the
-// host step of the kinematic contact (engine/tools/contact.h), which the particle model, the
-// indentation boundary and contact.model "kinematic" take (docs/architecture.md, "One engine").
+// host step of the kinematic contact (engine/tools/contact.h), which the indentation boundary
+// and contact.model "kinematic" take (docs/architecture.md, "One engine").
 // Setup is engine/sim/simulation.cpp, the run driver engine/sim/run.cpp.
 #include <algorithm>
 #include <cmath>
