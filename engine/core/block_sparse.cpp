@@ -56,7 +56,11 @@ BlockSparseMatrix::BlockSparseMatrix(std::vector<int64_t> offsets, std::vector<i
 }
 
 void BlockSparseMatrix::set_zero() {
-  std::fill(values_.begin(), values_.end(), Mat3d::zero());
+  // (Tens of megabytes at 64k vertices: on the shared pool.)
+  pooled_chunks(values_.size(), 1 << 16, [&](size_t, size_t begin, size_t end) {
+    std::fill(values_.begin() + static_cast<std::ptrdiff_t>(begin),
+              values_.begin() + static_cast<std::ptrdiff_t>(end), Mat3d::zero());
+  });
   std::fill(coefficients_.begin(), coefficients_.end(), 0.0);
   std::fill(r1_vectors_.begin(), r1_vectors_.end(), Vec3d{0, 0, 0});
 }

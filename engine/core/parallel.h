@@ -70,6 +70,19 @@ size_t pooled_ranges(size_t n, size_t min_per_range, const F& work) {
   return job.ranges;
 }
 
+/// Fixed chunks of `chunk` indices over [0, n) on the shared pool (pooled_ranges over the
+/// chunks): work(c, begin, end) for chunk c = [c chunk, min(n, (c + 1) chunk)). The chunks do not
+/// depend on the thread count, so results kept per chunk and combined in chunk order are the same
+/// bits on any machine. Returns the chunk count.
+template <class F>
+size_t pooled_chunks(size_t n, size_t chunk, const F& work) {
+  const size_t count = (n + chunk - 1) / chunk;
+  pooled_ranges(count, 1, [&](size_t, size_t begin, size_t end) {
+    for (size_t c = begin; c < end; ++c) work(c, c * chunk, std::min(n, (c + 1) * chunk));
+  });
+  return count;
+}
+
 /// Sorts [first, last) by `comp`: ranges sorted side by side, then merged pairwise, the pairs
 /// of each level side by side. With a strict total order on the elements (no two equivalent),
 /// the result is the one sorted sequence, whatever the thread count.

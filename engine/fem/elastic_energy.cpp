@@ -85,56 +85,121 @@ ElementLaw<double> ElasticEnergy::law(size_t t) const {
   return law;
 }
 
+void ElasticEnergy::colour_runs() {
+  const Model& m = *model_;
+  if (!colour_offsets_.empty() || m.tet_count() == 0) return;
+  // Greedy colouring of runs of kRun consecutive elements (the mesh's order keeps a run's
+  // blocks close in memory): each run takes the first colour that no run sharing a corner with
+  // it has yet.
+  const size_t runs = (m.tet_count() + kRun - 1) / kRun;
+  std::vector<int32_t> colour(runs, -1);
+  std::vector<uint8_t> taken;
+  int32_t colours = 0;
+  for (size_t r = 0; r < runs; ++r) {
+    taken.assign(static_cast<size_t>(colours) + 1, 0);
+    for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
+      for (int32_t v : m.tets[t])
+        for (int32_t k = m.adjacency.offsets[static_cast<size_t>(v)];
+             k < m.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
+          const int32_t c =
+              colour[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]) / kRun];
+          if (c >= 0) taken[static_cast<size_t>(c)] = 1;
+        }
+    int32_t c = 0;
+    while (taken[static_cast<size_t>(c)]) ++c;
+    colour[r] = c;
+    colours = std::max(colours, c + 1);
+  }
+  colour_offsets_.assign(static_cast<size_t>(colours) + 1, 0);
+  for (int32_t c : colour) ++colour_offsets_[static_cast<size_t>(c) + 1];
+  for (size_t c = 0; c < static_cast<size_t>(colours); ++c)
+    colour_offsets_[c + 1] += colour_offsets_[c];
+  colour_runs_.resize(runs);
+  std::vector<int64_t> next(colour_offsets_.begin(), colour_offsets_.end() - 1);
+  for (size_t r = 0; r < runs; ++r)
+    colour_runs_[static_cast<size_t>(next[static_cast<size_t>(colour[r])]++)] =
+        static_cast<int32_t>(r);
+  run_sum_.assign(runs, 0.0);
+}
+
+template <class F>
+double ElasticEnergy::coloured_sum(const F& f) {
+  colour_runs();
+  const size_t nt = model_->tet_count();
+  for (size_t c = 0; c + 1 < colour_offsets_.size(); ++c) {
+    const size_t begin = static_cast<size_t>(colour_offsets_[c]);
+    pooled_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, 8,
+                  [&](size_t, size_t b, size_t e) {
+                    for (size_t k = begin + b; k < begin + e; ++k) {
+                      const size_t r = static_cast<size_t>(colour_runs_[k]);
+                      double sum = 0;
+                      for (size_t t = r * kRun; t < std::min(nt, (r + 1) * kRun); ++t) sum += f(t);
+                      run_sum_[r] = sum;
+                    }
+                  });
+  }
+  double total = 0;
+  for (double x : run_sum_) total += x;
+  return total;
+}
+
 double ElasticEnergy::vertex_pressures(std::span<const Vec3d> u) {
   const Model& m = *model_;
   // Pass 1: sum_e V_e / 4 (J_e - 1) at each corner.
   std::fill(scratch_.begin(), scratch_.end(), 0.0);
-  for (size_t t = 0; t < m.tet_count(); ++t) {
+  coloured_sum([&](size_t t) {
     Vec3d ue[4];
     corners(u, t, ue);
     const double q = 0.25 * m.tet_shape[t].volume *
                      snh_volume_change(tet_displacement_gradient(m.tet_shape[t], ue));
     for (int c = 0; c < 4; ++c) scratch_[static_cast<size_t>(m.tets[t][c])] += q;
-  }
+    return 0.0;
+  });
   // Pass 2: Jbar_v - 1, the pressure lambda_v (Jbar_v - 1) and the energy V_v lambda_v / 2
-  // (Jbar_v - 1)^2.
+  // (Jbar_v - 1)^2, per fixed chunk of vertices, the chunks summed in order.
+  constexpr size_t kChunk = 4096;
+  chunk_sum_.resize((m.vertex_count() + kChunk - 1) / kChunk);
+  pooled_chunks(m.vertex_count(), kChunk, [&](size_t c, size_t begin, size_t end) {
+    double energy = 0;
+    for (size_t v = begin; v < end; ++v) {
+      const double inv_volume = m.vertex_inverse_volume[v];
+      const double jm1 = scratch_[v] * inv_volume;
+      pressure_[v] = m.vertex_lambda[v] * jm1;
+      if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
+    }
+    chunk_sum_[c] = energy;
+  });
   double energy = 0;
-  for (size_t v = 0; v < m.vertex_count(); ++v) {
-    const double inv_volume = m.vertex_inverse_volume[v];
-    const double jm1 = scratch_[v] * inv_volume;
-    pressure_[v] = m.vertex_lambda[v] * jm1;
-    if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
-  }
+  for (double x : chunk_sum_) energy += x;
   return energy;
 }
 
 double ElasticEnergy::energy(std::span<const Vec3d> u) {
   const Model& m = *model_;
   ZONA_ASSERT(u.size() == m.vertex_count());
-  double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
-  for (size_t t = 0; t < m.tet_count(); ++t) {
+  const double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
+  return w + coloured_sum([&](size_t t) {
     Vec3d ue[4];
     corners(u, t, ue);
     // The element part (element_stress leaves the pressure's energy to the vertices' sum).
     Mat3d p;
     double jm1;
-    w += m.tet_shape[t].volume *
-         element_stress(law(t), tet_displacement_gradient(m.tet_shape[t], ue), &p, &jm1);
-  }
-  return w;
+    return m.tet_shape[t].volume *
+           element_stress(law(t), tet_displacement_gradient(m.tet_shape[t], ue), &p, &jm1);
+  });
 }
 
 double ElasticEnergy::add_gradient_energy(std::span<const Vec3d> u, std::span<Vec3d> g) {
   const Model& m = *model_;
   ZONA_ASSERT(u.size() == m.vertex_count() && g.size() == m.vertex_count());
-  double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
-  for (size_t t = 0; t < m.tet_count(); ++t) {
+  const double w = m.nodal_pressure ? vertex_pressures(u) : 0.0;
+  return w + coloured_sum([&](size_t t) {
     Vec3d ue[4], ge[4];
     corners(u, t, ue);
-    w += tet_energy_gradient(m.tet_shape[t], law(t), ue, ge);
+    const double e = tet_energy_gradient(m.tet_shape[t], law(t), ue, ge);
     for (int c = 0; c < 4; ++c) g[static_cast<size_t>(m.tets[t][c])] += ge[c];
-  }
-  return w;
+    return e;
+  });
 }
 
 void ElasticEnergy::add_hessian_product(std::span<const Vec3d> u, std::span<const Vec3d> v,
@@ -288,37 +353,6 @@ void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b)
         element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
-  // Greedy colouring of runs of kRun consecutive elements (the mesh's order keeps a run's
-  // blocks close in memory): each run takes the first colour that no run sharing a corner with
-  // it has yet.
-  const size_t runs = (m.tet_count() + kRun - 1) / kRun;
-  std::vector<int32_t> colour(runs, -1);
-  std::vector<uint8_t> taken;
-  int32_t colours = 0;
-  for (size_t r = 0; r < runs; ++r) {
-    taken.assign(static_cast<size_t>(colours) + 1, 0);
-    for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
-      for (int32_t v : m.tets[t])
-        for (int32_t k = m.adjacency.offsets[static_cast<size_t>(v)];
-             k < m.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
-          const int32_t c =
-              colour[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)]) / kRun];
-          if (c >= 0) taken[static_cast<size_t>(c)] = 1;
-        }
-    int32_t c = 0;
-    while (taken[static_cast<size_t>(c)]) ++c;
-    colour[r] = c;
-    colours = std::max(colours, c + 1);
-  }
-  colour_offsets_.assign(static_cast<size_t>(colours) + 1, 0);
-  for (int32_t c : colour) ++colour_offsets_[static_cast<size_t>(c) + 1];
-  for (size_t c = 0; c < static_cast<size_t>(colours); ++c)
-    colour_offsets_[c + 1] += colour_offsets_[c];
-  colour_runs_.resize(runs);
-  std::vector<int64_t> next(colour_offsets_.begin(), colour_offsets_.end() - 1);
-  for (size_t r = 0; r < runs; ++r)
-    colour_runs_[static_cast<size_t>(next[static_cast<size_t>(colour[r])]++)] =
-        static_cast<int32_t>(r);
   indexed_cols_ = h.cols().data();
   indexed_blocks_ = h.block_count();
 }
@@ -359,17 +393,10 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   };
   // No two runs of a colour share a block: each colour's runs go side by side, and every
   // block sums its elements in colour order (the same bits for any thread count).
-  for (size_t c = 0; c + 1 < colour_offsets_.size(); ++c) {
-    const size_t begin = static_cast<size_t>(colour_offsets_[c]);
-    pooled_ranges(static_cast<size_t>(colour_offsets_[c + 1]) - begin, 8,
-                  [&](size_t, size_t b, size_t e) {
-                    for (size_t k = begin + b; k < begin + e; ++k) {
-                      const size_t r = static_cast<size_t>(colour_runs_[k]);
-                      for (size_t t = r * kRun; t < std::min(m.tet_count(), (r + 1) * kRun); ++t)
-                        element(t);
-                    }
-                  });
-  }
+  coloured_sum([&](size_t t) {
+    element(t);
+    return 0.0;
+  });
   if (!m.nodal_pressure) return;
   // The rank-one terms (lambda_v / V_v) g_v g_v^T, g_v over v's star, as the matrix's rank-one
   // part (hessian_pattern's, in star order).

@@ -71,9 +71,19 @@ class ElasticEnergy final : public EnergyTerm {
   // star_offsets_; star_gradient writes g_v over it to out (star size).
   void star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out) const;
   // Where add_hessian's blocks live in the matrix it was last given (found once per pattern):
-  // 16 per element, (a, b) at 16 t + 4 a + b; and runs of kRun consecutive elements by colour
-  // (no two runs of a colour share a vertex), colour c's from colour_offsets_[c].
+  // 16 per element, (a, b) at 16 t + 4 a + b.
   void index_blocks(const BlockSparseMatrix& h);
+  // Runs of kRun consecutive elements by colour (no two runs of a colour share a vertex),
+  // colour c's from colour_offsets_[c] in colour_runs_; built once.
+  void colour_runs();
+  // f(t) on every element, colour by colour, each colour's runs side by side on the shared
+  // pool (f may add into per-vertex arrays: no two runs of a colour share a vertex, and each
+  // vertex takes its elements in colour order); returns the sum of f's values, summed per run
+  // and the runs in order (the same bits for any thread count).
+  template <class F>
+  double coloured_sum(const F& f);
+  std::vector<double> run_sum_;  // coloured_sum's per run, (run count)
+  std::vector<double> chunk_sum_;  // vertex_pressures' energy per vertex chunk
   const int32_t* indexed_cols_ = nullptr;
   size_t indexed_blocks_ = 0;
   std::vector<int64_t> element_slot_;

@@ -4,12 +4,17 @@
 #include <cmath>
 
 #include <Eigen/SparseCholesky>
+
+#include "engine/core/parallel.h"
 #ifdef ZONA_HAVE_CHOLMOD
 #include <Eigen/CholmodSupport>
 #endif
 
 namespace zona {
 namespace {
+
+// Vertices per chunk of CG's vector passes (pooled_chunks: the same bits on any thread count).
+constexpr size_t kVectorChunk = 4096;
 
 class BlockJacobi final : public Preconditioner {
  public:
@@ -29,7 +34,9 @@ class BlockJacobi final : public Preconditioner {
     return {};
   }
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {
-    for (size_t i = 0; i < r.size(); ++i) z[i] = inverse_[i] * r[i];
+    pooled_chunks(r.size(), kVectorChunk, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) z[i] = inverse_[i] * r[i];
+    });
   }
 
  private:
@@ -125,17 +132,45 @@ class CgSolver final : public LinearSolver {
                                  double tolerance) override {
     const size_t n = b.size();
     a_->multiply(x, q_);
-    for (size_t i = 0; i < n; ++i) r_[i] = b[i] - q_[i];
-    const double bn = std::sqrt(dot_all(b, b));
+    // The vector passes on the shared pool, fused where they read the same vectors; their dot
+    // products summed per fixed chunk, the chunks in order.
+    partial_.assign(2 * ((n + kVectorChunk - 1) / kVectorChunk), 0.0);
+    auto sum = [&](size_t slot) {
+      double total = 0;
+      for (size_t c = 0; 2 * c + slot < partial_.size(); ++c) total += partial_[2 * c + slot];
+      return total;
+    };
+    pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
+      double bb = 0;
+      for (size_t i = begin; i < end; ++i) {
+        r_[i] = b[i] - q_[i];
+        bb += dot(b[i], b[i]);
+      }
+      partial_[2 * c] = bb;
+    });
+    const double bn = std::sqrt(sum(0));
     LinearSolveStats stats;
     if (!(bn > 0)) {
       for (size_t i = 0; i < n; ++i) x[i] = Vec3d{0, 0, 0};
       return stats;
     }
     preconditioner_->apply(r_, z_);
+    // r . z and r . r of the current r and z, into slots 0 and 1.
+    auto residual_dots = [&] {
+      pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
+        double rz = 0, rr = 0;
+        for (size_t i = begin; i < end; ++i) {
+          rz += dot(r_[i], z_[i]);
+          rr += dot(r_[i], r_[i]);
+        }
+        partial_[2 * c] = rz;
+        partial_[2 * c + 1] = rr;
+      });
+    };
     p_ = z_;
-    double rz = dot_all(r_, z_);
-    double rn = std::sqrt(dot_all(r_, r_));
+    residual_dots();
+    double rz = sum(0);
+    double rn = std::sqrt(sum(1));
     while (rn > tolerance * bn) {
       if (stats.iterations >= max_iterations_)
         return make_error("CG (%s) did not reach a relative residual of %.3g in %lld iterations "
@@ -143,19 +178,29 @@ class CgSolver final : public LinearSolver {
                           preconditioner_->name(), tolerance,
                           static_cast<long long>(max_iterations_), rn / bn);
       a_->multiply(p_, q_);
-      const double pq = dot_all(p_, q_);
+      pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
+        double pq = 0;
+        for (size_t i = begin; i < end; ++i) pq += dot(p_[i], q_[i]);
+        partial_[2 * c] = pq;
+      });
+      const double pq = sum(0);
       if (!(pq > 0)) return make_error("CG met a direction of non-positive curvature (%.3g)", pq);
       const double alpha = rz / pq;
-      for (size_t i = 0; i < n; ++i) {
-        x[i] += alpha * p_[i];
-        r_[i] -= alpha * q_[i];
-      }
+      pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) {
+          x[i] += alpha * p_[i];
+          r_[i] -= alpha * q_[i];
+        }
+      });
       preconditioner_->apply(r_, z_);
-      const double rz_next = dot_all(r_, z_);
+      residual_dots();
+      const double rz_next = sum(0);
       const double beta = rz_next / rz;
       rz = rz_next;
-      for (size_t i = 0; i < n; ++i) p_[i] = z_[i] + beta * p_[i];
-      rn = std::sqrt(dot_all(r_, r_));
+      pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) p_[i] = z_[i] + beta * p_[i];
+      });
+      rn = std::sqrt(sum(1));
       ++stats.iterations;
     }
     stats.relative_residual = rn / bn;
@@ -168,6 +213,7 @@ class CgSolver final : public LinearSolver {
   std::string name_;
   const BlockSparseMatrix* a_ = nullptr;
   std::vector<Vec3d> r_, z_, p_, q_;
+  std::vector<double> partial_;  // the dot products' sums per chunk, two slots each
 };
 
 }  // namespace

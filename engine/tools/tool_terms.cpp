@@ -3,9 +3,14 @@
 
 #include <algorithm>
 
+#include "engine/core/parallel.h"
 #include "engine/fem/fem_element.h"
 
 namespace zona {
+namespace {
+// Points per chunk of the passes over the contact points (pooled_chunks).
+constexpr size_t kPointChunk = 2048;
+}  // namespace
 
 std::vector<ContactPoint> vertex_contact_points(std::span<const int32_t> vertex,
                                                 std::span<const double> area) {
@@ -45,7 +50,11 @@ PenaltyContactTerm::PenaltyContactTerm(const char* name, ToolField field,
       kappa_(kappa),
       mu_(mu),
       lagged_(points_.size()),
-      anchor_(points_.size()) {}
+      anchor_(points_.size()),
+      point_grad_(points_.size()),
+      point_hess_(points_.size()),
+      point_on_(points_.size(), 0),
+      chunk_sum_((points_.size() + kPointChunk - 1) / kPointChunk, 0.0) {}
 
 Vec3d PenaltyContactTerm::position(std::span<const Vec3d> u, size_t i) const {
   const ContactPoint& p = points_[i];
@@ -59,14 +68,19 @@ Vec3d PenaltyContactTerm::position(std::span<const Vec3d> u, size_t i) const {
 }
 
 double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
+  pooled_chunks(points_.size(), kPointChunk, [&](size_t c, size_t begin, size_t end) {
+    double e = 0;
+    for (size_t i = begin; i < end; ++i) {
+      const Vec3d x = position(u, i);
+      const double k = stiffness(i);
+      e += penalty_energy(k, field_.eval(x).distance);
+      const Lagged& l = lagged_[i];
+      if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
+    }
+    chunk_sum_[c] = e;
+  });
   double e = 0;
-  for (size_t i = 0; i < points_.size(); ++i) {
-    const Vec3d x = position(u, i);
-    const double k = stiffness(i);
-    e += penalty_energy(k, field_.eval(x).distance);
-    const Lagged& l = lagged_[i];
-    if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
-  }
+  for (double x : chunk_sum_) e += x;
   return e;
 }
 
@@ -80,8 +94,11 @@ Vec3d PenaltyContactTerm::point_gradient(std::span<const Vec3d> u, size_t i) con
 }
 
 void PenaltyContactTerm::add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
+  pooled_chunks(points_.size(), kPointChunk, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) point_grad_[i] = point_gradient(u, i);
+  });
   for (size_t i = 0; i < points_.size(); ++i) {
-    const Vec3d gi = point_gradient(u, i);
+    const Vec3d gi = point_grad_[i];
     if (gi.x == 0 && gi.y == 0 && gi.z == 0) continue;
     const ContactPoint& p = points_[i];
     for (int c = 0; c < 3; ++c)
@@ -138,10 +155,16 @@ void PenaltyContactTerm::add_hessian_diagonal(std::span<const Vec3d> u, std::spa
 
 void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
                                      bool project) {
+  pooled_chunks(points_.size(), kPointChunk, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      point_on_[i] = field_.eval(position(u, i)).distance < 0 || lagged_[i].cap > 0 ? 1 : 0;
+      if (point_on_[i]) point_hess_[i] = point_hessian(u, i, project);
+    }
+  });
   for (size_t i = 0; i < points_.size(); ++i) {
     const ContactPoint& p = points_[i];
-    if (!(field_.eval(position(u, i)).distance < 0) && !(lagged_[i].cap > 0)) continue;
-    const Mat3d h = point_hessian(u, i, project);
+    if (!point_on_[i]) continue;
+    const Mat3d& h = point_hess_[i];
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b)
         if (p.weight[a] != 0 && p.weight[b] != 0)

@@ -122,6 +122,12 @@ class PenaltyContactTerm final : public EnergyTerm {
   int64_t step_ = 0;
   std::vector<Lagged> lagged_;       // (point count)
   std::vector<StickAnchor> anchor_;  // committed anchors, (point count)
+  // The passes over the points run on the shared pool: each point's gradient or Hessian block
+  // into these (added to the vertices after, in point order), the energy per fixed chunk.
+  std::vector<Vec3d> point_grad_;
+  std::vector<Mat3d> point_hess_;
+  std::vector<uint8_t> point_on_;
+  std::vector<double> chunk_sum_;
 };
 
 /// A dead load: E = -ramp sum_v f_v . u_v, f the full load [N] per vertex, ramp >= 0. The
