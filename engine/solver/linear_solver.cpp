@@ -184,7 +184,16 @@ class CgSolver final : public LinearSolver {
         partial_[2 * c] = pq;
       });
       const double pq = sum(0);
-      if (!(pq > 0)) return make_error("CG met a direction of non-positive curvature (%.3g)", pq);
+      if (!(pq > 0)) {
+        // Truncated at the direction of non-positive curvature (Steihaug): the iterate so far
+        // minimises the quadratic model over the directions CG has seen, where it is convex,
+        // and descends; at the first iteration there is none, and the caller decides.
+        if (stats.iterations == 0)
+          return make_error("CG met a direction of non-positive curvature (%.3g)", pq);
+        stats.relative_residual = rn / bn;
+        stats.truncated = true;
+        return stats;
+      }
       const double alpha = rz / pq;
       pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
         for (size_t i = begin; i < end; ++i) {

@@ -35,6 +35,9 @@ std::unique_ptr<Preconditioner> make_block_jacobi();
 struct LinearSolveStats {
   int64_t iterations = 0;      ///< CG iterations (0 for the direct solver)
   double relative_residual = 0;  ///< |H d + g| / |g| reached
+  /// CG met a direction of non-positive curvature after its first iteration and returned the
+  /// iterate before it (which descends where the matrix is the Hessian of an energy).
+  bool truncated = false;
 };
 
 /// Solves a d = b.

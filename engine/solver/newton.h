@@ -1,7 +1,9 @@
 // Projected Newton on a sum of energy terms (engine/core/energy_term.h), projected where needed:
-// each iteration assembles the exact Hessian and, where that is not positive definite (CG meets
-// a direction of non-positive curvature, the factorisation a non-positive pivot, or the step
-// does not descend), the Hessian with every piece projected to positive semi-definite; it solves
+// each iteration assembles the exact Hessian and solves with it (CG truncated where it meets a
+// direction of non-positive curvature after its first iteration, Steihaug's rule); where that
+// gives no direction (that direction at CG's first iteration, the factorisation a non-positive
+// pivot, or the step does not descend), the Hessian with every piece projected to positive
+// semi-definite; it solves
 // H d = -g
 // (linear_solver.h) to a relative residual set by the Eisenstat-Walker forcing term, and takes
 // the largest step of a backtracking line search that lowers the total energy (Armijo). The

@@ -168,5 +168,50 @@ TEST(VolumeBarrier, ElasticTermWithTheBarrierMatchesCentralDifferences) {
     EXPECT_LE(norm((1.0 / (2 * h)) * (gp[i] - gm[i]) - hv[i]), 1e-6 * scale) << i;
 }
 
+// CG on an indefinite matrix, [[I, 2 I], [2 I, I]] (eigenvalues 3 and -1) with block Jacobi
+// (the identity here): for b = (1, 0.1) along x its second direction has negative curvature,
+// and CG returns its first iterate, truncated, which descends (b . x > 0); a right-hand side
+// along the negative eigenvector meets it at the first iteration, and CG refuses.
+TEST(Cg, TruncatesAtADirectionOfNegativeCurvature) {
+  BlockSparseMatrix a(std::vector<std::vector<int32_t>>{{0, 1}, {0, 1}});
+  a.set_zero();
+  a.add(0, 0, Mat3d::identity());
+  a.add(1, 1, Mat3d::identity());
+  a.add(0, 1, 2.0 * Mat3d::identity());
+  a.add(1, 0, 2.0 * Mat3d::identity());
+  std::unique_ptr<LinearSolver> cg = make_cg_solver(make_block_jacobi(), 100);
+  ASSERT_TRUE(cg->setup(a).ok());
+  std::vector<Vec3d> b = {Vec3d{1, 0, 0}, Vec3d{0.1, 0, 0}}, x(2);
+  Result<LinearSolveStats> s = cg->solve(b, x, 1e-12);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_TRUE(s->truncated);
+  EXPECT_EQ(s->iterations, 1);
+  EXPECT_GT(dot(b[0], x[0]) + dot(b[1], x[1]), 0.0);
+  // The first iterate: alpha b with alpha = |b|^2 / b.Ab = 1.01 / 1.41.
+  EXPECT_NEAR(x[0].x, 1.01 / 1.41, 1e-12);
+  EXPECT_NEAR(x[1].x, 0.101 / 1.41, 1e-12);
+  // Along (1, -1) the curvature is -1 at once.
+  b = {Vec3d{0, 1, 0}, Vec3d{0, -1, 0}};
+  x.assign(2, Vec3d{0, 0, 0});
+  Result<LinearSolveStats> first = cg->solve(b, x, 1e-12);
+  ASSERT_FALSE(first.ok());
+  EXPECT_NE(first.error().message.find("non-positive curvature"), std::string::npos);
+  // A positive definite matrix is solved, not truncated.
+  BlockSparseMatrix spd(std::vector<std::vector<int32_t>>{{0, 1}, {0, 1}});
+  spd.set_zero();
+  spd.add(0, 0, 3.0 * Mat3d::identity());
+  spd.add(1, 1, 3.0 * Mat3d::identity());
+  spd.add(0, 1, Mat3d::identity());
+  spd.add(1, 0, Mat3d::identity());
+  ASSERT_TRUE(cg->setup(spd).ok());
+  b = {Vec3d{1, 2, 0}, Vec3d{0.1, -1, 3}};
+  x.assign(2, Vec3d{0, 0, 0});
+  Result<LinearSolveStats> solved = cg->solve(b, x, 1e-12);
+  ASSERT_TRUE(solved.ok());
+  EXPECT_FALSE(solved->truncated);
+  EXPECT_NEAR(3 * x[0].x + x[1].x, 1.0, 1e-10);
+  EXPECT_NEAR(x[0].z + 3 * x[1].z, 3.0, 1e-10);
+}
+
 }  // namespace
 }  // namespace zona
