@@ -343,6 +343,44 @@ TEST(ParticleSimulation, InjectionConservesVolumeWithinFivePercent) {
   EXPECT_GT(sim->volume_change_max_rel(), 0.0);
 }
 
+// The particle model on the job's step: the needle's penalty is the stiffest the particle step
+// carries without raising a mass (the FEM's scale multiplied the scaled membrane's mass), so
+// the body's masses stay the particle model's own, and the run reports the stiffness it took.
+TEST(ParticleSimulation, TheNeedlesPenaltyRaisesNoMass) {
+  std::unique_ptr<Simulation> sim = make_sim(particle_scene());
+  ASSERT_TRUE(sim);
+  EXPECT_TRUE(sim->job_mode());
+  const ParticleModel& pm = *sim->particle_model();
+  ASSERT_EQ(sim->model().vertex_mass.size(), pm.mass.size());
+  for (size_t v = 0; v < pm.mass.size(); ++v)
+    ASSERT_EQ(sim->model().vertex_mass[v], pm.mass[v]) << v;
+  const ParticleModel rebuilt =
+      build_particle_model(particle_desc_from_scene(*parse_scene(particle_scene(), "p.json")).value())
+          .value();
+  for (size_t v = 0; v < pm.mass.size(); ++v) ASSERT_EQ(pm.mass[v], rebuilt.mass[v]) << v;
+  bool penalty_note = false;
+  for (const std::string& n : sim->notes()) {
+    EXPECT_EQ(n.find("masses raised"), std::string::npos) << n;
+    penalty_note = penalty_note || n.find("particle membrane's penalty") != std::string::npos;
+  }
+  EXPECT_TRUE(penalty_note);
+}
+
+// A tip smaller than the particles' spacing (30 um against 48-66 um on 642 particles) passes
+// between them under the penalty: the run ends with the breach error, and no puncture is
+// recorded from it.
+TEST(ParticleSimulation, ATipSmallerThanTheSpacingEndsWithTheBreachError) {
+  json j = particle_scene();
+  j["needle"]["tip_radius"] = "30 um";
+  std::unique_ptr<Simulation> sim = make_sim(j);
+  ASSERT_TRUE(sim);
+  const RunResult run = run_simulation(*sim);
+  EXPECT_TRUE(run.stopped_early);
+  EXPECT_NE(run.stop_reason.find("went through the cell surface"), std::string::npos)
+      << run.stop_reason;
+  EXPECT_FALSE(sim->puncture().punctured);
+}
+
 TEST(ParticleSimulation, SplitStepTakesTheHapticToolPose) {
   std::unique_ptr<Simulation> sim = make_sim(particle_scene());
   ASSERT_TRUE(sim);
