@@ -178,8 +178,7 @@ Status Simulation::prepare_job() {
     const double need = kappa * js.tool_area[i] * dt * dt;
     const double m = model_.vertex_mass[v];
     if (!(need > m) || model_.vertex_fixed[v]) continue;
-    set_vertex_mass(model_, v, need);
-    if (particles_) particles_->mass[v] = need;  // particle_step's own masses
+    set_vertex_mass(model_, v, need);  // (never the particle model's: its kappa is capped above)
     added += need - m;
     ++raised;
   }
@@ -258,8 +257,9 @@ Status Simulation::prepare_job() {
 }
 
 Status Simulation::start_job() {
-  // A CPU backend object is only a test hook of the kinematic path: the CPU runner works on the
-  // simulation's own state in place.
+  // A CPU backend object is only a test hook of the Backend path (SimulationOptions::
+  // keep_cpu_backend): an FEM runner works on the simulation's own state in place; the particle
+  // model's body stages take it, as they would a GPU backend.
   if (backend_ && std::string(backend_->name()) == "cpu" && !particles_) backend_.reset();
   if (particles_) {
     // The particle model: the job's tool, measure and record stages on the host around its
