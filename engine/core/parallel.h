@@ -83,6 +83,18 @@ size_t pooled_chunks(size_t n, size_t chunk, const F& work) {
   return count;
 }
 
+/// pooled_chunks where work(begin, end) returns each chunk's value: the values kept in `partial`
+/// (sized here; no allocation once it has the chunk count) and added in chunk order, so the sum
+/// is the same bits on any thread count.
+template <class F>
+double pooled_chunk_sum(size_t n, size_t chunk, std::vector<double>& partial, const F& work) {
+  partial.resize((n + chunk - 1) / chunk);
+  pooled_chunks(n, chunk, [&](size_t c, size_t begin, size_t end) { partial[c] = work(begin, end); });
+  double total = 0;
+  for (double x : partial) total += x;
+  return total;
+}
+
 /// Sorts [first, last) by `comp`: ranges sorted side by side, then merged pairwise, the pairs
 /// of each level side by side. With a strict total order on the elements (no two equivalent),
 /// the result is the one sorted sequence, whatever the thread count.

@@ -157,9 +157,7 @@ double ElasticEnergy::vertex_pressures(std::span<const Vec3d> u) {
   });
   // Pass 2: Jbar_v - 1, the pressure lambda_v (Jbar_v - 1) and the energy V_v lambda_v / 2
   // (Jbar_v - 1)^2, per fixed chunk of vertices, the chunks summed in order.
-  constexpr size_t kChunk = 4096;
-  chunk_sum_.resize((m.vertex_count() + kChunk - 1) / kChunk);
-  pooled_chunks(m.vertex_count(), kChunk, [&](size_t c, size_t begin, size_t end) {
+  return pooled_chunk_sum(m.vertex_count(), 4096, chunk_sum_, [&](size_t begin, size_t end) {
     double energy = 0;
     for (size_t v = begin; v < end; ++v) {
       const double inv_volume = m.vertex_inverse_volume[v];
@@ -167,11 +165,8 @@ double ElasticEnergy::vertex_pressures(std::span<const Vec3d> u) {
       pressure_[v] = m.vertex_lambda[v] * jm1;
       if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
     }
-    chunk_sum_[c] = energy;
+    return energy;
   });
-  double energy = 0;
-  for (double x : chunk_sum_) energy += x;
-  return energy;
 }
 
 double ElasticEnergy::energy(std::span<const Vec3d> u) {

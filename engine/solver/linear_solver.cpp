@@ -134,28 +134,22 @@ class CgSolver final : public LinearSolver {
     a_->multiply(x, q_);
     // The vector passes on the shared pool, fused where they read the same vectors; their dot
     // products summed per fixed chunk, the chunks in order.
-    partial_.assign(2 * ((n + kVectorChunk - 1) / kVectorChunk), 0.0);
-    auto sum = [&](size_t slot) {
-      double total = 0;
-      for (size_t c = 0; 2 * c + slot < partial_.size(); ++c) total += partial_[2 * c + slot];
-      return total;
-    };
-    pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
+    const double bn = std::sqrt(pooled_chunk_sum(n, kVectorChunk, partial_, [&](size_t begin, size_t end) {
       double bb = 0;
       for (size_t i = begin; i < end; ++i) {
         r_[i] = b[i] - q_[i];
         bb += dot(b[i], b[i]);
       }
-      partial_[2 * c] = bb;
-    });
-    const double bn = std::sqrt(sum(0));
+      return bb;
+    }));
     LinearSolveStats stats;
     if (!(bn > 0)) {
       for (size_t i = 0; i < n; ++i) x[i] = Vec3d{0, 0, 0};
       return stats;
     }
     preconditioner_->apply(r_, z_);
-    // r . z and r . r of the current r and z, into slots 0 and 1.
+    // r . z and r . r of the current r and z in one pass, each per chunk (partial_, rr_partial_).
+    rr_partial_.resize(partial_.size());
     auto residual_dots = [&] {
       pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
         double rz = 0, rr = 0;
@@ -163,14 +157,19 @@ class CgSolver final : public LinearSolver {
           rz += dot(r_[i], z_[i]);
           rr += dot(r_[i], r_[i]);
         }
-        partial_[2 * c] = rz;
-        partial_[2 * c + 1] = rr;
+        partial_[c] = rz;
+        rr_partial_[c] = rr;
       });
+    };
+    auto sum = [](const std::vector<double>& partial) {
+      double total = 0;
+      for (double value : partial) total += value;
+      return total;
     };
     p_ = z_;
     residual_dots();
-    double rz = sum(0);
-    double rn = std::sqrt(sum(1));
+    double rz = sum(partial_);
+    double rn = std::sqrt(sum(rr_partial_));
     while (rn > tolerance * bn) {
       if (stats.iterations >= max_iterations_)
         return make_error("CG (%s) did not reach a relative residual of %.3g in %lld iterations "
@@ -178,12 +177,11 @@ class CgSolver final : public LinearSolver {
                           preconditioner_->name(), tolerance,
                           static_cast<long long>(max_iterations_), rn / bn);
       a_->multiply(p_, q_);
-      pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
-        double pq = 0;
-        for (size_t i = begin; i < end; ++i) pq += dot(p_[i], q_[i]);
-        partial_[2 * c] = pq;
+      const double pq = pooled_chunk_sum(n, kVectorChunk, partial_, [&](size_t begin, size_t end) {
+        double s = 0;
+        for (size_t i = begin; i < end; ++i) s += dot(p_[i], q_[i]);
+        return s;
       });
-      const double pq = sum(0);
       if (!(pq > 0)) {
         // Truncated at the direction of non-positive curvature (Steihaug): the iterate so far
         // minimises the quadratic model over the directions CG has seen, where it is convex,
@@ -203,13 +201,13 @@ class CgSolver final : public LinearSolver {
       });
       preconditioner_->apply(r_, z_);
       residual_dots();
-      const double rz_next = sum(0);
+      const double rz_next = sum(partial_);
       const double beta = rz_next / rz;
       rz = rz_next;
       pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
         for (size_t i = begin; i < end; ++i) p_[i] = z_[i] + beta * p_[i];
       });
-      rn = std::sqrt(sum(1));
+      rn = std::sqrt(sum(rr_partial_));
       ++stats.iterations;
     }
     stats.relative_residual = rn / bn;
@@ -222,7 +220,7 @@ class CgSolver final : public LinearSolver {
   std::string name_;
   const BlockSparseMatrix* a_ = nullptr;
   std::vector<Vec3d> r_, z_, p_, q_;
-  std::vector<double> partial_;  // the dot products' sums per chunk, two slots each
+  std::vector<double> partial_, rr_partial_;  // the dot products' sums per chunk
 };
 
 }  // namespace

@@ -53,8 +53,7 @@ PenaltyContactTerm::PenaltyContactTerm(const char* name, ToolField field,
       anchor_(points_.size()),
       point_grad_(points_.size()),
       point_hess_(points_.size()),
-      point_on_(points_.size(), 0),
-      chunk_sum_((points_.size() + kPointChunk - 1) / kPointChunk, 0.0) {}
+      point_on_(points_.size(), 0) {}
 
 Vec3d PenaltyContactTerm::position(std::span<const Vec3d> u, size_t i) const {
   const ContactPoint& p = points_[i];
@@ -68,7 +67,7 @@ Vec3d PenaltyContactTerm::position(std::span<const Vec3d> u, size_t i) const {
 }
 
 double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
-  pooled_chunks(points_.size(), kPointChunk, [&](size_t c, size_t begin, size_t end) {
+  return pooled_chunk_sum(points_.size(), kPointChunk, chunk_sum_, [&](size_t begin, size_t end) {
     double e = 0;
     for (size_t i = begin; i < end; ++i) {
       const Vec3d x = position(u, i);
@@ -77,11 +76,8 @@ double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
       const Lagged& l = lagged_[i];
       if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
     }
-    chunk_sum_[c] = e;
+    return e;
   });
-  double e = 0;
-  for (double x : chunk_sum_) e += x;
-  return e;
 }
 
 Vec3d PenaltyContactTerm::point_gradient(std::span<const Vec3d> u, size_t i) const {
