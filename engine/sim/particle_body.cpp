@@ -7,10 +7,17 @@
 namespace zona {
 
 StepStatus ParticleBody::step(const Model& body, State& state) {
+  state_ = &state;
+  // The volume of the state the step starts from: particle_step's own (its pressure's) in
+  // place, else taken here; the last state's comes when asked.
+  double volume = 0;
   StepStatus status = kStepOk;
   if (!backend_) {
-    status = particle_step(model_, body, state, nullptr);
+    ParticleStepInfo info;  // (volume 0 where the step is refused before its forces)
+    status = particle_step(model_, body, state, &info);
+    volume = info.volume;
   } else {
+    volume = particle_volume(model_, state.u);
     // The tools' loads of this step go down, one step is taken there, the state comes back
     // (the tool stage of the next step reads it on the host).
     // (A backend without set_external_forces takes the whole state instead.)
@@ -19,11 +26,16 @@ StepStatus ParticleBody::step(const Model& body, State& state) {
     status = backend_->step(1).status;
     if (!backend_->download(state)) return status | kStepNonFinite;
   }
-  if (!(status & kStepNonFinite)) {
-    volume_change_rel_ = particle_volume(model_, state.u) / model_.rest_volume - 1.0;
-    volume_change_max_rel_ = std::max(volume_change_max_rel_, std::fabs(volume_change_rel_));
-  }
+  if (volume > 0) max_before_ = std::max(max_before_, std::fabs(volume / model_.rest_volume - 1.0));
   return status;
+}
+
+double ParticleBody::volume_change_rel() const {
+  return state_ ? particle_volume(model_, state_->u) / model_.rest_volume - 1.0 : 0.0;
+}
+
+double ParticleBody::volume_change_max_rel() const {
+  return std::max(max_before_, std::fabs(volume_change_rel()));
 }
 
 std::string ParticleBody::description() const {

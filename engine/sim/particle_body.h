@@ -23,14 +23,16 @@ class ParticleBody final : public BodyStep {
   std::string description() const override;
 
   /// The enclosed volume after the last step against its rest value, V / V0 - 1 (eq. 6's
-  /// constraint), and the largest |V / V0 - 1| over the steps so far.
-  double volume_change_rel() const { return volume_change_rel_; }
-  double volume_change_max_rel() const { return volume_change_max_rel_; }
+  /// constraint), and the largest |V / V0 - 1| over the steps so far. (Not on the step path:
+  /// the last state's volume is taken when asked.)
+  double volume_change_rel() const;
+  double volume_change_max_rel() const;
 
  private:
   const ParticleModel& model_;
   Backend* backend_;
-  double volume_change_rel_ = 0, volume_change_max_rel_ = 0;
+  const State* state_ = nullptr;  // the state the steps advance (the last one's volume)
+  double max_before_ = 0;  // largest |V / V0 - 1| of the states the steps started from
 };
 
 }  // namespace zona
