@@ -93,6 +93,8 @@ class CudaJob final : public JobRunner {
   // corner loads of the step [N] (3 per tool vertex).
   DeviceBuffer<int4> d_faces_;
   DeviceBuffer<double> d_face_area_;
+  DeviceBuffer<double> d_path_time_;      // NeedleParams::path_time
+  DeviceBuffer<Vec3d> d_path_position_;   // NeedleParams::path_position
   DeviceBuffer<StickAnchor> d_face_anchor_;  // kFacePoints per triangle
   PinnedBuffer<JobRecord> h_samples_;
   PinnedBuffer<unsigned long long> h_sample_count_;
@@ -183,10 +185,27 @@ Status CudaJob::start(const JobSetup& setup) {
   tl_.force_unit = b_.force_unit_;
 
   // The job's scalars: the first pose, as the CPU runner starts.
+  // (setup.params: its path arrays are the host's; params_'s become the device's below.)
   JobState js;
   js.pose.tip = params_.needle.start;
-  job_follow_tip(params_, js);
-  job_set_pose(params_, js);
+  job_follow_tip(setup.params, js);
+  job_set_pose(setup.params, js);
+  if (params_.needle.path_count > 0) {
+    const size_t np = static_cast<size_t>(params_.needle.path_count);
+    if (Status s = d_path_time_.upload(std::vector<double>(setup.params.needle.path_time,
+                                                           setup.params.needle.path_time + np),
+                                       "needle path times");
+        !s)
+      return s;
+    if (Status s = d_path_position_.upload(
+            std::vector<Vec3d>(setup.params.needle.path_position,
+                               setup.params.needle.path_position + np),
+            "needle path positions");
+        !s)
+      return s;
+    params_.needle.path_time = d_path_time_.data();
+    params_.needle.path_position = d_path_position_.data();
+  }
   if (Status s = d_job_.allocate(1, "job state"); !s) return s;
   ZONA_CUDA_TRY(cudaMemcpy(d_job_.data(), &js, sizeof js, cudaMemcpyHostToDevice));
   if (Status s = d_sums_.allocate(1, "job sums"); !s) return s;

@@ -224,12 +224,15 @@ __global__ void __launch_bounds__(kBlock, 2)
   double depth = 0;  // deepest of this thread's points inside the needle
   int contact = 0;
   int corner[3] = {0, 0, 0};  // device vertices
+  ToolFaceInput in;
+  int k3[3] = {0, 0, 0};
   if (f < face_count) {
     const int4 c4 = faces[f];
-    const int k3[3] = {c4.x, c4.y, c4.z};
+    k3[0] = c4.x;
+    k3[1] = c4.y;
+    k3[2] = c4.z;
     const double lu = tl.length_unit;
     // Positions first: most triangles are far from the needle and need nothing else.
-    ToolFaceInput in;
     for (int c = 0; c < 3; ++c) {
       const int k = k3[c];
       corner[c] = tl.vertex[k];
@@ -269,6 +272,16 @@ __global__ void __launch_bounds__(kBlock, 2)
     }
     contacts = contact;
   }
+  double strain = 0;  // needle_face_strain of a triangle around the tip (strain criterion)
+  if (f < face_count && lane == 0 && p.puncture.criterion == kJobCriterionStrain &&
+      !job->puncture.punctured && needle_face_near(p.needle, job->pose, in.x)) {
+    Vec3d rest[3];
+    for (int c = 0; c < 3; ++c)
+      rest[c] = Vec3d{tl.rest[3 * k3[c]], tl.rest[3 * k3[c] + 1], tl.rest[3 * k3[c] + 2]};
+    strain = needle_face_strain(rest, in.x);
+  }
+  if (p.puncture.criterion == kJobCriterionStrain && __syncthreads_or(strain > 0))
+    block_max_store(strain, &sums->needle_strain);
   if (__syncthreads_or(contacts > 0)) {
     for (int c = 0; c < 3; ++c) block_sum_add(nf[c], &sums->needle_force[c]);
     block_max_store(depth, &sums->needle_depth);

@@ -53,9 +53,13 @@ namespace zona {
 /// the surface around the tip instead of ahead of it.
 inline constexpr double kNeedleBreachFraction = 0.5;
 
-/// Puncture criteria the step evaluates (PunctureCriterion's values; strain is the kinematic
-/// contact's only).
-enum JobCriterion : int32_t { kJobCriterionNone = 0, kJobCriterionForce = 1, kJobCriterionEnergy = 3 };
+/// Puncture criteria the step evaluates (PunctureCriterion's values).
+enum JobCriterion : int32_t {
+  kJobCriterionNone = 0,
+  kJobCriterionForce = 1,
+  kJobCriterionStrain = 2,  ///< the membrane's stretch under the tip (needle_face_strain)
+  kJobCriterionEnergy = 3
+};
 
 /// Damping of the explicit step.
 struct DampingParams {
@@ -295,6 +299,39 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolFaceForce needle_face_force(const NeedleParams&
   return out;
 }
 
+/// The membrane's largest principal in-plane Green strain [-] on a surface triangle (rest
+/// corners `rest`, deformed corners `x`), 0 if it is only compressed: the eigenvalues of
+/// G^-1 (g - G) / 2 with G and g the rest and deformed edge metrics (the 2x2 Green strain in
+/// the triangle's own plane). The strain criterion takes its maximum over the triangles around
+/// the tip (needle_face_near): the surface under the tip itself is squeezed in its plane (as
+/// under any round indenter), and the zona stretches where it wraps the tip, about one tip radius
+/// out.
+ZONA_HOST_DEVICE ZONA_INLINE double needle_face_strain(const Vec3d rest[3], const Vec3d x[3]) {
+  const Vec3d E1 = rest[1] - rest[0], E2 = rest[2] - rest[0];
+  const Vec3d e1 = x[1] - x[0], e2 = x[2] - x[0];
+  const double G11 = dot(E1, E1), G12 = dot(E1, E2), G22 = dot(E2, E2);
+  const double a11 = 0.5 * (dot(e1, e1) - G11), a12 = 0.5 * (dot(e1, e2) - G12),
+               a22 = 0.5 * (dot(e2, e2) - G22);
+  const double det_g = G11 * G22 - G12 * G12;
+  if (!(det_g > 0)) return 0;
+  // M = G^-1 A: its trace and determinant give the principal strains.
+  const double trace = (G22 * a11 - 2.0 * G12 * a12 + G11 * a22) / det_g;
+  const double det = (a11 * a22 - a12 * a12) / det_g;
+  const double disc = 0.25 * trace * trace - det;
+  const double largest = 0.5 * trace + sqrt(disc > 0 ? disc : 0.0);
+  return largest > 0 ? largest : 0.0;
+}
+
+/// Whether a triangle lies around the tip for the strain criterion: its centroid within one tip
+/// radius of the needle's surface (or inside it). A physical distance, so the region does not
+/// shrink with the mesh.
+ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_near(const NeedleParams& needle,
+                                                   const ToolPose& pose, const Vec3d x[3]) {
+  const Vec3d centroid = (1.0 / 3.0) * (x[0] + x[1] + x[2]);
+  return needle_sdf(pose.tip, needle.direction, needle.radius, needle.flat != 0, centroid)
+             .distance < needle.radius;
+}
+
 /// Sums of one step's per-vertex stages (reset every step).
 struct JobSums {
   double needle_force[3] = {0, 0, 0};  ///< force the needle applies to the cell [N]
@@ -303,6 +340,9 @@ struct JobSums {
   int32_t needle_contacts = 0;
   int32_t rim_contacts = 0;
   double needle_depth = 0;  ///< deepest contact point inside the needle [m] (a maximum)
+  /// Largest needle_face_strain of a triangle around the tip [-] (a maximum; taken only with
+  /// the strain criterion, before the puncture).
+  double needle_strain = 0;
 };
 
 /// Puncture moment, as recorded on the device or the CPU.
@@ -314,6 +354,7 @@ struct JobPuncture {
   double deformation = 0;    ///< [m]
   double force = 0;          ///< filtered axial force [N]
   double energy = 0;         ///< [J]
+  double max_strain = 0;     ///< membrane strain under the tip (strain criterion) [-]
   Vec3d force_vector{0, 0, 0};  ///< [N]
 };
 
@@ -334,6 +375,7 @@ struct JobRecord {
   double energy_budget = 0;     ///< initial energy + work of the tools so far [J]
   int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
   double needle_depth = 0;      ///< deepest contact point inside the needle [m]
+  double max_strain = 0;        ///< membrane strain under the tip (strain criterion only) [-]
   int32_t holding_contacts = 0; ///< vertices inside the rim
   uint32_t status = 0;          ///< StepStatusBits of the step (kStepNonFinite, kStepEnergyBlowUp...)
   int32_t halted = 0;           ///< the state failed its check: no later step was advanced
@@ -372,8 +414,23 @@ struct JobState {
   QuasiStaticState quasi;
 };
 
-/// Scripted tip at time t [s]: start + speed t d, stopped at max_travel [m].
+/// Scripted tip at time t [s]: the path interpolated (NeedleParams::path_count), else
+/// start + speed t d, stopped at max_travel [m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_scripted_tip(const JobParams& p, double t) {
+  const int32_t n = p.needle.path_count;
+  if (n > 0) {
+    const double* time = p.needle.path_time;
+    const Vec3d* x = p.needle.path_position;
+    if (!(t > time[0])) return x[0];
+    if (!(t < time[n - 1])) return x[n - 1];
+    int32_t lo = 0, hi = n - 1;  // time[lo] < t < time[hi]
+    while (hi - lo > 1) {
+      const int32_t mid = (lo + hi) / 2;
+      if (time[mid] <= t) lo = mid; else hi = mid;
+    }
+    const double a = (t - time[lo]) / (time[hi] - time[lo]);
+    return (1.0 - a) * x[lo] + a * x[hi];
+  }
   double travel = p.needle.speed * t;
   if (p.needle.max_travel > 0 && travel > p.needle.max_travel) travel = p.needle.max_travel;
   return p.needle.start + travel * p.needle.direction;
@@ -503,6 +560,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_record_measures(const JobParams& p, JobSta
   r.contacts = sums.needle_contacts;
   r.holding_contacts = sums.rim_contacts;
   r.needle_depth = sums.needle_depth;
+  r.max_strain = sums.needle_strain;
   r.raw_force = dot(r.force_vector, p.needle.direction);
   r.deformation = tot.deformation;
   r.elastic_energy = tot.elastic_energy;
@@ -606,8 +664,10 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState
                                                     bool not_static, Vec3d tip_before,
                                                     JobRecord& r) {
   if (!s.halted && !not_static && p.needle.on && !s.puncture.punctured) {
-    const bool met = (p.puncture.criterion == kJobCriterionForce && r.force >= p.puncture.threshold) ||
-                     (p.puncture.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.puncture.threshold);
+    const bool met =
+        (p.puncture.criterion == kJobCriterionForce && r.force >= p.puncture.threshold) ||
+        (p.puncture.criterion == kJobCriterionStrain && r.max_strain >= p.puncture.threshold) ||
+        (p.puncture.criterion == kJobCriterionEnergy && tot.elastic_energy >= p.puncture.threshold);
     if (met) {
       JobPuncture& q = s.puncture;
       q.punctured = 1;
@@ -617,6 +677,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_puncture_test(const JobParams& p, JobState
       q.deformation = r.deformation;
       q.force = r.force;
       q.energy = tot.elastic_energy;
+      q.max_strain = r.max_strain;
       q.force_vector = r.force_vector;
       s.released_contacts = sums.needle_contacts;
       s.pose.tip = tip_before;

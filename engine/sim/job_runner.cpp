@@ -31,6 +31,8 @@ class CpuJobRunner final : public JobRunner {
       face_anchor_.assign(setup.tool_faces.size() * kFacePoints, StickAnchor{});
       face_out_.assign(setup.tool_faces.size(), ToolFaceForce{});
       face_hit_.assign(setup.tool_faces.size(), 0);
+      if (setup.params.puncture.criterion == kJobCriterionStrain)
+        face_strain_.assign(setup.tool_faces.size(), 0.0);
     }
     force_prev_.assign(model.vertex_count(), Vec3d{0, 0, 0});
     drift_chunks_.assign((model.vertex_count() + kDriftChunk - 1) / kDriftChunk, DriftChunk{});
@@ -122,6 +124,16 @@ class CpuJobRunner final : public JobRunner {
         const size_t k = static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)]);
         const size_t v = static_cast<size_t>(setup_.tool_vertices[k]);
         in.x[c] = model_.rest_positions[v] + state_.u[v];
+      }
+      if (p.puncture.criterion == kJobCriterionStrain) {
+        face_strain_[f] = 0;
+        if (!job_.puncture.punctured && needle_face_near(p.needle, job_.pose, in.x)) {
+          Vec3d rest[3];
+          for (int c = 0; c < 3; ++c)
+            rest[c] = model_.rest_positions[static_cast<size_t>(
+                setup_.tool_vertices[static_cast<size_t>(setup_.tool_faces[f][static_cast<size_t>(c)])])];
+          face_strain_[f] = needle_face_strain(rest, in.x);
+        }
       }
       if (!needle_face_may_touch(p.needle, job_.pose, in)) continue;
       in.area = setup_.tool_face_area[f];
@@ -259,6 +271,8 @@ class CpuJobRunner final : public JobRunner {
         sums.needle_contacts += ff.contacts;
         sums.needle_depth = std::max(sums.needle_depth, ff.depth);
       }
+      if (p.puncture.criterion == kJobCriterionStrain)
+        for (size_t f = 0; f < nf; ++f) sums.needle_strain = std::max(sums.needle_strain, face_strain_[f]);
     }
     // Every tool vertex on the pool, summed per fixed chunk, the chunks then in order (the same
     // sums on any thread count).
@@ -346,6 +360,7 @@ class CpuJobRunner final : public JobRunner {
   std::vector<DriftChunk> drift_chunks_;      // its momentum and mass per chunk
   std::vector<ToolFaceForce> face_out_;  // the step's load per face (valid where face_hit_)
   std::vector<uint8_t> face_hit_;        // the face had points inside the needle this step
+  std::vector<double> face_strain_;      // needle_face_strain around the tip (strain criterion)
   std::vector<Vec3d> tool_u_before_;  // their u_{n-1} [m], (tool vertex count)
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;

@@ -460,7 +460,10 @@ Status Simulation::setup_tools(SetupContext& setup) {
     rim_contacts_ = std::make_unique<ContactSet>(tool, surface_, model_.vertex_count(), capacity);
   }
   puncture_ = std::make_unique<Puncture>(scene_.puncture, setup.direction, capacity);
-  if (scene_.puncture.criterion == PunctureCriterion::kStrain) {
+  // The kinematic contact's strain criterion reads the zona's tetrahedra around its contacts
+  // (the penalty step's reads the surface triangles around the tip: job.h).
+  if (scene_.puncture.criterion == PunctureCriterion::kStrain &&
+      scene_.contact.model == ContactModel::kKinematic) {
     tet_in_zona_.assign(mesh_.tet_count(), 0);
     bool any = false;
     for (size_t t = 0; t < mesh_.tet_count(); ++t)

@@ -65,9 +65,11 @@ Status Simulation::prepare_job() {
   }
 
   if (has_needle_) {
-    if (!script_.trajectory.time.empty())
-      return make_error("%s: needle.trajectory needs contact.model 'kinematic' (the penalty "
-                        "step scripts straight insertions)", name.c_str());
+    if (!script_.trajectory.time.empty()) {
+      p.needle.path_count = static_cast<int32_t>(script_.trajectory.time.size());
+      p.needle.path_time = script_.trajectory.time.data();
+      p.needle.path_position = script_.trajectory.position.data();
+    }
     p.needle.on = 1;
     p.needle.flat = scene_.needle.shape == NeedleShape::kFlat ? 1 : 0;
     p.needle.start = script_.start;
@@ -88,8 +90,13 @@ Status Simulation::prepare_job() {
       case PunctureCriterion::kForce: p.puncture.criterion = kJobCriterionForce; break;
       case PunctureCriterion::kEnergy: p.puncture.criterion = kJobCriterionEnergy; break;
       case PunctureCriterion::kStrain:
-        return make_error("%s: puncture.criterion 'strain' needs contact.model 'kinematic' (use "
-                          "force or energy)", name.c_str());
+        // The membrane's stretch on the triangles the needle touches (needle_face_strain).
+        if (!scene_.contact.needle_on_faces)
+          return make_error("%s: puncture.criterion 'strain' takes the stretch of the surface "
+                            "triangles the needle touches; this scene's needle loads vertices "
+                            "(use force or energy)", name.c_str());
+        p.puncture.criterion = kJobCriterionStrain;
+        break;
     }
     p.puncture.threshold = pd.threshold;
     p.puncture.force_drop = pd.force_drop;
@@ -296,6 +303,7 @@ void Simulation::report_from_record(const JobRecord& r) {
   o.holding_force = r.holding_force;
   o.elastic_energy = r.elastic_energy;
   o.kinetic_energy = r.kinetic_energy;
+  o.max_strain = r.max_strain;
   o.punctured = r.puncture.punctured != 0;
   o.status = r.status;
   o.quasi = r.quasi;
@@ -311,6 +319,7 @@ void Simulation::report_from_record(const JobRecord& r) {
     q.deformation = r.puncture.deformation;
     q.force = r.puncture.force;
     q.energy = r.puncture.energy;
+    q.max_strain = r.puncture.max_strain;
     q.force_vector = r.puncture.force_vector;
   }
 }

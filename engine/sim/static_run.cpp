@@ -29,6 +29,13 @@ Status check_static_scene(const Scene& scene) {
                       "contact.model \"penalty\"");
   if (!scene.needle.enabled)
     return make_error("solver.method \"static\": nothing loads the cell (no needle)");
+  if (scene.puncture.criterion == PunctureCriterion::kStrain)
+    return make_error("solver.method \"static\": puncture.criterion 'strain': the static solver "
+                      "brackets the puncture on force or energy; use one of those, or "
+                      "\"explicit\"");
+  if (!scene.needle.trajectory.empty())
+    return make_error("solver.method \"static\": needle.trajectory: its load steps are needle "
+                      "travel along one axis; a timed path runs with \"explicit\"");
   return {};
 }
 

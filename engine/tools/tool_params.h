@@ -7,7 +7,7 @@
 
 namespace zona {
 
-/// The needle: a scripted straight insertion, or a pose handed in by the haptic thread.
+/// The needle: a scripted straight insertion or path, or a pose handed in by the haptic thread.
 struct NeedleParams {
   int32_t on = 0;        ///< the scene has a needle
   int32_t flat = 0;      ///< flat tip instead of the hemisphere
@@ -18,6 +18,13 @@ struct NeedleParams {
   Vec3d direction{1, 0, 0};  ///< unit direction of travel [-]
   double speed = 0;          ///< [m/s]
   double max_travel = 0;     ///< travel after which the tip stops [m]; 0: no limit
+  /// A scripted path (needle.trajectory) instead of the straight insertion: path_count tip
+  /// positions [m] at strictly increasing times [s], linear in between, held after the last.
+  /// Host arrays on the CPU, device arrays on the GPU (the runner owns them); travel is still
+  /// measured along `direction`.
+  int32_t path_count = 0;
+  const double* path_time = nullptr;
+  const Vec3d* path_position = nullptr;
   /// A tip handed in by the haptic thread (set_tip) is followed at most at this speed [m/s],
   /// step by step on the stepping side: the host hands poses in batches (the GPU reads its
   /// mailbox every few steps), and a jump of a batch's travel in one step shakes the contact.

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include <nlohmann/json.hpp>
+
 #include "engine/scene/scene.h"
 #include "engine/sim/simulation.h"
 #include "kernels/backend_factory.h"
@@ -214,6 +216,46 @@ TEST(CudaJob, TheStepPathDoesNotAllocate) {
   for (int i = 0; i < 300; ++i) (*gpu)->step();
   EXPECT_EQ(test::allocation_count() - before, 0);
   ASSERT_TRUE((*gpu)->sync_state().ok());
+}
+
+// The strain criterion and a scripted path on the GPU against the CPU: the small cell pushed
+// along a path that bends sideways part way, punctured where the stretch around the tip reaches
+// 4 %. The stretch comes from the same function on both (float32 displacements on the GPU): the
+// puncture lands within a few steps and at the same strain.
+TEST(CudaJob, StrainCriterionOnAPathMatchesCpu) {
+  std::string why;
+  if (!have_device(&why)) GTEST_SKIP() << why;
+  const std::string path = ::testing::TempDir() + "zona_cuda_path.csv";
+  {
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    // The small cell's needle starts 0.5 um off the surface at -12.5 um on x, moving +x.
+    std::fprintf(f, "time_s,x_m,y_m,z_m\n0,-12.5e-6,0,0\n0.015,-9.5e-6,0,0\n0.03,-7e-6,1e-6,0\n");
+    std::fclose(f);
+  }
+  nlohmann::json j = test::small_cell_scene();
+  j["model"] = "neohookean";
+  j["needle"]["trajectory"] = path;
+  j["integrator"]["duration"] = "30 ms";
+  j["puncture"] = {{"criterion", "strain"}, {"threshold", 0.04}, {"force_drop", 0.5}};
+  Result<Scene> scene = parse_scene(j, "small_cell_path");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  Result<std::unique_ptr<Simulation>> cpu = Simulation::create(*scene);
+  Result<std::unique_ptr<Simulation>> gpu = Simulation::create(*scene, gpu_options());
+  ASSERT_TRUE(cpu.ok() && gpu.ok());
+  ASSERT_TRUE((*gpu)->job_mode());
+  const RunResult rc = run_simulation(**cpu), rg = run_simulation(**gpu);
+  ASSERT_FALSE(rc.stopped_early) << rc.stop_reason;
+  ASSERT_FALSE(rg.stopped_early) << rg.stop_reason;
+  ASSERT_TRUE(rc.puncture.punctured && rg.puncture.punctured);
+  EXPECT_NEAR(rg.puncture.time, rc.puncture.time, 5 * (*cpu)->model().dt);
+  EXPECT_GE(rg.puncture.max_strain, 0.04);
+  EXPECT_NEAR(rg.puncture.max_strain, rc.puncture.max_strain, 0.002);
+  EXPECT_NEAR(rg.puncture.force, rc.puncture.force, 0.03 * rc.puncture.force);
+  // Both ended where the path ends.
+  EXPECT_NEAR((*gpu)->report().tip.y, 1e-6, 1e-12);
+  EXPECT_NEAR((*cpu)->report().tip.y, 1e-6, 1e-12);
+  std::remove(path.c_str());
 }
 
 TEST(CudaJob, AHandedInTipIsFollowedStepByStep) {

@@ -57,6 +57,53 @@ TEST(JobSimulation, SmallCellInjectionOnTheCpuRunner) {
   for (const ForceSample& s : run.samples) EXPECT_LE(s.deformation, s.travel + 1e-7);
 }
 
+// The strain criterion: the membrane's stretch on the triangles the tip touches rises with the
+// push, and the puncture is taken at the first quasi-static step past the threshold, with the
+// force and strain of that moment; a threshold above the run's largest stretch never punctures.
+TEST(JobSimulation, StrainCriterionPuncturesWhereTheMembraneStretchReachesIt) {
+  Scene scene = small_scene();
+  scene.model = ModelKind::kStableNeoHookean;
+  scene.puncture.criterion = PunctureCriterion::kNone;
+  Result<std::unique_ptr<Simulation>> free_run = Simulation::create(scene);
+  ASSERT_TRUE(free_run.ok()) << free_run.error().message;
+  while (!(*free_run)->finished()) {
+    ASSERT_FALSE((*free_run)->step() & kStepFailed);
+    EXPECT_EQ((*free_run)->report().max_strain, 0.0);  // not taken without the criterion
+  }
+  scene.puncture.criterion = PunctureCriterion::kStrain;
+  scene.puncture.threshold = 1e9;
+  Result<std::unique_ptr<Simulation>> sim = Simulation::create(scene);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  double previous = 0, peak = 0;
+  int rises = 0, samples = 0;
+  while (!(*sim)->finished()) {
+    ASSERT_FALSE((*sim)->step() & kStepFailed);
+    const double e = (*sim)->report().max_strain;
+    ASSERT_TRUE(std::isfinite(e) && e >= 0);
+    if ((*sim)->report().step % 20 == 0) {
+      rises += e > previous ? 1 : 0;
+      ++samples;
+      previous = e;
+    }
+    peak = std::max(peak, e);
+  }
+  EXPECT_FALSE((*sim)->puncture().punctured);
+  EXPECT_GT(peak, 0.02);  // the tip stretches the membrane by several %
+  EXPECT_LT(peak, 1.0);
+  EXPECT_GT(rises, samples / 2);  // it grows with the push
+  // Half the peak: reached part way in, and the puncture records it.
+  scene.puncture.threshold = 0.5 * peak;
+  Result<std::unique_ptr<Simulation>> cut = Simulation::create(scene);
+  ASSERT_TRUE(cut.ok()) << cut.error().message;
+  const RunResult run = run_simulation(**cut);
+  ASSERT_FALSE(run.stopped_early) << run.stop_reason;
+  ASSERT_TRUE(run.puncture.punctured);
+  EXPECT_GE(run.puncture.max_strain, 0.5 * peak);
+  EXPECT_LT(run.puncture.max_strain, 0.75 * peak);
+  EXPECT_GT(run.puncture.force, 0.0);
+  EXPECT_LT(run.puncture.deformation, run.peak_deformation);
+}
+
 TEST(JobSimulation, TheHapticForceDropsWithTheReleaseNotWithTheLoadCellFilter) {
   // The mouse scene's release (90 % over 0.2 ms) and load cell (2 ms): the force a haptic device
   // renders is the filtered one while loading and the raw released load from the puncture on,

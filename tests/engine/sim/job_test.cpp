@@ -426,5 +426,30 @@ TEST(NeedleFaceForce, PressureActsAlongTheTriangleNormal) {
   EXPECT_GT(gx, 0);  // the tool's normals lean towards +x over this triangle
 }
 
+// The membrane strain the strain criterion reads: a triangle stretched by 10 % along one edge has
+// Green strain (1.1^2 - 1) / 2 whatever its orientation and wherever it is moved; a rigid motion
+// has none; a compressed triangle reports 0 (the criterion is on stretch).
+TEST(NeedleFaceStrain, IsTheLargestInPlaneGreenStrain) {
+  const Vec3d rest[3] = {{0, 0, 0}, {2e-6, 0, 0}, {0.5e-6, 1.5e-6, 0}};
+  // A rotation about an oblique axis and a shift: the same triangle, no strain.
+  const Vec3d axis = (1.0 / std::sqrt(14.0)) * Vec3d{1, 2, 3};
+  const double angle = 0.7, c = std::cos(angle), s = std::sin(angle);
+  auto rotate = [&](Vec3d v) {
+    return c * v + s * cross(axis, v) + (1 - c) * dot(axis, v) * axis + Vec3d{1e-6, -2e-6, 3e-6};
+  };
+  Vec3d moved[3], stretched[3], squeezed[3], biaxial[3];
+  for (int k = 0; k < 3; ++k) {
+    moved[k] = rotate(rest[k]);
+    stretched[k] = rotate(Vec3d{1.1 * rest[k].x, rest[k].y, rest[k].z});
+    squeezed[k] = Vec3d{0.9 * rest[k].x, 0.95 * rest[k].y, rest[k].z};
+    biaxial[k] = Vec3d{1.05 * rest[k].x, 1.2 * rest[k].y, 0.3 * rest[k].x};
+  }
+  EXPECT_NEAR(needle_face_strain(rest, moved), 0.0, 1e-12);
+  EXPECT_NEAR(needle_face_strain(rest, stretched), 0.5 * (1.1 * 1.1 - 1), 1e-12);
+  EXPECT_EQ(needle_face_strain(rest, squeezed), 0.0);
+  // x -> (1.05 x, 1.2 y, 0.3 x): F^T F = [[1.05^2 + 0.09, 0], [0, 1.44]]; largest 0.22.
+  EXPECT_NEAR(needle_face_strain(rest, biaxial), 0.5 * (1.44 - 1), 1e-12);
+}
+
 }  // namespace
 }  // namespace zona

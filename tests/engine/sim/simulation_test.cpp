@@ -162,6 +162,54 @@ TEST(Simulation, FrictionSticksInsideTheConeAndSlidesOnIt) {
   }
 }
 
+// The same press and slide on the penalty step, its tip scripted by the trajectory file: the
+// tangential load sits on the Coulomb cone while the tool slides over the top, and inside it
+// when the top sticks and moves with the tool (up to the stick zone's few nm).
+TEST(Simulation, PenaltyFrictionFollowsATrajectorySticksAndSlides) {
+  TempDir dir;
+  const std::string file = write_box(dir, 12, 12, 6, 4, 4, 2);
+  const std::string traj = (dir.path / "slide.csv").string();
+  {
+    std::ofstream f(traj);
+    f << "time_s,x_m,y_m,z_m\n0,6e-6,6e-6,6.5e-6\n0.011,6e-6,6e-6,5.4e-6\n0.016,6e-6,6e-6,5.4e-6\n"
+         "0.031,7.5e-6,6e-6,5.4e-6\n";
+  }
+  for (const double mu : {0.1, 5.0}) {
+    json j = pressed_box(file, mu);
+    j["needle"]["trajectory"] = traj;
+    j["needle"]["start"] = "auto";
+    j["integrator"]["duration"] = "31 ms";
+    auto sim = create(parse(j, {"contact.model=penalty"}));
+    ASSERT_TRUE(sim);
+    ASSERT_TRUE(sim->job_mode());
+    while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
+    const NeedleReport& r = sim->report();
+    // The tip went where the file says.
+    EXPECT_NEAR(r.tip.x, 7.5e-6, 1e-12);
+    EXPECT_NEAR(r.tip.z, 5.4e-6, 1e-12);
+    const double normal = -r.force_vector.z, tangential = std::fabs(r.force_vector.x);
+    ASSERT_GT(normal, 0.0);
+    double top_dx = 0;
+    int top = 0;
+    const Model& m = sim->model();
+    for (size_t v = 0; v < m.vertex_count(); ++v)
+      if (m.rest_positions[v].z > 6e-6 - 1e-12) {
+        top_dx += sim->state().u[v].x;
+        ++top;
+      }
+    ASSERT_EQ(top, 25);
+    top_dx /= top;
+    if (mu < 1) {
+      EXPECT_NEAR(tangential, mu * normal, 0.05 * mu * normal) << "mu " << mu;
+      EXPECT_LT(top_dx, 1.0e-6);
+    } else {
+      EXPECT_LT(tangential, mu * normal);
+      EXPECT_GT(tangential, 0.1 * normal);
+      EXPECT_NEAR(top_dx, 1.5e-6, 0.02e-6);
+    }
+  }
+}
+
 TEST(Simulation, NeedleForceIsConsistentUnderMeshRefinement) {
   // A sphere tip (R 6 um) 3 um into a box: contact radius sqrt(2 R d) = 6 um, held by 17
   // vertices on the 2 um mesh and 27 on the 1.5 um mesh. Measured: 0.313, 0.264, 0.256, 0.256 uN
