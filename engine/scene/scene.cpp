@@ -466,9 +466,13 @@ void read_contact(Reader& root, Scene& scene) {
                                      "note"});
   if (!r.present()) return;
   ContactDef& c = scene.contact;
-  r.choice("model", {Choice<ContactModel>{"penalty", ContactModel::kPenalty},
-                     Choice<ContactModel>{"kinematic", ContactModel::kKinematic}},
-           &c.model);
+  if (const nlohmann::json* m = r.find("model"); m && m->is_string() && *m == "kinematic") {
+    r.fail("model", "'kinematic' was retired: every scene runs the penalty contact, whose load "
+                    "does not depend on how many vertices the tip touches (docs/architecture.md, "
+                    "\"One engine\")");
+    return;
+  }
+  r.choice("model", {Choice<ContactModel>{"penalty", ContactModel::kPenalty}}, &c.model);
   r.number("stiffness", &c.stiffness, Range::positive());
   r.choice("needle_quadrature", {Choice<bool>{"faces", true}, Choice<bool>{"vertices", false}},
            &c.needle_on_faces);

@@ -276,9 +276,6 @@ enum class ContactModel {
   /// Penalty pressure on the tools' signed distance fields with Coulomb friction: the same load
   /// at every mesh size; runs on every backend inside the device-resident step (engine/sim/job.h).
   kPenalty,
-  /// Kinematic: touched vertices are held on the tool as prescribed vertices (engine/tools/contact.h);
-  /// the host drives it, one step at a time.
-  kKinematic,
 };
 
 /// Tool-cell contact.

@@ -223,7 +223,7 @@ json scene_to_json(const Scene& scene) {
   j["puncture"] = puncture;
 
   json contact = json::object();
-  contact["model"] = scene.contact.model == ContactModel::kPenalty ? "penalty" : "kinematic";
+  contact["model"] = "penalty";
   contact["stiffness"] = scene.contact.stiffness;
   contact["needle_quadrature"] = scene.contact.needle_on_faces ? "faces" : "vertices";
   contact["rim_damping"] = scene.contact.rim_damping;

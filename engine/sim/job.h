@@ -26,11 +26,12 @@
 // GPU only the fixed-size JobRecord crosses to the host (mapped pinned memory, no stream
 // synchronisation); vertex arrays cross only for a written frame.
 //
-// Why penalty contact on the tools' distance fields (and not the kinematic contact of
-// engine/tools/contact.h): the load a tool puts on the cell is a pressure on the area it covers, so it
-// does not depend on how many vertices the tip happens to touch (the mesh-convergence study of
-// docs/validation.md), and every vertex decides its own contact from its own position, which is
-// one thread per surface vertex on the GPU with no contact set to rebuild. docs/injection.md has
+// Why penalty contact on the tools' distance fields (and not a kinematic contact that holds the
+// touched vertices on the tool, which zona ran first and retired): the load a tool puts on the
+// cell is a pressure on the area it covers, so it does not depend on how many vertices the tip
+// happens to touch (the mesh-convergence study of docs/validation.md), and every vertex decides
+// its own contact from its own position, which is one thread per surface vertex on the GPU with
+// no contact set to rebuild. docs/injection.md has
 // the stiffness, the stable step and the friction law.
 #pragma once
 
@@ -402,7 +403,8 @@ struct JobState {
   int32_t halted = 0;
   double stiffness = 0, stiffness_force = 0, stiffness_travel = 0;
   int32_t stiffness_anchor = 0;
-  int32_t released_contacts = 0;  ///< needle contacts at puncture
+  /// After puncture: the contact points the shaft's drag is shared by (the last step's) [-].
+  int32_t released_contacts = 0;
   /// After puncture: the scale on the needle's contact pressure, set each step so that the
   /// contact's axial load follows the release (job_follow_release) [-].
   double release_scale = 1;
@@ -617,7 +619,13 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_filter_forces(const JobParams& p, JobState
 /// step (t_{n+1}); the record reports the tip the step ended at.
 ZONA_HOST_DEVICE ZONA_INLINE void job_commit_pose(const JobParams& p, JobState& s,
                                                   const JobSums& sums, JobRecord& r) {
-  if (s.puncture.punctured) job_follow_release(p, s, sums, r.raw_force);
+  if (s.puncture.punctured) {
+    job_follow_release(p, s, sums, r.raw_force);
+    // The shaft's drag is shared by the points the frozen tip touches now: the cell springs
+    // back onto it as the load is released (4 points at the small cell's puncture, 60 a
+    // millisecond later), and a share fixed at the puncture's count multiplied the drag by 15.
+    if (sums.needle_contacts > 0) s.released_contacts = sums.needle_contacts;
+  }
   job_follow_tip(p, s);
   job_set_pose(p, s);
   r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time))

@@ -37,7 +37,7 @@ struct JobSetup {
   size_t sample_capacity = 1 << 16;
 };
 
-/// The records a host-side runner (the CPU job's, the kinematic step's) keeps for the run
+/// The records a host-side runner (the CPU job's, the prescribed boundary's) keeps for the run
 /// driver between its reads: the newest step's record and the samples, in a buffer sized once (a
 /// full buffer is reported by take, never grown).
 class HostRecords {

@@ -1,6 +1,6 @@
-// Whether an injection run was quasi-static: the measure both explicit step paths take every step
-// (the job's record stage on either backend, and the kinematic step), the verdict that keeps a
-// dynamic state from being reported as a puncture, and the run's worst values.
+// Whether an injection run was quasi-static: the measure the explicit step takes every step (the
+// job's record stage on either backend), the verdict that keeps a dynamic state from being
+// reported as a puncture, and the run's worst values.
 //
 // A quasi-static injection is an equilibrium at every needle position: what the needle pushes,
 // the holding pipette (rim contact plus suction) holds. Explicit dynamics reaches it only with

@@ -123,7 +123,7 @@ nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& r
                                 const RunProvenance& provenance = local_provenance());
 
 /// Per-frame fields. Point: "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
-/// free), "stress" [Pa] (9, Cauchy, row-major), "strain" [-] (9, Green-Lagrange, row-major),
+/// free; zeros here, marked by the simulation's overload), "stress" [Pa] (9, Cauchy, row-major), "strain" [-] (9, Green-Lagrange, row-major),
 /// "von_mises" [Pa] (1, of the vertex's "stress"); the vertex tensors are means over the
 /// tetrahedra around the vertex weighted by their rest volume; under nodal pressure (Model::
 /// nodal_pressure) the element part of the stress is averaged and the vertex's own pressure
@@ -131,8 +131,7 @@ nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& r
 /// "von_mises_stress" [Pa] (1). Cauchy stress of the model's law: F S F^T / J for SVK, P F^T /
 /// J for the stable neo-Hookean law, the small-strain stress for linear; an inverted element
 /// (J <= 0) gives S or P.
-void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
-                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
+void frame_fields(const Model& model, const State& state, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data);
 
 /// frame_fields of a simulation's current state.

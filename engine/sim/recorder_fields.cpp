@@ -65,11 +65,10 @@ VtkField& field(std::vector<VtkField>& fields, size_t i, const char* name, int c
 
 void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data) {
-  frame_fields(sim.model(), sim.state(), sim.needle_contacts(), sim.holding_contacts(), point_data,
-               cell_data);
+  frame_fields(sim.model(), sim.state(), point_data, cell_data);
   if (!sim.job_mode()) return;
-  // The penalty step keeps no contact sets: mark what the tools touch in this state (the
-  // needle's load stays at its puncture pose after puncture).
+  // Mark what the tools touch in this state (the needle's load stays at its puncture pose after
+  // puncture).
   const JobParams& p = sim.job_setup().params;
   const PunctureRecord& q = sim.puncture();
   const Vec3d tip = q.punctured ? p.needle.start + q.needle_travel * p.needle.direction
@@ -80,8 +79,7 @@ void frame_fields(const Simulation& sim, std::vector<VtkField>* point_data,
   for (size_t v = 0; v < marks.size(); ++v) contact[v] = marks[v];
 }
 
-void frame_fields(const Model& model, const State& state, std::span<const Contact> needle,
-                  std::span<const Contact> holding, std::vector<VtkField>* point_data,
+void frame_fields(const Model& model, const State& state, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data) {
   const size_t nv = model.vertex_count(), nt = model.tet_count();
   point_data->resize(5);
@@ -91,9 +89,7 @@ void frame_fields(const Model& model, const State& state, std::span<const Contac
     disp.values[3 * v + 1] = state.u[v].y;
     disp.values[3 * v + 2] = state.u[v].z;
   }
-  VtkField& contact = field(*point_data, 1, "contact", 1, nv);
-  for (const Contact& c : needle) contact.values[static_cast<size_t>(c.vertex)] = 1.0;
-  for (const Contact& c : holding) contact.values[static_cast<size_t>(c.vertex)] = 2.0;
+  field(*point_data, 1, "contact", 1, nv);  // zeros; frame_fields(Simulation) marks the tools'
   VtkField& stress = field(*point_data, 2, "stress", 9, nv);
   VtkField& strain = field(*point_data, 3, "strain", 9, nv);
   VtkField& mises = field(*point_data, 4, "von_mises", 1, nv);

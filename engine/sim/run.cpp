@@ -1,7 +1,7 @@
 // The run driver: one loop for every scene. Steps go to the simulation's runner (the job's, CPU
-// or GPU, or the kinematic step's, engine/sim/kinematic_runner.h) in batches; samples come back
-// as JobRecords and become force.csv rows through one builder (sample_of); the state comes to
-// the host only for frames.
+// or GPU, or the prescribed boundary's host step, engine/sim/boundary_runner.h) in batches;
+// samples come back as JobRecords and become force.csv rows through one builder (sample_of);
+// the state comes to the host only for frames.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -155,7 +155,7 @@ RunResult run_simulation(Simulation& sim, const RunOptions& options) {
       result.status |= r.status;
     }
   };
-  bool halted = false;  // the kinematic step's last record failed its check
+  bool halted = false;  // the host step's last record failed its check
   auto frame_now = [&](int k) -> bool {
     if (Status s = sim.sync_state(); !s) {
       result.stopped_early = true;

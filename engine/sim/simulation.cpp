@@ -15,7 +15,7 @@
 #include "engine/core/parallel.h"
 #include "engine/fem/mass_scaling.h"
 #include "engine/scene/scene_mesh.h"
-#include "engine/sim/kinematic_runner.h"
+#include "engine/sim/boundary_runner.h"
 
 namespace zona {
 namespace {
@@ -185,8 +185,6 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
   options_ = options;
   if (options.backend_substeps < 1)
     return make_error("simulation: backend_substeps must be >= 1, got %d", options.backend_substeps);
-  if (!(options.slip_relax > 0 && options.slip_relax <= 1))
-    return make_error("simulation: slip_relax must be in (0, 1], got %g", options.slip_relax);
 
   // The setup stages, in order; each is timed, and the times are reported as one note
   // ("setup: mesh 3.1 s, ..."): a fine mesh's setup is a third of its run to the puncture.
@@ -200,9 +198,8 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
       {"model",        &Simulation::setup_model},         // the immutable model
       {"mass scaling", &Simulation::setup_mass_scaling},  // selective mass scaling
       {"state",        &Simulation::setup_state},         // the mutable state
-      {"tools",        &Simulation::setup_tools},         // contact sets, puncture
       {"end",          &Simulation::setup_end_time},      // when the run ends
-      {"scratch",      &Simulation::setup_scratch},       // step scratch, snapshots
+      {"scratch",      &Simulation::setup_scratch},       // the host step's scratch
       {"quasi-static", &Simulation::setup_quasi_static},  // the quasi-static check's limits
       {"job",          &Simulation::setup_job},           // the penalty step's parameters
       {"backend",      &Simulation::setup_backend},       // CPU in place or a Backend
@@ -345,6 +342,13 @@ Status Simulation::setup_holding(SetupContext& setup) {
         return make_error("%s: boundary: vertex %d is both fixed and indented", scene_.name.c_str(),
                           v);
   }
+  // The indentation is the run's tool: a prescribed patch, stepped on the host. The needle and
+  // the suction rim are the job's terms, which has no prescribed vertices.
+  if (!indent_vertices_.empty() &&
+      (has_needle_ || (holding_ && holding_->mode == HoldingMode::kSuction)))
+    return make_error("%s: boundary: an indent patch is the run's only tool (set needle.enabled "
+                      "false and a fixed holding pipette, or use the needle)",
+                      scene_.name.c_str());
   return Status::ok_status();
 }
 
@@ -442,41 +446,6 @@ Status Simulation::setup_state(SetupContext&) {
   return Status::ok_status();
 }
 
-// The tools on the surface: kinematic contact sets, the puncture criterion.
-Status Simulation::setup_tools(SetupContext& setup) {
-  const size_t capacity = model_.vertex_count();
-  if (has_needle_) {
-    ContactTool tool;
-    tool.kind = ContactTool::Kind::kNeedle;
-    tool.needle = {scene_.needle.shape, scene_.needle.tip_radius, setup.direction};
-    tool.friction = scene_.needle.friction;
-    needle_contacts_ = std::make_unique<ContactSet>(tool, surface_, model_.vertex_count(), capacity);
-  }
-  if (holding_ && holding_->mode == HoldingMode::kSuction) {
-    ContactTool tool;
-    tool.kind = ContactTool::Kind::kHolding;
-    tool.holding = holding_->geometry;
-    tool.friction = holding_->friction;
-    rim_contacts_ = std::make_unique<ContactSet>(tool, surface_, model_.vertex_count(), capacity);
-  }
-  puncture_ = std::make_unique<Puncture>(scene_.puncture, setup.direction, capacity);
-  // The kinematic contact's strain criterion reads the zona's tetrahedra around its contacts
-  // (the penalty step's reads the surface triangles around the tip: job.h).
-  if (scene_.puncture.criterion == PunctureCriterion::kStrain &&
-      scene_.contact.model == ContactModel::kKinematic) {
-    tet_in_zona_.assign(mesh_.tet_count(), 0);
-    bool any = false;
-    for (size_t t = 0; t < mesh_.tet_count(); ++t)
-      if (!mesh_.tet_region.empty() && mesh_.region_name(mesh_.tet_region[t]) == "zona")
-        tet_in_zona_[t] = 1, any = true;
-    if (!any) {
-      tet_in_zona_.clear();
-      notes_.push_back("puncture: strain criterion over every element at the tip (no 'zona' region)");
-    }
-  }
-  return Status::ok_status();
-}
-
 // When the run ends: the scene's duration, the needle's script or the indentation.
 Status Simulation::setup_end_time(SetupContext&) {
   if (scene_.integrator.duration > 0) {
@@ -493,27 +462,12 @@ Status Simulation::setup_end_time(SetupContext&) {
   return Status::ok_status();
 }
 
-// Scratch of the kinematic step and the render snapshots, sized once.
+// The prescribed boundary's host step: the patch and its targets, sized once.
 Status Simulation::setup_scratch(SetupContext&) {
-  const size_t nv = model_.vertex_count();
-  taken_.assign(nv, 0);
-  for (int32_t v : model_.fixed_vertices) taken_[static_cast<size_t>(v)] = 1;
-  for (int32_t v : indent_vertices_) taken_[static_cast<size_t>(v)] = 1;
-  prescribed_.reserve(nv);
-  targets_.assign(nv, Vec3d{0, 0, 0});
-  loaded_.reserve(nv);
-  uploaded_prescribed_.reserve(nv);
-  contact_vertices_.reserve(nv);
-  zero_u_.assign(nv, Vec3d{0, 0, 0});
+  if (indent_vertices_.empty()) return Status::ok_status();
+  targets_.assign(indent_vertices_.size(), Vec3d{0, 0, 0});
   indent_before_.assign(indent_vertices_.size(), Vec3d{0, 0, 0});
-  if (options_.snapshot_interval > 0) {
-    SurfaceSnapshot initial;
-    initial.positions.resize(surface_.vertices.size());
-    for (size_t i = 0; i < surface_.vertices.size(); ++i)
-      initial.positions[i] = model_.rest_positions[static_cast<size_t>(surface_.vertices[i])];
-    snapshots_ = std::make_unique<TripleBuffer<SurfaceSnapshot>>(initial);
-  }
-  return Status::ok_status();
+  return set_prescribed_vertices(model_, state_, indent_vertices_);
 }
 
 // The quasi-static check's limits, the same on both step paths.
@@ -527,7 +481,7 @@ Status Simulation::setup_quasi_static(SetupContext&) {
   double young_max = 0;
   for (const Material& m : model_.materials) young_max = std::max(young_max, m.young);
   q.enforce = scene_.experiment == Experiment::kQuasiStatic && has_needle_ ? 1 : 0;
-  q.has_holder = rim_contacts_ != nullptr ? 1 : 0;
+  q.has_holder = holding_ && holding_->mode == HoldingMode::kSuction ? 1 : 0;
   q.max_imbalance = qd.max_imbalance;
   q.max_kinetic_share = qd.max_kinetic_share;
   q.force_floor = qd.force_floor
@@ -540,8 +494,7 @@ Status Simulation::setup_quasi_static(SetupContext&) {
 // The device-resident job (penalty contact): its setup may raise masses for the contact's
 // stable step, so it comes before the backend takes the model (simulation_job.cpp).
 Status Simulation::setup_job(SetupContext& setup) {
-  setup.job_path = scene_.contact.model == ContactModel::kPenalty && indent_vertices_.empty() &&
-                   (has_needle_ || (holding_ && holding_->mode == HoldingMode::kSuction));
+  setup.job_path = indent_vertices_.empty();
   return setup.job_path ? prepare_job() : Status::ok_status();
 }
 
@@ -566,7 +519,7 @@ Status Simulation::setup_backend(SetupContext&) {
   return Status::ok_status();
 }
 
-// Stiffness damping's history (the kinematic step; the job keeps its own).
+// Stiffness damping's history (the host step; the job keeps its own).
 Status Simulation::setup_damping(SetupContext&) {
   // Stiffness damping rewrites every load each step (Backend::set_external_forces on the
   // Backend path; with several sub-steps per call its term is held over the call).
@@ -578,7 +531,7 @@ Status Simulation::setup_damping(SetupContext&) {
   return Status::ok_status();
 }
 
-// The runner the run driver steps: the job's (CPU or the backend's) or the kinematic step's.
+// The runner the run driver steps: the job's (CPU or the backend's) or the host step's.
 Status Simulation::setup_runner(SetupContext& setup) {
   tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   report_.tip = tip_;
@@ -590,18 +543,15 @@ Status Simulation::setup_runner(SetupContext& setup) {
     // reported, not grown.
     const double row_dt = std::max(std::max(scene_.output.sample_interval, 0.0), model_.dt);
     sample_capacity_ = static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 4;
-    kinematic_runner_ = make_kinematic_runner(*this, sample_capacity_);
+    boundary_runner_ = make_boundary_runner(*this, sample_capacity_);
     // The record functions the host step shares with the job: the filter's weight over one
     // step (backend_substeps steps of model.dt on the Backend path).
     JobParams& p = record_params_;
     const double step = (backend_ ? options_.backend_substeps : 1) * model_.dt;
     p.dt = step;
-    p.needle.direction = script_.direction;
-    p.record.force_filter = scene_.needle.force_filter;
-    p.record.force_filter_weight =
-        p.record.force_filter > 0 ? 1.0 - std::exp(-step / p.record.force_filter) : 1.0;
+    p.needle.direction = indent_direction_.front();
+    p.record.force_filter_weight = 1.0;  // the patch's reaction, unfiltered
     p.record.stiffness_window = options_.stiffness_window;
-    p.puncture.shaft_friction = scene_.puncture.shaft_friction;
   }
   return Status::ok_status();
 }

@@ -5,18 +5,17 @@
 //
 // The step is the job's (engine/sim/job.h, stages named in step_stage.h) for every scene with a
 // tool, the particle model's too (its body stages: particle_body.h): step2 hands one step to the
-// runner, the pose entering through JobRunner::set_tip. An indentation boundary and
-// contact.model "kinematic" take the host step of the kinematic contact (docs/architecture.md,
-// "One engine"):
+// runner, the pose entering through JobRunner::set_tip. A scene whose only load is an
+// indentation boundary (a prescribed patch, no tool) takes the host step of the prescribed
+// boundary (docs/architecture.md, "One engine"):
 //
-//   step1:  1. tools      needle pose at t_{n+1} from its script
+//   step1:  tools      needle pose at t_{n+1} from its script (the job's runner takes it)
 //           -- set_needle_tip() may replace the pose here --
-//   step2:  2. puncture   criterion on the last measured force / strain / energy
-//           3. contact    needle and rim contacts: release, friction, new contacts, targets
-//           4. loads      suction on the aspirated patch, released tip force, shaft drag
-//           5. integrate  internal forces + centred difference (the backend)
-//           6. measure    contact reactions, needle force, deformation at the tip
-//           7. publish    needle report (force, local stiffness), surface snapshot
+//   step2:  loads      stiffness damping
+//           targets    the indented patch's displacement at t_{n+1}
+//           integrate  internal forces + centred difference, the patch prescribed (the backend)
+//           measure    the patch's reaction, the holder's force, energies
+//           publish    the report (force, local stiffness)
 //
 // Nothing on the step path allocates: every buffer is sized at creation.
 #pragma once
@@ -44,7 +43,6 @@
 #include "engine/sim/quasi_static.h"
 #include "engine/scene/scene.h"
 #include "engine/fem/state.h"
-#include "engine/core/triple_buffer.h"
 
 namespace zona {
 
@@ -52,9 +50,9 @@ namespace zona {
 struct SimulationOptions {
   /// Compute backend: empty steps the CPU reference in place (no copies). Otherwise called once
   /// at creation (e.g. with kernels/backend_factory.h's make_backend; the engine does not
-  /// depend on kernels/): a returned CPU backend is dropped for the in-place path, any other is
-  /// driven through the Backend interface, which today re-uploads the state whenever the
-  /// contact set or the loads change (docs/injection.md lists the calls that would avoid it).
+  /// depend on kernels/): a returned CPU backend is dropped for the in-place path, any other
+  /// runs the job's step on the device (engine/sim/job_runner.h), or the prescribed boundary's
+  /// host step through the Backend interface.
   /// `notice` receives a one-line note (e.g. the auto fallback to the CPU).
   std::function<Result<std::unique_ptr<Backend>>(std::string* notice)> backend_factory;
   /// Compute backend of the particle model (scene model "particles"), called once at creation
@@ -66,21 +64,15 @@ struct SimulationOptions {
       particle_backend_factory;
   /// Threads of the CPU reference (0: one per hardware thread). Results do not depend on it.
   int threads = 0;
-  /// Integrator sub-steps per contact update on the Backend path (>= 1).
+  /// Integrator sub-steps per host step on the Backend path of the prescribed boundary (>= 1).
   int backend_substeps = 1;
   /// SVK inversion remedy (ignored by the linear model, which cannot invert its stiffness).
   InversionHandling inversion = InversionHandling::kClampStretch;
-  /// Steps between whole-surface contact searches (the local search runs every step).
-  int full_scan_interval = 256;
-  /// Relaxation of the friction slip correction, (0, 1].
-  double slip_relax = 0.5;
   /// Travel over which the local stiffness estimate is taken [m].
   double stiffness_window = 20e-9;
   /// The device-resident job follows a tip handed in by set_needle_tip at most at this speed
   /// [m/s], one step at a time (JobParams::external_tip_max_speed); 0: it takes the tip as is.
   double external_tip_max_speed = 0;
-  /// Steps between surface snapshots for a render thread; 0: none.
-  int snapshot_interval = 0;
   /// Tests: drive a CPU backend from the factory through the Backend interface (uploads,
   /// targets, downloads) instead of dropping it for the in-place path, so that the path the GPU
   /// backends take can be checked against the in-place reference on any machine.
@@ -97,16 +89,14 @@ struct NeedleReport {
   /// Axial reaction on the needle, resistance positive [N]; low-passed by needle.force_filter.
   double force = 0;
   double raw_force = 0;         ///< the same before the filter [N]
-  /// Force the needle applies to the cell [N]: the quasi-static contact reaction (minus the
-  /// elastic and applied forces on the contact vertices; engine/tools/contact.h says why).
+  /// Force the needle applies to the cell [N] (the indented patch's reaction where the scene
+  /// has no needle).
   Vec3d force_vector{0, 0, 0};
-  /// The full constraint force on the contact vertices, inertia and damping included [N].
-  Vec3d constraint_force{0, 0, 0};
   double stiffness = 0;         ///< local d force / d travel [N/m]
-  int32_t contacts = 0;         ///< vertices held by the needle
-  int32_t holding_contacts = 0; ///< vertices held by the holding pipette's rim
+  int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
+  int32_t holding_contacts = 0; ///< vertices inside the holding pipette's rim
   Vec3d holding_force{0, 0, 0}; ///< force the holding pipette applies to the cell [N]
-  double max_strain = 0;        ///< largest principal Green strain at the tip (strain criterion) [-]
+  double max_strain = 0;        ///< the zona's stretch around the tip (strain criterion) [-]
   double elastic_energy = 0;    ///< [J]
   double kinetic_energy = 0;    ///< [J]
   bool punctured = false;
@@ -127,14 +117,6 @@ struct NeedleReport {
 inline double haptic_axial_force(const NeedleReport& r) {
   return r.punctured ? r.raw_force : r.force;
 }
-
-/// Surface positions for a render thread, published every SimulationOptions::snapshot_interval
-/// steps through a TripleBuffer (engine/core/triple_buffer.h).
-struct SurfaceSnapshot {
-  std::vector<Vec3d> positions;  ///< deformed surface vertex positions [m], (surface count)
-  double time = 0;               ///< simulated time [s]
-  int64_t step = 0;              ///< steps taken
-};
 
 struct RunOptions;
 struct RunResult;
@@ -161,7 +143,7 @@ class Simulation {
   void step1();
   /// Between the halves: replace the needle tip pose for this step [m] (haptic coupling).
   void set_needle_tip(Vec3d tip);
-  /// Second half: puncture, contact, loads, integrate, measure, publish.
+  /// Second half: the job's step, or the prescribed boundary's (above).
   StepStatus step2();
   /// step1 then step2.
   StepStatus step() {
@@ -182,15 +164,8 @@ class Simulation {
   const ContactSurface& surface() const { return surface_; }
   const NeedleScript& needle_script() const { return script_; }
   const NeedleReport& report() const { return report_; }
-  const PunctureRecord& puncture() const { return job_ ? job_puncture_ : puncture_->record(); }
+  const PunctureRecord& puncture() const { return job_puncture_; }
   const std::optional<HoldingSetup>& holding() const { return holding_; }
-  /// Surface snapshots for one reader thread (acquire() / read_slot()); nullptr unless
-  /// SimulationOptions::snapshot_interval > 0.
-  TripleBuffer<SurfaceSnapshot>* surface_snapshots() { return snapshots_.get(); }
-  /// Needle contacts (empty without a needle or after puncture).
-  std::span<const Contact> needle_contacts() const;
-  /// Rim contacts of a suction holding pipette.
-  std::span<const Contact> holding_contacts() const;
   /// Rest position where the needle axis enters the cell [m].
   Vec3d entry_point() const { return entry_point_; }
   /// Cell extent along the needle axis at rest [m] (the diameter for a ball).
@@ -205,19 +180,19 @@ class Simulation {
   /// True when the step runs as the device-resident job (penalty contact, engine/sim/job.h): the
   /// stages run where the state lives, and state() is brought up to date by sync_state().
   bool job_mode() const { return job_ != nullptr; }
-  /// The job's runner, or null on the kinematic-contact path.
+  /// The job's runner, or null on the prescribed boundary's path.
   JobRunner* job() { return job_; }
-  /// The runner the run driver steps: the job's, or the kinematic step's
-  /// (engine/sim/kinematic_runner.h).
-  JobRunner& runner() { return job_ ? *job_ : *kinematic_runner_; }
+  /// The runner the run driver steps: the job's, or the prescribed boundary's host step
+  /// (engine/sim/boundary_runner.h).
+  JobRunner& runner() { return job_ ? *job_ : *boundary_runner_; }
   /// Samples a runner keeps between two takes (JobSetup::sample_capacity on the job path; the
-  /// whole run's rows on the kinematic path).
+  /// whole run's rows on the host path).
   size_t sample_capacity() const { return sample_capacity_; }
   /// The needle's direction of travel (unit) [-].
   Vec3d needle_direction() const {
     return job_ ? job_setup_.params.needle.direction : script_.direction;
   }
-  /// The job's setup (tool vertices, parameters); empty on the kinematic path.
+  /// The job's setup (tool vertices, parameters); empty on the host path.
   const JobSetup& job_setup() const { return job_setup_; }
   /// The static solver (engine/sim/static_run.h) publishes its accepted state: the host
   /// state's displacement and time, the report and the puncture, for frames and outputs.
@@ -258,7 +233,6 @@ class Simulation {
   Status setup_model(SetupContext& setup);
   Status setup_mass_scaling(SetupContext& setup);
   Status setup_state(SetupContext& setup);
-  Status setup_tools(SetupContext& setup);
   Status setup_end_time(SetupContext& setup);
   Status setup_scratch(SetupContext& setup);
   Status setup_quasi_static(SetupContext& setup);
@@ -267,10 +241,9 @@ class Simulation {
   Status setup_damping(SetupContext& setup);
   Status setup_runner(SetupContext& setup);
 
-  // Stages of the kinematic step2 (one line each there; simulation_step.cpp).
-  void test_puncture();
-  void update_contacts();
+  // Stages of the prescribed boundary's step2 (one line each there; simulation_step.cpp).
   void apply_loads();
+  void set_targets();
   StepStatus integrate();
   void measure();
   void publish();
@@ -300,50 +273,35 @@ class Simulation {
   NeedleScript script_;
   Vec3d tip_{0, 0, 0};       // pose at t_n
   Vec3d tip_next_{0, 0, 0};  // pose at t_{n+1}
-  std::unique_ptr<ContactSet> needle_contacts_;
   std::optional<HoldingSetup> holding_;
-  std::unique_ptr<ContactSet> rim_contacts_;
-  std::unique_ptr<Puncture> puncture_;
   std::vector<int32_t> indent_vertices_;  // prescribed indentation patches
   std::vector<Vec3d> indent_direction_;   // per indent vertex [-]
   std::vector<double> indent_depth_, indent_speed_;  // per indent vertex [m], [m/s]
-  std::vector<uint8_t> tet_in_zona_;      // strain criterion: counted tetrahedra
 
   // Geometry of the measurement.
   Vec3d entry_point_{0, 0, 0};
   Vec3d centre_{0, 0, 0};
   double cell_diameter_ = 0;
-  int32_t hit_triangle_ = -1, rest_hit_triangle_ = -1;
-  bool hit_valid_ = false;       // the axis hit the deformed surface at the last measure
-  Vec3d hit_point_{0, 0, 0};     // that hit [m]
+  int32_t rest_hit_triangle_ = -1;  // the rest surface's triangle where the axis enters
   double end_time_ = 0;
 
-  // Scratch, sized at creation.
-  std::vector<uint8_t> taken_;             // per vertex: 1 fixed / indent / other tool's contact
-  std::vector<int32_t> prescribed_;        // (vertex_count capacity)
-  std::vector<Vec3d> targets_;             // (vertex_count capacity)
-  std::vector<int32_t> loaded_;            // vertices with loads this step
-  std::vector<int32_t> uploaded_prescribed_;  // Backend path: the set the backend holds
-  std::vector<int32_t> contact_vertices_;  // strain criterion: needle contact vertices
-  std::vector<Vec3d> zero_u_;              // zero displacements, for rays on the rest surface
+  // The host step's scratch, sized at creation.
+  std::vector<Vec3d> targets_;             // the indented patch's targets at t_{n+1}
+  bool uploaded_ = false;                  // Backend path: the patch is on the backend
   std::vector<Vec3d> indent_before_;       // indent vertices' u_{n-1} [m]
   std::vector<Vec3d> force_prev_;          // stiffness damping: f(u_{n-2}) [N]
   std::vector<Vec3d> damping_load_;        // stiffness damping: this step's loads [N]
   double stiffness_damping_ = 0;           // [s]
   double damping_work_ = 0;                // the damping loads' work so far [J]
   double damping_before_ = 0;              // sum of load . (u + u_prev) before the step [J]
-  bool loads_changed_ = true;
-  int32_t seeds_[3] = {-1, -1, -1};
 
   // Published.
   NeedleReport report_;
-  std::unique_ptr<TripleBuffer<SurfaceSnapshot>> snapshots_;
   // The host step's record: the job's force filter and local stiffness (engine/sim/job.h)
-  // over these parameters (record, needle direction, shaft friction) and this state.
+  // over these parameters (record, direction) and this state.
   JobParams record_params_;
   JobState record_state_;
   QuasiStaticLimits quasi_limits_;
-  bool quasi_blocks_puncture_ = false;  // the last measured state failed an enforced check
   StepStatus last_status_ = kStepOk;
 
   // Job path.
@@ -353,7 +311,7 @@ class Simulation {
   JobRunner* job_ = nullptr;
   PunctureRecord job_puncture_;
   bool job_halted_ = false;
-  std::unique_ptr<JobRunner> kinematic_runner_;  // the kinematic path's runner
+  std::unique_ptr<JobRunner> boundary_runner_;  // the prescribed boundary's host step
   size_t sample_capacity_ = 0;
   friend RunResult run_simulation(Simulation&, const RunOptions&);
 };

@@ -296,7 +296,6 @@ void Simulation::report_from_record(const JobRecord& r) {
   o.force = r.force;
   o.raw_force = r.raw_force;
   o.force_vector = r.force_vector;
-  o.constraint_force = r.force_vector;
   o.stiffness = r.stiffness;
   o.contacts = r.contacts;
   o.holding_contacts = r.holding_contacts;

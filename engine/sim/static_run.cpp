@@ -24,9 +24,6 @@ Status check_static_scene(const Scene& scene) {
                       "collapsed equilibria under the tip (its energy falls again past a "
                       "compression of 1/sqrt(3)), so a minimiser can settle in an inverted "
                       "state; use \"model\": \"neohookean\" (or \"linear\")");
-  if (scene.contact.model != ContactModel::kPenalty)
-    return make_error("solver.method \"static\": the kinematic contact has no energy; use "
-                      "contact.model \"penalty\"");
   if (!scene.needle.enabled)
     return make_error("solver.method \"static\": nothing loads the cell (no needle)");
   if (scene.puncture.criterion == PunctureCriterion::kStrain)

@@ -43,7 +43,7 @@ const char* kScene = R"({
   "output": {"frames": 0, "sample_interval": "0.1 ms"}
 })";
 
-// The engine test's scene (tests/engine/analysis/calibrate_test.cpp): kinematic contact, 4 um,
+// The engine test's scene (tests/engine/analysis/calibrate_test.cpp): a blunt tip pushed 4 um,
 // a smooth curve that pins E; puncture off unless set.
 const char* kFitScene = R"({
   "name": "calibrate_fit",
@@ -52,9 +52,8 @@ const char* kFitScene = R"({
   "materials": {"default": {"young": "10 kPa", "poisson": 0.45, "damping": "50 1/s"}},
   "integrator": {"target_dt": "20 us", "mass_scaling_mode": "selective", "dt_safety": 0.25,
                  "stiffness_damping": "100 us"},
-  "needle": {"tip_radius": "2 um", "standoff": "0.5 um", "speed": "0.5 mm/s", "max_travel": "4 um"},
+  "needle": {"tip_radius": "6 um", "standoff": "0.5 um", "speed": "0.5 mm/s", "max_travel": "4 um"},
   "holding_pipette": {"mode": "fixed", "inner_radius": "5 um"},
-  "contact": {"model": "kinematic"},
   "output": {"frames": 0, "sample_interval": "0.1 ms"}
 })";
 

@@ -231,7 +231,9 @@ TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
     EXPECT_NE(r.err.find(words), std::string::npos) << args << "\n" << r.err;
   };
   one_line_error("--set model=svk --set volumetric=element", "spurious collapsed equilibria");
-  one_line_error("--set contact.model=kinematic", "kinematic contact has no energy");
+  one_line_error("--set contact.model=kinematic", "'kinematic' was retired");
+  one_line_error("--set puncture.criterion=strain --set puncture.threshold=0.1",
+                 "puncture.criterion 'strain'");
   one_line_error("--backend cuda", "runs on the CPU");
   one_line_error("--set solver.linear=qr", "solver.linear");
   one_line_error("--set solver.tolerance=0", "solver.tolerance");

@@ -72,9 +72,10 @@ def test_final_fields_are_the_last_frame(small_runs):
     np.testing.assert_array_equal(last.point_data["von_mises"], r.von_mises)
     n = len(r.rest_positions)
     assert r.stress.shape == (n, 3, 3) and r.von_mises.shape == (n,)
-    # Cauchy stress is symmetric; the vertices the needle pushed moved.
+    # Cauchy stress is symmetric; the vertices the needle pushed moved (16 um at the puncture;
+    # the cell springs back as the tip's load is released, to about 3 um at the end).
     np.testing.assert_allclose(r.stress, np.transpose(r.stress, (0, 2, 1)), atol=1e-9 * np.abs(r.stress).max())
-    assert np.abs(r.displacement).max() > 5e-6
+    assert np.abs(r.displacement).max() > 1e-6
     np.testing.assert_allclose(r.deformed_positions, r.rest_positions + r.displacement)
     assert r.regions and set(np.unique(r.tet_region)) <= set(r.regions.values())
 

@@ -56,7 +56,7 @@ struct Fields {
 
 Fields fields_of(const Model& model, const State& state) {
   Fields out;
-  frame_fields(model, state, {}, {}, &out.points, &out.cells);
+  frame_fields(model, state, &out.points, &out.cells);
   return out;
 }
 
@@ -224,14 +224,12 @@ TEST(RecorderFields, FrameFieldsOfAUniformStretch) {
   const double s = 1.1;  // stretch along x
   for (size_t v = 0; v < box.vertex_count(); ++v)
     state.u[v] = Vec3d{(s - 1) * box.rest_positions[v].x, 0, 0};
-  Contact c;
-  c.vertex = 3;
-  const Contact needle[1] = {c};
   std::vector<VtkField> points, cells;
-  frame_fields(*model, state, needle, {}, &points, &cells);
+  frame_fields(*model, state, &points, &cells);
   ASSERT_EQ(points.size(), 5u);
   EXPECT_EQ(points[0].name, "displacement");
-  EXPECT_EQ(points[1].values[3], 1.0);
+  EXPECT_EQ(points[1].name, "contact");
+  for (double c : points[1].values) EXPECT_EQ(c, 0.0);
   EXPECT_EQ(points[2].name, "stress");
   EXPECT_EQ(points[3].name, "strain");
   EXPECT_EQ(points[4].name, "von_mises");

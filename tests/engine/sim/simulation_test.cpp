@@ -1,7 +1,7 @@
 // Tests for engine/simulation: the injection experiment end to end on small geometry with known
-// answers (reaction = static elastic force, Coulomb stick / slip, suction balance), mesh
-// refinement and mass scaling independence, puncture and force drop, the split step, the
-// Backend path, and the mouse scene's puncture band at a reduced size.
+// answers (reaction = static elastic force, Coulomb stick / slip along a scripted path, suction
+// balance), mesh refinement, puncture and the load's release, the split step, the prescribed
+// boundary's Backend path, and the default scene's puncture on a coarse mesh.
 #include "engine/sim/simulation.h"
 
 #include <gtest/gtest.h>
@@ -49,12 +49,8 @@ std::string write_box(const TempDir& dir, double sx, double sy, double sz, int n
   return path;
 }
 
-// These tests cover the kinematic contact (engine/tools/contact.h: contact sets, friction return
-// mapping, the backend path with uploads); the penalty step is tests/engine/sim/job_test.cpp.
 Scene parse(const json& j, const std::vector<std::string>& overrides = {}) {
-  std::vector<std::string> all = {"contact.model=kinematic"};
-  all.insert(all.end(), overrides.begin(), overrides.end());
-  Result<Scene> s = parse_scene(j, "test.json", all);
+  Result<Scene> s = parse_scene(j, "test.json", overrides);
   EXPECT_TRUE(s.ok()) << (s.ok() ? "" : s.error().message);
   return s.ok() ? *s : Scene{};
 }
@@ -95,18 +91,31 @@ TEST(Simulation, FlatToolReactionEqualsTheStaticElasticForce) {
   ASSERT_TRUE(sim);
   while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
   const NeedleReport& r = sim->report();
-  // Every top vertex sticks to the tool, pushed 0.6 um down.
-  EXPECT_EQ(r.contacts, 25);
-  EXPECT_NEAR(r.deformation, 0.6e-6, 1e-9);
-  // The reference: the same body with the top face prescribed 0.6 um down, relaxed statically.
+  // Every quadrature point of the 32 top triangles is inside the tool, the top pushed 0.6 um
+  // down less the penalty's few nm, as one (it sticks: mu 100).
+  EXPECT_EQ(r.contacts, 32 * kFacePoints);
   const Model& m = sim->model();
+  double top_min = 0, top_max = -1, top_lateral = 0;
+  for (size_t v = 0; v < m.vertex_count(); ++v)
+    if (m.rest_positions[v].z > 6e-6 - 1e-12) {
+      const Vec3d u = sim->state().u[v];
+      top_min = top_max < top_min ? u.z : std::min(top_min, u.z);
+      top_max = std::max(top_max, u.z);
+      top_lateral = std::max(top_lateral, std::hypot(u.x, u.y));
+    }
+  const double depth = -0.5 * (top_min + top_max);
+  EXPECT_NEAR(depth, 0.6e-6, 0.01e-6);
+  EXPECT_LT(top_max - top_min, 0.002e-6);
+  EXPECT_LT(top_lateral, 0.05e-6) << top_lateral;
+  EXPECT_NEAR(r.deformation, depth, 0.002e-6);
+  // The reference: the same body with the top face prescribed that far down, relaxed statically.
   State s = make_state(m, 1);
   std::vector<int32_t> top;
   for (size_t v = 0; v < m.vertex_count(); ++v)
     if (m.rest_positions[v].z > 6e-6 - 1e-12) top.push_back(static_cast<int32_t>(v));
   ASSERT_EQ(top.size(), 25u);
   ASSERT_TRUE(set_prescribed_vertices(m, s, top).ok());
-  for (Vec3d& t : s.prescribed_displacement) t = Vec3d{0, 0, -0.6e-6};
+  for (Vec3d& t : s.prescribed_displacement) t = Vec3d{0, 0, -depth};
   RelaxOptions o;
   o.relative_tolerance = 1e-10;
   ASSERT_TRUE(relax_to_equilibrium(m, s, o).converged);
@@ -117,49 +126,6 @@ TEST(Simulation, FlatToolReactionEqualsTheStaticElasticForce) {
   Vec3d bottom{0, 0, 0};
   for (int32_t v : m.fixed_vertices) bottom += sim->state().force[static_cast<size_t>(v)];
   EXPECT_NEAR(bottom.z, -reference, 0.02 * reference);
-}
-
-TEST(Simulation, FrictionSticksInsideTheConeAndSlidesOnIt) {
-  TempDir dir;
-  const std::string file = write_box(dir, 12, 12, 6, 4, 4, 2);
-  // Press 0.6 um down (the tool starts 0.5 um above), then slide 1.5 um along +x.
-  const std::string traj = (dir.path / "slide.csv").string();
-  {
-    std::ofstream f(traj);
-    f << "time_s,x_m,y_m,z_m\n0,6e-6,6e-6,6.5e-6\n0.011,6e-6,6e-6,5.4e-6\n0.016,6e-6,6e-6,5.4e-6\n"
-         "0.031,7.5e-6,6e-6,5.4e-6\n";
-  }
-  for (const double mu : {0.1, 5.0}) {
-    json j = pressed_box(file, mu);
-    j["needle"]["trajectory"] = traj;
-    j["needle"]["start"] = "auto";
-    j["integrator"]["duration"] = "31 ms";
-    auto sim = create(parse(j));
-    ASSERT_TRUE(sim);
-    while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
-    const NeedleReport& r = sim->report();
-    const double normal = -r.force_vector.z, tangential = std::fabs(r.force_vector.x);
-    ASSERT_GT(normal, 0.0);
-    double top_dx = 0;
-    int top = 0;
-    for (const Contact& c : sim->needle_contacts()) {
-      top_dx += sim->state().u[static_cast<size_t>(c.vertex)].x;
-      ++top;
-    }
-    ASSERT_GT(top, 0);
-    top_dx /= top;
-    if (mu < 1) {
-      // Sliding: the tangential force sits on the cone (up to the return mapping's one-step
-      // lag), the top lags the tool.
-      EXPECT_NEAR(tangential, mu * normal, 0.15 * mu * normal) << "mu " << mu;
-      EXPECT_LT(top_dx, 1.0e-6);
-    } else {
-      // Sticking: inside the cone, the top moved with the tool.
-      EXPECT_LT(tangential, mu * normal);
-      EXPECT_GT(tangential, 0.1 * normal);
-      EXPECT_NEAR(top_dx, 1.5e-6, 0.02e-6);
-    }
-  }
 }
 
 // The same press and slide on the penalty step, its tip scripted by the trajectory file: the
@@ -211,13 +177,15 @@ TEST(Simulation, PenaltyFrictionFollowsATrajectorySticksAndSlides) {
 }
 
 TEST(Simulation, NeedleForceIsConsistentUnderMeshRefinement) {
-  // A sphere tip (R 6 um) 3 um into a box: contact radius sqrt(2 R d) = 6 um, held by 17
-  // vertices on the 2 um mesh and 27 on the 1.5 um mesh. Measured: 0.313, 0.264, 0.256, 0.256 uN
-  // on 3, 2, 1.5, 1.2 um meshes (docs/injection.md).
+  // A sphere tip (R 6 um) 3 um into a box (contact radius sqrt(2 R d) = 6 um) on 2, 1.5 and
+  // 1.2 um meshes: the penalty on the surface triangles converges. Measured: 0.2896, 0.2712,
+  // 0.2660 uN (6.4 % then 1.9 % apart), and the entry vertex 3.18, 3.06, 3.04 um down: a
+  // faceted surface pressed onto a sphere at its triangles' quadrature points dimples below the
+  // apex at a vertex by O(h^2 / R) (docs/injection.md).
   TempDir dir;
-  double force[2];
-  const int cubes[2] = {12, 16};
-  for (int k = 0; k < 2; ++k) {
+  double force[3], deformation[3];
+  const int cubes[3] = {12, 16, 20};
+  for (int k = 0; k < 3; ++k) {
     const std::string file = write_box(dir, 24, 24, 12, cubes[k], cubes[k], cubes[k] / 2);
     json j = pressed_box(file, 0.3);
     j["needle"] = {{"shape", "sphere"}, {"tip_radius", "6 um"}, {"direction", "-z"},
@@ -228,11 +196,17 @@ TEST(Simulation, NeedleForceIsConsistentUnderMeshRefinement) {
     ASSERT_TRUE(sim);
     while (!sim->finished()) ASSERT_FALSE(sim->step() & kStepNotAdvanced);
     force[k] = sim->report().force;
-    EXPECT_NEAR(sim->report().deformation, 3e-6, 0.1e-6);
-    EXPECT_GT(sim->report().contacts, 12);
+    deformation[k] = sim->report().deformation;
+    EXPECT_GT(sim->report().contacts, 90);  // quadrature points inside the tip
   }
   ASSERT_GT(force[0], 0.0);
-  EXPECT_NEAR(force[1], force[0], 0.05 * force[0]);
+  EXPECT_NEAR(deformation[0], 3e-6, 0.2e-6);
+  EXPECT_LT(deformation[2], deformation[1]);
+  EXPECT_LT(deformation[1], deformation[0]);
+  EXPECT_GT(deformation[2], 3e-6);
+  // The differences shrink with the mesh, and the two finer meshes agree within 3 %.
+  EXPECT_LT(std::fabs(force[2] - force[1]), 0.5 * std::fabs(force[1] - force[0]));
+  EXPECT_NEAR(force[2], force[1], 0.03 * force[1]);
 }
 
 // A 24 um ball held on its far side, indented by a point needle: the quasi-static SVK setup of
@@ -248,31 +222,13 @@ double force_at(const RunResult& run, double at) {
   return NAN;
 }
 
-TEST(Simulation, QuasiStaticForceDoesNotDependOnTheMassScaling) {
-  RunResult runs[2];
-  const char* steps[2][2] = {{"20 us", "100 us"}, {"10 us", "50 us"}};
-  for (int k = 0; k < 2; ++k) {
-    json j = small_cell_scene();
-    j["integrator"]["target_dt"] = steps[k][0];
-    j["integrator"]["stiffness_damping"] = steps[k][1];
-    Result<RunResult> r = run_scene(parse(j));
-    ASSERT_TRUE(r.ok()) << r.error().message;
-    runs[k] = *r;
-    ASSERT_FALSE(runs[k].stopped_early) << runs[k].stop_reason;
-  }
-  // Halving the step quarters the added mass: the curve must not move.
-  for (double at : {2e-6, 4e-6, 5.5e-6}) {
-    const double coarse = force_at(runs[0], at), fine = force_at(runs[1], at);
-    ASSERT_TRUE(std::isfinite(coarse) && std::isfinite(fine)) << at;
-    EXPECT_NEAR(coarse, fine, 0.05 * fine) << "at " << at;
-  }
-}
-
 TEST(Simulation, NeoHookeanSmallCellRunsThroughWithoutBlowUp) {
   // The small cell pushed 6 um with the stable neo-Hookean law: the whole push completes with no
   // energy blow-up and nothing non-finite, and no element inverts, where the (clamped) SVK run
   // collapses and inverts elements under the tip. At small deformation the two forces agree
-  // (both linearise to the same (lambda, mu)).
+  // (both linearise to the same (lambda, mu)) up to what the strain right under the 3 um tip
+  // makes of the laws' difference: measured 1.576e-8 / 1.818e-8 N at 0.2 um and 1.009e-7 /
+  // 1.174e-7 N at 1 um (SVK / neo-Hookean, 15-16 % apart).
   RunResult runs[2];
   const char* models[2] = {"svk", "neohookean"};
   for (int k = 0; k < 2; ++k) {
@@ -290,36 +246,13 @@ TEST(Simulation, NeoHookeanSmallCellRunsThroughWithoutBlowUp) {
   EXPECT_GT(snh.peak_deformation, 5.5e-6);
   const double svk_small = force_at(svk, 0.2e-6), snh_small = force_at(snh, 0.2e-6);
   ASSERT_TRUE(std::isfinite(svk_small) && std::isfinite(snh_small));
-  EXPECT_NEAR(snh_small, svk_small, 0.1 * svk_small);
+  EXPECT_NEAR(snh_small, svk_small, 0.2 * svk_small);
   char text[200];
   std::snprintf(text, sizeof text,
                 "svk / neohookean [N] at 0.2 um %.4g / %.4g, 1 um %.4g / %.4g, 5.5 um %.4g / %.4g",
                 svk_small, snh_small, force_at(svk, 1e-6), force_at(snh, 1e-6),
                 force_at(svk, 5.5e-6), force_at(snh, 5.5e-6));
   RecordProperty("svk_vs_neohookean_force", text);
-}
-
-TEST(Simulation, KinematicContactBlowUpStopsWithStiffnessDampingOn) {
-  // The kinematic contact path with an unstable stiffness damping (40 steps, as
-  // JobSimulation.BlowUpStopsTheRunWithoutAPuncture): the damping loads' own work is kept out of
-  // the energy budget (only the tools' work counts), so the energy test stops the run at the
-  // blow-up, before anything turns non-finite, and no puncture is recorded from it.
-  json j = small_cell_scene();
-  j["integrator"]["stiffness_damping"] = "400 us";
-  j["puncture"] = {{"criterion", "energy"}, {"threshold", "1 J"}};  // never met
-  Result<RunResult> r = run_scene(parse(j));
-  ASSERT_TRUE(r.ok()) << r.error().message;
-  EXPECT_TRUE(r->stopped_early);
-  EXPECT_TRUE(r->status & kStepEnergyBlowUp) << r->stop_reason;
-  EXPECT_FALSE(r->status & kStepNonFinite) << r->stop_reason;
-  EXPECT_NE(r->stop_reason.find("energy blow-up"), std::string::npos) << r->stop_reason;
-  EXPECT_FALSE(r->puncture.punctured);
-  // The stable damping of the calibrated configuration (100 us, 10 steps) runs through.
-  json ok = small_cell_scene();
-  ok["integrator"]["stiffness_damping"] = "100 us";
-  Result<RunResult> fine = run_scene(parse(ok));
-  ASSERT_TRUE(fine.ok()) << fine.error().message;
-  EXPECT_FALSE(fine->stopped_early) << fine->stop_reason;
 }
 
 TEST(Simulation, TheCellsDensityFollowsItsSizeNotItsMass) {
@@ -362,7 +295,7 @@ TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
   while (!sim->finished()) {
     ASSERT_FALSE(sim->step() & kStepNotAdvanced);
     const PunctureRecord& p = sim->puncture();
-    if (p.punctured && std::isnan(at_puncture_plus_drop) && sim->report().time >= p.time + 0.5e-3) {
+    if (p.punctured && std::isnan(at_puncture_plus_drop) && sim->report().time >= p.time + 1.5e-3) {
       at_puncture_plus_drop = sim->report().raw_force;
       drag_travel = sim->report().travel - p.needle_travel;
     }
@@ -374,10 +307,11 @@ TEST(Simulation, PunctureRecordsTheMomentAndReleasesTheForce) {
   // Deformation: the tip's advance into the cell, travel minus the standoff.
   EXPECT_NEAR(p.deformation, p.needle_travel - 0.5e-6, 0.15e-6);
   EXPECT_NEAR(p.time, p.needle_travel / 0.2e-3, 1e-9);
-  // After drop_time: 20 % of the force at puncture plus the shaft drag.
-  EXPECT_NEAR(at_puncture_plus_drop, 0.2 * dot(p.force_vector, Vec3d{1, 0, 0}) + 0.01 * drag_travel,
-              1e-12);
-  EXPECT_TRUE(sim->needle_contacts().empty());
+  // A millisecond after drop_time: 20 % of the force at puncture plus the shaft drag. The
+  // contact's scale follows the release a step behind, at most 20 % a step
+  // (job_follow_release), so the frozen tip's load settles onto the target after the ramp.
+  const double target = 0.2 * dot(p.force_vector, Vec3d{1, 0, 0}) + 0.01 * drag_travel;
+  EXPECT_NEAR(at_puncture_plus_drop, target, 0.05 * target);
   EXPECT_TRUE(sim->report().punctured);
 }
 
@@ -400,12 +334,15 @@ TEST(Simulation, SuctionOnTheAspiratedPatchIsBalancedByTheRim) {
   const HoldingSetup& h = *sim->holding();
   // The pull is p times the aspirated area, pi a^2 up to faceting...
   EXPECT_NEAR(h.suction_total.x, 2.5e3 * M_PI * 25e-12, 0.25 * 2.5e3 * M_PI * 25e-12);
-  // ... and the rim holds the cell against it: rim reaction + suction = 0.
-  const Vec3d rim = sim->report().holding_force;
+  // ... and the rim holds the cell against it: the holder's force on the cell (the rim's
+  // reaction plus the suction, JobRecord::holding_force) is zero at rest, the rim pushing back
+  // the whole suction.
+  const Vec3d held = sim->report().holding_force;
+  const Vec3d rim = held - h.suction_total;
   EXPECT_GT(sim->report().holding_contacts, 3);
   EXPECT_NEAR(rim.x, -h.suction_total.x, 0.03 * h.suction_total.x);
-  EXPECT_NEAR(rim.y, 0.0, 0.03 * h.suction_total.x);
-  EXPECT_NEAR(rim.z, 0.0, 0.03 * h.suction_total.x);
+  EXPECT_NEAR(rim.y, -h.suction_total.y, 0.03 * h.suction_total.x);
+  EXPECT_NEAR(rim.z, -h.suction_total.z, 0.03 * h.suction_total.x);
 }
 
 TEST(Simulation, SplitStepTakesTheHandedInPose) {
@@ -453,14 +390,15 @@ class RenamedBackend final : public Backend {
   bool forward_loads_;
 };
 
-// With stiffness damping (a load that changes every step) the Backend path gives the in-place
-// path's answer, whether loads travel through set_external_forces or by re-uploading; the
-// former uploads only when the contact set changes.
+// The prescribed boundary's host step (an indented patch, no tool) with stiffness damping (a
+// load that changes every step): the Backend path gives the in-place path's answer, whether
+// loads travel through set_external_forces or by re-uploading; the former uploads once.
 TEST(Simulation, BackendPathMatchesTheInPlacePath) {
-  json j = small_cell_scene();
-  j["needle"]["max_travel"] = "2 um";
-  const Scene scene = parse(j);
-  ASSERT_GT(scene.integrator.stiffness_damping, 0.0);
+  Result<Scene> loaded = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/bench_ball.json",
+                                    {"mesh.generate.vertices=600", "integrator.duration=0.2 ms",
+                                     "integrator.stiffness_damping=20 ns"});
+  ASSERT_TRUE(loaded.ok()) << loaded.error().message;
+  const Scene scene = *loaded;
   RenamedBackend* forwarding = nullptr;
   RenamedBackend* uploading = nullptr;
   SimulationOptions via_loads, via_uploads;
@@ -476,77 +414,48 @@ TEST(Simulation, BackendPathMatchesTheInPlacePath) {
   auto b = create(scene, via_loads);
   auto c = create(scene, via_uploads);
   ASSERT_TRUE(a && b && c);
+  ASSERT_FALSE(a->job_mode());
   EXPECT_EQ(b->backend_description(), "renamed cpu");
-  for (const std::string& note : b->notes())
-    EXPECT_EQ(note.find("stiffness damping"), std::string::npos) << note;
-  constexpr int kSteps = 400;
-  for (int i = 0; i < kSteps; ++i) {
-    a->step();
-    b->step();
-    c->step();
+  int steps = 0;
+  while (!a->finished()) {
+    ASSERT_FALSE(a->step() & kStepFailed);
+    ASSERT_FALSE(b->step() & kStepFailed);
+    ASSERT_FALSE(c->step() & kStepFailed);
+    ++steps;
   }
-  EXPECT_GT(a->report().contacts, 0);
+  // The patch pushes: its reaction resists along the indentation.
+  EXPECT_GT(a->report().force, 0.0);
+  EXPECT_NEAR(a->report().deformation, std::min(5e-6, 10e-3 * a->report().time), 1e-12);
   for (const Simulation* s : {b.get(), c.get()}) {
-    EXPECT_EQ(a->report().contacts, s->report().contacts);
     EXPECT_NEAR(a->report().force, s->report().force, 1e-9 * std::fabs(a->report().force));
     EXPECT_EQ(a->report().deformation, s->report().deformation);
   }
-  // Loads by set_external_forces: uploads only for contact-set changes, far fewer than steps.
-  EXPECT_GE(uploading->uploads, kSteps);
-  EXPECT_LT(forwarding->uploads, kSteps / 4);
+  // Loads by set_external_forces: the patch goes up once (and once more at creation).
+  EXPECT_GE(uploading->uploads, steps);
+  EXPECT_EQ(forwarding->uploads, 2);
 }
 
-// Surface snapshots for a render thread: the initial slot is the rest surface, a publication
-// every snapshot_interval steps, and the reader's slot holds the deformed surface of that step.
-TEST(Simulation, SurfaceSnapshotsPublishTheDeformedSurface) {
-  SimulationOptions o;
-  o.snapshot_interval = 10;
-  auto sim = create(parse(small_cell_scene()), o);
-  ASSERT_TRUE(sim);
-  EXPECT_EQ(create(parse(small_cell_scene()))->surface_snapshots(), nullptr);
-  TripleBuffer<SurfaceSnapshot>* snapshots = sim->surface_snapshots();
-  ASSERT_NE(snapshots, nullptr);
-  const std::vector<int32_t>& surface = sim->surface().vertices;
-  ASSERT_EQ(snapshots->read_slot().positions.size(), surface.size());
-  EXPECT_FALSE(snapshots->acquire());  // nothing published yet: the rest surface
-  EXPECT_EQ(norm(snapshots->read_slot().positions[0] - sim->model().rest_positions[size_t(surface[0])]),
-            0.0);
-  // Into contact, then 20 steps more, then 5 past a publication.
-  int64_t steps = 0;
-  while (sim->report().contacts == 0 && steps < 20000) sim->step(), ++steps;
-  ASSERT_GT(sim->report().contacts, 0);
-  const int64_t published = (steps / 10 + 3) * 10;
-  while (steps < published + 5) sim->step(), ++steps;
-  ASSERT_TRUE(snapshots->acquire());
-  const SurfaceSnapshot& snap = snapshots->read_slot();
-  EXPECT_EQ(snap.step, published);  // the newest publication, not an older one
-  // The state has moved on 5 steps since: recompute that step's surface from a second run.
-  auto again = create(parse(small_cell_scene()));
-  for (int64_t k = 0; k < published; ++k) again->step();
-  double moved = 0;
-  for (size_t i = 0; i < surface.size(); ++i) {
-    const size_t v = size_t(surface[i]);
-    EXPECT_EQ(norm(snap.positions[i] - (again->model().rest_positions[v] + again->state().u[v])), 0.0)
-        << i;
-    moved = std::max(moved, norm(again->state().u[v]));
-  }
-  EXPECT_GT(moved, 0.0);
-  EXPECT_FALSE(snapshots->acquire());  // read already: nothing newer
-}
-
-TEST(Simulation, CoarseMeshPointNeedleUsesTheHitTriangle) {
-  // Ladjal et al.'s 115-vertex resolution: a 1 um point tip fits between the vertices, and the
-  // triangle it pierces is carried along (the force rises as soon as the tip meets the surface).
-  json j = small_cell_scene();
-  j["mesh"]["generate"]["vertices"] = 60;
-  j["needle"]["tip_radius"] = "0.5 um";
-  j["needle"]["max_travel"] = "2 um";
-  auto sim = create(parse(j));
-  ASSERT_TRUE(sim);
-  while (!sim->finished()) sim->step();
-  EXPECT_GE(sim->report().contacts, 3);
-  EXPECT_GT(sim->report().force, 0.0);
-  EXPECT_NEAR(sim->report().deformation, 1.5e-6, 0.2e-6);
+// The prescribed boundary's host step with an unstable stiffness damping (8 steps of 53 ns
+// into the benchmark ball's indentation): the damping loads' own work is kept out of the
+// energy budget (only the patch's work counts), so the energy test stops the run at the
+// blow-up, before anything turns non-finite. A stable damping (20 ns) runs through.
+TEST(Simulation, PrescribedBoundaryBlowUpStopsWithStiffnessDampingOn) {
+  auto ball = [](const char* damping) {
+    Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/bench_ball.json",
+                                     {"mesh.generate.vertices=600", "integrator.duration=0.2 ms",
+                                      std::string("integrator.stiffness_damping=") + damping});
+    EXPECT_TRUE(scene.ok()) << scene.error().message;
+    return run_scene(*scene);
+  };
+  Result<RunResult> r = ball("400 ns");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_TRUE(r->stopped_early);
+  EXPECT_TRUE(r->status & kStepEnergyBlowUp) << r->stop_reason;
+  EXPECT_FALSE(r->status & kStepNonFinite) << r->stop_reason;
+  Result<RunResult> fine = ball("20 ns");
+  ASSERT_TRUE(fine.ok()) << fine.error().message;
+  EXPECT_FALSE(fine->stopped_early) << fine->stop_reason;
+  EXPECT_GT(fine->peak_force, 0.0);
 }
 
 TEST(Simulation, ScenesItCannotRunAreRefused) {
@@ -561,6 +470,19 @@ TEST(Simulation, ScenesItCannotRunAreRefused) {
   s = Simulation::create(parse(j));
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("holding_pipette"), std::string::npos);
+  // An indent patch beside the needle: the patch is stepped on the host, the needle in the job.
+  j = small_cell_scene();
+  j["boundary"] = json::array({{{"type", "indent"}, {"center", "0 0 12 um"}, {"radius", "3 um"},
+                                {"depth", "1 um"}, {"speed", "1 mm/s"}}});
+  s = Simulation::create(parse(j));
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("only tool"), std::string::npos) << s.error().message;
+  // The kinematic contact was retired; the scene says so, naming the key.
+  Result<Scene> retired = parse_scene(small_cell_scene(), "test.json", {"contact.model=kinematic"});
+  ASSERT_FALSE(retired.ok());
+  EXPECT_NE(retired.error().message.find("contact.model: 'kinematic' was retired"),
+            std::string::npos)
+      << retired.error().message;
 }
 
 TEST(Simulation, RunStreamsEverySampleAndStopsWhenAsked) {
@@ -613,34 +535,6 @@ TEST(Simulation, RunStreamsEverySampleAndStopsWhenAsked) {
   EXPECT_TRUE(none.interrupted);
   EXPECT_EQ(none.steps, 0);
   EXPECT_EQ(none.samples.size(), 1u);
-}
-
-TEST(Simulation, MouseOocytePunctureLandsInSeed000Band) {
-  // The main job on a 300-vertex mesh instead of 800 (CI time; `zona run` runs the full scene,
-  // docs/validation.md). Ladjal et al.: puncture at about 45 um and 7.5 uN; the band is 35-55 um and
-  // 5-10 uN.
-  // The kinematic contact with stiffness damping and SVK, the configuration first calibrated
-  // against Ladjal et al. (docs/validation.md); the default scene now runs the converged
-  // configuration (neo-Hookean with nodal pressure, penalty contact), calibrated on 1M vertices.
-  Result<Scene> scene = load_scene(std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json",
-                                   {"mesh.generate.vertices=300", "output.frames=0",
-                                    "contact.model=kinematic",
-                                    "integrator.stiffness_damping=100us", "model=svk",
-                                    "volumetric=element", "materials.default.young=36kPa",
-                                    "materials.default.damping=100Hz",
-                                    "integrator.target_dt=20us", "puncture.criterion=energy",
-                                    "puncture.threshold=1.5e-10J"});
-  ASSERT_TRUE(scene.ok()) << scene.error().message;
-  RunOptions options;
-  options.simulation.threads = 0;
-  options.stop_after_puncture = 0;
-  Result<RunResult> run = run_scene(*scene, options);
-  ASSERT_TRUE(run.ok()) << run.error().message;
-  ASSERT_TRUE(run->puncture.punctured);
-  EXPECT_GE(run->puncture.deformation, 35e-6);
-  EXPECT_LE(run->puncture.deformation, 55e-6);
-  EXPECT_GE(run->puncture.force, 5e-6);
-  EXPECT_LE(run->puncture.force, 10e-6);
 }
 
 TEST(Simulation, DefaultScenePuncturesNearTheConvergedPointOnACoarseMesh) {

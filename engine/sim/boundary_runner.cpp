@@ -1,5 +1,5 @@
-// The kinematic-contact step as a JobRunner (kinematic_runner.h).
-#include "engine/sim/kinematic_runner.h"
+// The prescribed boundary's host step as a JobRunner (boundary_runner.h).
+#include "engine/sim/boundary_runner.h"
 
 #include <vector>
 
@@ -7,7 +7,7 @@
 
 namespace zona {
 
-JobRecord kinematic_record(const Simulation& sim) {
+JobRecord boundary_record(const Simulation& sim) {
   const NeedleReport& n = sim.report();
   JobRecord r;
   r.step = sim.state().step_count;
@@ -44,9 +44,9 @@ JobRecord kinematic_record(const Simulation& sim) {
 
 namespace {
 
-class KinematicRunner final : public JobRunner {
+class BoundaryRunner final : public JobRunner {
  public:
-  KinematicRunner(Simulation& sim, size_t capacity) : sim_(sim), records_(capacity) {
+  BoundaryRunner(Simulation& sim, size_t capacity) : sim_(sim), records_(capacity) {
     const double interval = sim.scene().output.sample_interval;
     sample_params_.dt = sim.model().dt;
     sample_params_.record.sample_interval = interval > 0 ? interval : 0;
@@ -63,13 +63,13 @@ class KinematicRunner final : public JobRunner {
       // A step that did not advance the state (it failed its check, or the scene's end was
       // reached) ends the advance: asking again would not move it either.
       if (sim_.state().step_count == before) {
-        JobRecord r = kinematic_record(sim_);
+        JobRecord r = boundary_record(sim_);
         r.halted = 1;
         halted_ = true;
         records_.publish(r, true, r);
         break;
       }
-      const JobRecord r = kinematic_record(sim_);
+      const JobRecord r = boundary_record(sim_);
       seen_status_ |= r.status;
       halted_ = r.halted != 0;
       // Sampled by the job's record stage's rule (job_sample_due): the step whose time
@@ -117,8 +117,8 @@ class KinematicRunner final : public JobRunner {
 
 }  // namespace
 
-std::unique_ptr<JobRunner> make_kinematic_runner(Simulation& sim, size_t sample_capacity) {
-  return std::make_unique<KinematicRunner>(sim, sample_capacity);
+std::unique_ptr<JobRunner> make_boundary_runner(Simulation& sim, size_t sample_capacity) {
+  return std::make_unique<BoundaryRunner>(sim, sample_capacity);
 }
 
 }  // namespace zona
