@@ -416,6 +416,17 @@ struct JobState {
   QuasiStaticState quasi;
 };
 
+/// Stiffness-proportional (Kelvin-Voigt) damping's load on a vertex, lagged one step:
+/// rate (f(u_{n-1}) - f(u_{n-2})) [N] with rate = beta / dt (JobParams::damping.stiffness_rate);
+/// `force_prev` holds f(u_{n-2}) and becomes f(u_{n-1}). The loads stage of the CPU runner and
+/// of the prescribed boundary's host step; the GPU's vertex kernel evaluates it in float.
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_stiffness_damping_load(double rate, Vec3d force,
+                                                             Vec3d* force_prev) {
+  const Vec3d load = rate * (force - *force_prev);
+  *force_prev = force;
+  return load;
+}
+
 /// Scripted tip at time t [s]: the path interpolated (NeedleParams::path_count), else
 /// start + speed t d, stopped at max_travel [m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_scripted_tip(const JobParams& p, double t) {

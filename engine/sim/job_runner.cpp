@@ -234,10 +234,8 @@ class CpuJobRunner final : public JobRunner {
     if (p.damping.stiffness_rate > 0) {
       const double k = p.damping.stiffness_rate;
       std::vector<Vec3d>& ext = state_.external_force;
-      for (size_t v = 0; v < model_.vertex_count(); ++v) {
-        ext[v] = k * (state_.force[v] - force_prev_[v]);
-        force_prev_[v] = state_.force[v];
-      }
+      for (size_t v = 0; v < model_.vertex_count(); ++v)
+        ext[v] = job_stiffness_damping_load(k, state_.force[v], &force_prev_[v]);
     }
     if (p.damping.drift > 0) run_chunks<&CpuJobRunner::drift_load>(drift_chunks_.size());
   }

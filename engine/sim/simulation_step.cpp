@@ -41,16 +41,13 @@ StepStatus Simulation::step2() {
 
 void Simulation::apply_loads() {
   if (!(stiffness_damping_ > 0)) return;
-  // Stiffness-proportional (Kelvin-Voigt) damping, -beta K v, from the change of the elastic
-  // forces over the last step: beta (f(u_{n-1}) - f(u_{n-2})) / dt (lagged one step), as the
-  // job's loads stage.
+  // Stiffness-proportional (Kelvin-Voigt) damping, -beta K v, as the job's loads stage.
   const double k = stiffness_damping_ / model_.dt;
   double before = 0;
   for (size_t v = 0; v < state_.force.size(); ++v) {
-    const Vec3d load = k * (state_.force[v] - force_prev_[v]);
+    const Vec3d load = job_stiffness_damping_load(k, state_.force[v], &force_prev_[v]);
     state_.external_force[v] = load;
     damping_load_[v] = load;
-    force_prev_[v] = state_.force[v];
     before += dot(load, state_.u[v] + state_.u_prev[v]);
   }
   damping_before_ = before;
