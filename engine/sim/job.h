@@ -58,7 +58,7 @@ inline constexpr double kNeedleBreachFraction = 0.5;
 enum JobCriterion : int32_t {
   kJobCriterionNone = 0,
   kJobCriterionForce = 1,
-  kJobCriterionStrain = 2,  ///< the membrane's stretch under the tip (needle_face_strain)
+  kJobCriterionStrain = 2,  ///< the zona's stretch around the tip (needle_face_strain)
   kJobCriterionEnergy = 3
 };
 
@@ -355,7 +355,7 @@ struct JobPuncture {
   double deformation = 0;    ///< [m]
   double force = 0;          ///< filtered axial force [N]
   double energy = 0;         ///< [J]
-  double max_strain = 0;     ///< membrane strain under the tip (strain criterion) [-]
+  double max_strain = 0;     ///< the zona's stretch around the tip (strain criterion) [-]
   Vec3d force_vector{0, 0, 0};  ///< [N]
 };
 
@@ -376,7 +376,7 @@ struct JobRecord {
   double energy_budget = 0;     ///< initial energy + work of the tools so far [J]
   int32_t contacts = 0;         ///< contact points inside the needle (face quadrature points or vertices)
   double needle_depth = 0;      ///< deepest contact point inside the needle [m]
-  double max_strain = 0;        ///< membrane strain under the tip (strain criterion only) [-]
+  double max_strain = 0;        ///< the zona's stretch around the tip (strain criterion only) [-]
   int32_t holding_contacts = 0; ///< vertices inside the rim
   uint32_t status = 0;          ///< StepStatusBits of the step (kStepNonFinite, kStepEnergyBlowUp...)
   int32_t halted = 0;           ///< the state failed its check: no later step was advanced

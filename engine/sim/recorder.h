@@ -123,7 +123,8 @@ nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& r
                                 const RunProvenance& provenance = local_provenance());
 
 /// Per-frame fields. Point: "displacement" [m] (3), "contact" (1: 1 needle, 2 holding rim, 0
-/// free; zeros here, marked by the simulation's overload), "stress" [Pa] (9, Cauchy, row-major), "strain" [-] (9, Green-Lagrange, row-major),
+/// free; zeros here, marked by the simulation's overload), "stress" [Pa] (9, Cauchy,
+/// row-major), "strain" [-] (9, Green-Lagrange, row-major),
 /// "von_mises" [Pa] (1, of the vertex's "stress"); the vertex tensors are means over the
 /// tetrahedra around the vertex weighted by their rest volume; under nodal pressure (Model::
 /// nodal_pressure) the element part of the stress is averaged and the vertex's own pressure

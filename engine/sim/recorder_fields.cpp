@@ -89,7 +89,7 @@ void frame_fields(const Model& model, const State& state, std::vector<VtkField>*
     disp.values[3 * v + 1] = state.u[v].y;
     disp.values[3 * v + 2] = state.u[v].z;
   }
-  field(*point_data, 1, "contact", 1, nv);  // zeros; frame_fields(Simulation) marks the tools'
+  field(*point_data, 1, "contact", 1, nv);  // zeros: the Simulation overload marks the tools
   VtkField& stress = field(*point_data, 2, "stress", 9, nv);
   VtkField& strain = field(*point_data, 3, "strain", 9, nv);
   VtkField& mises = field(*point_data, 4, "von_mises", 1, nv);
