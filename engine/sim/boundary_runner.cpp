@@ -44,9 +44,9 @@ JobRecord boundary_record(const Simulation& sim) {
 
 namespace {
 
-class BoundaryRunner final : public JobRunner {
+class BoundaryRunner final : public HostJobRunner {
  public:
-  BoundaryRunner(Simulation& sim, size_t capacity) : sim_(sim), records_(capacity) {
+  BoundaryRunner(Simulation& sim, size_t capacity) : HostJobRunner(capacity), sim_(sim) {
     const double interval = sim.scene().output.sample_interval;
     sample_params_.dt = sim.model().dt;
     sample_params_.record.sample_interval = interval > 0 ? interval : 0;
@@ -57,8 +57,6 @@ class BoundaryRunner final : public JobRunner {
     advanced_ = target;
     while (!halted_ && sim_.state().step_count < target) {
       const int64_t before = sim_.state().step_count;
-      sim_.step1();
-      if (has_tip_) sim_.set_needle_tip(tip_);
       sim_.step2();
       // A step that did not advance the state (it failed its check, or the scene's end was
       // reached) ends the advance: asking again would not move it either.
@@ -88,27 +86,15 @@ class BoundaryRunner final : public JobRunner {
     return {};
   }
 
-  bool latest(JobRecord* out) override { return records_.latest(out); }
-  bool take_samples(std::vector<JobRecord>& out) override { return records_.take(out); }
-
-  Status finish() override { return {}; }
-  Status download(State&) override { return {}; }  // the state is the simulation's own
-
-  void set_tip(Vec3d tip) override {
-    has_tip_ = true;
-    tip_ = tip;
-  }
+  void set_tip(Vec3d) override {}  // no needle on this path (Simulation refuses one)
 
   int64_t steps_advanced() const override { return sim_.state().step_count; }
-  uint64_t host_bytes_moved() const override { return 0; }
   int64_t mass_raises() override { return 0; }
   std::string description() const override { return sim_.backend_description(); }
 
  private:
   Simulation& sim_;
-  HostRecords records_;
-  bool halted_ = false, has_tip_ = false;
-  Vec3d tip_{0, 0, 0};
+  bool halted_ = false;
   int64_t advanced_ = 0;
   JobParams sample_params_;  // dt and the sample interval (job_sample_due)
   JobState sample_state_;    // time, halted, the next sample time

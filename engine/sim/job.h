@@ -427,28 +427,6 @@ ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_stiffness_damping_load(double rate, Vec3d
   return load;
 }
 
-/// Scripted tip at time t [s]: the path interpolated (NeedleParams::path_count), else
-/// start + speed t d, stopped at max_travel [m].
-ZONA_HOST_DEVICE ZONA_INLINE Vec3d job_scripted_tip(const JobParams& p, double t) {
-  const int32_t n = p.needle.path_count;
-  if (n > 0) {
-    const double* time = p.needle.path_time;
-    const Vec3d* x = p.needle.path_position;
-    if (!(t > time[0])) return x[0];
-    if (!(t < time[n - 1])) return x[n - 1];
-    int32_t lo = 0, hi = n - 1;  // time[lo] < t < time[hi]
-    while (hi - lo > 1) {
-      const int32_t mid = (lo + hi) / 2;
-      if (time[mid] <= t) lo = mid; else hi = mid;
-    }
-    const double a = (t - time[lo]) / (time[hi] - time[lo]);
-    return (1.0 - a) * x[lo] + a * x[hi];
-  }
-  double travel = p.needle.speed * t;
-  if (p.needle.max_travel > 0 && travel > p.needle.max_travel) travel = p.needle.max_travel;
-  return p.needle.start + travel * p.needle.direction;
-}
-
 /// Fraction of the tip load still applied `elapsed` [s] after puncture.
 ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, double elapsed) {
   const double ramp = p.puncture.drop_time > 0 ? (elapsed < p.puncture.drop_time ? elapsed / p.puncture.drop_time : 1.0) : 1.0;
@@ -479,7 +457,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_follow_release(const JobParams& p, JobStat
 /// handed in. It starts from where the script had the tip when the first one comes.
 ZONA_HOST_DEVICE ZONA_INLINE void job_follow_tip(const JobParams& p, JobState& s) {
   if (!s.external_tip) {
-    s.external_tip_now = job_scripted_tip(p, s.time);
+    s.external_tip_now = needle_scripted_tip(p.needle, s.time);
     return;
   }
   const Vec3d d = s.external_tip_value - s.external_tip_now;
@@ -494,7 +472,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_follow_tip(const JobParams& p, JobState& s
 ZONA_HOST_DEVICE ZONA_INLINE void job_set_pose(const JobParams& p, JobState& s) {
   ToolPose& pose = s.pose;
   pose.step = s.step;
-  const Vec3d tip = s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time);
+  const Vec3d tip = s.external_tip ? s.external_tip_now : needle_scripted_tip(p.needle, s.time);
   const double ramp = p.rim.suction_ramp_time > 0 ? s.time / p.rim.suction_ramp_time : 1.0;
   pose.suction_ramp = ramp < 1.0 ? ramp : 1.0;
   if (s.puncture.punctured) {
@@ -639,7 +617,7 @@ ZONA_HOST_DEVICE ZONA_INLINE void job_commit_pose(const JobParams& p, JobState& 
   }
   job_follow_tip(p, s);
   job_set_pose(p, s);
-  r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : job_scripted_tip(p, s.time))
+  r.tip = s.puncture.punctured ? (s.external_tip ? s.external_tip_now : needle_scripted_tip(p.needle, s.time))
                                : s.pose.tip;
   r.travel = dot(r.tip - p.needle.start, p.needle.direction);
 }

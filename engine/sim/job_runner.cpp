@@ -17,10 +17,11 @@ static_assert(kJobNonFinite == kStepNonFinite && kJobBlowUp == kStepEnergyBlowUp
 
 namespace {
 
-class CpuJobRunner final : public JobRunner {
+class CpuJobRunner final : public HostJobRunner {
  public:
   CpuJobRunner(Model& model, State& state, const JobSetup& setup, BodyStep* body)
-      : model_(model), state_(state), setup_(setup), body_(body), records_(setup.sample_capacity) {
+      : HostJobRunner(setup.sample_capacity), model_(model), state_(state), setup_(setup),
+        body_(body) {
     tool_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     tool_u_before_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
     face_force_.assign(setup.tool_vertices.size(), Vec3d{0, 0, 0});
@@ -50,12 +51,6 @@ class CpuJobRunner final : public JobRunner {
     return {};
   }
 
-  bool latest(JobRecord* out) override { return records_.latest(out); }
-  bool take_samples(std::vector<JobRecord>& out) override { return records_.take(out); }
-
-  Status finish() override { return {}; }
-  Status download(State&) override { return {}; }  // the state is the simulation's own
-
   void set_tip(Vec3d tip) override {
     // Taken up at the end of the step, as the GPU's record stage takes up its mailbox.
     job_.external_tip = 1;
@@ -63,7 +58,6 @@ class CpuJobRunner final : public JobRunner {
   }
 
   int64_t steps_advanced() const override { return advanced_; }
-  uint64_t host_bytes_moved() const override { return 0; }
   int64_t mass_raises() override { return mass_raises_; }
 
   std::string description() const override {
@@ -259,7 +253,9 @@ class CpuJobRunner final : public JobRunner {
           },
           this);
       std::fill(face_force_.begin(), face_force_.end(), Vec3d{0, 0, 0});
+      const bool strain = p.puncture.criterion == kJobCriterionStrain;
       for (size_t f = 0; f < nf; ++f) {
+        if (strain) sums.needle_strain = std::max(sums.needle_strain, face_strain_[f]);
         if (!face_hit_[f]) continue;
         const ToolFaceForce& ff = face_out_[f];
         for (int c = 0; c < 3; ++c) {
@@ -269,8 +265,6 @@ class CpuJobRunner final : public JobRunner {
         sums.needle_contacts += ff.contacts;
         sums.needle_depth = std::max(sums.needle_depth, ff.depth);
       }
-      if (p.puncture.criterion == kJobCriterionStrain)
-        for (size_t f = 0; f < nf; ++f) sums.needle_strain = std::max(sums.needle_strain, face_strain_[f]);
     }
     // Every tool vertex on the pool, summed per fixed chunk, the chunks then in order (the same
     // sums on any thread count).
@@ -363,7 +357,6 @@ class CpuJobRunner final : public JobRunner {
   std::vector<double> growth_;  // each element's stiffening at the last check, (tet_count)
   int64_t steps_run_ = 0;
   int64_t mass_raises_ = 0;     // vertex mass raises by the dynamic scaling
-  HostRecords records_;
   int64_t advanced_ = 0;
 };
 

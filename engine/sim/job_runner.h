@@ -106,6 +106,21 @@ class JobRunner {
   virtual int64_t mass_raises() = 0;
 };
 
+/// A runner that steps on the host over the simulation's own state (the CPU job's, the
+/// prescribed boundary's): its records are a HostRecords, and nothing is in flight or elsewhere.
+class HostJobRunner : public JobRunner {
+ public:
+  explicit HostJobRunner(size_t sample_capacity) : records_(sample_capacity) {}
+  bool latest(JobRecord* out) override { return records_.latest(out); }
+  bool take_samples(std::vector<JobRecord>& out) override { return records_.take(out); }
+  Status finish() override { return {}; }
+  Status download(State&) override { return {}; }  // the state is the simulation's own
+  uint64_t host_bytes_moved() const override { return 0; }
+
+ protected:
+  HostRecords records_;
+};
+
 /// Which surface vertices the tools touch in a state (for written frames, off the step path):
 /// marks[v] is 1 where the needle acts on vertex v (inside the needle, or a corner of a triangle
 /// with a quadrature point inside it), 2 where the holding pipette's rim does, else 0; tip is

@@ -533,8 +533,7 @@ Status Simulation::setup_damping(SetupContext&) {
 
 // The runner the run driver steps: the job's (CPU or the backend's) or the host step's.
 Status Simulation::setup_runner(SetupContext& setup) {
-  tip_ = tip_next_ = has_needle_ ? script_.start : Vec3d{0, 0, 0};
-  report_.tip = tip_;
+  report_.tip = has_needle_ ? script_.start : Vec3d{0, 0, 0};
   if (setup.job_path) {
     if (Status s = start_job(); !s) return s;
     sample_capacity_ = job_setup_.sample_capacity;
@@ -544,14 +543,9 @@ Status Simulation::setup_runner(SetupContext& setup) {
     const double row_dt = std::max(std::max(scene_.output.sample_interval, 0.0), model_.dt);
     sample_capacity_ = static_cast<size_t>(std::ceil(end_time_ / row_dt * (1 + 1e-9))) + 4;
     boundary_runner_ = make_boundary_runner(*this, sample_capacity_);
-    // The record functions the host step shares with the job: the filter's weight over one
-    // step (backend_substeps steps of model.dt on the Backend path).
-    JobParams& p = record_params_;
-    const double step = (backend_ ? options_.backend_substeps : 1) * model_.dt;
-    p.dt = step;
-    p.needle.direction = indent_direction_.front();
-    p.record.force_filter_weight = 1.0;  // the patch's reaction, unfiltered
-    p.record.stiffness_window = options_.stiffness_window;
+    // The local stiffness is the job's record-stage function (job_local_stiffness), which reads
+    // the stiffness window alone; the patch's reaction is not filtered.
+    record_params_.record.stiffness_window = options_.stiffness_window;
   }
   return Status::ok_status();
 }

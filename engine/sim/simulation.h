@@ -9,8 +9,8 @@
 // indentation boundary (a prescribed patch, no tool) takes the host step of the prescribed
 // boundary (docs/architecture.md, "One engine"):
 //
-//   step1:  tools      needle pose at t_{n+1} from its script (the job's runner takes it)
-//           -- set_needle_tip() may replace the pose here --
+//   step1:  (nothing: the job's tool stage takes the script's pose)
+//           -- set_needle_tip() may hand the hand's pose in here --
 //   step2:  loads      stiffness damping
 //           targets    the indented patch's displacement at t_{n+1}
 //           integrate  internal forces + centred difference, the patch prescribed (the backend)
@@ -139,8 +139,9 @@ class Simulation {
   Simulation(const Simulation&) = delete;
   Simulation& operator=(const Simulation&) = delete;
 
-  /// First half: the needle pose at t_{n+1} from its script.
-  void step1();
+  /// First half: nothing to do before the pose is handed in. The tool stage takes the needle's
+  /// pose itself, from its script (needle_scripted_tip) or from set_needle_tip.
+  void step1() {}
   /// Between the halves: replace the needle tip pose for this step [m] (haptic coupling).
   void set_needle_tip(Vec3d tip);
   /// Second half: the job's step, or the prescribed boundary's (above).
@@ -271,8 +272,6 @@ class Simulation {
   // Tools.
   bool has_needle_ = false;
   NeedleScript script_;
-  Vec3d tip_{0, 0, 0};       // pose at t_n
-  Vec3d tip_next_{0, 0, 0};  // pose at t_{n+1}
   std::optional<HoldingSetup> holding_;
   std::vector<int32_t> indent_vertices_;  // prescribed indentation patches
   std::vector<Vec3d> indent_direction_;   // per indent vertex [-]
@@ -297,8 +296,8 @@ class Simulation {
 
   // Published.
   NeedleReport report_;
-  // The host step's record: the job's force filter and local stiffness (engine/sim/job.h)
-  // over these parameters (record, direction) and this state.
+  // The host step's local stiffness: the job's job_local_stiffness (engine/sim/job.h) over
+  // these parameters (the stiffness window) and this state.
   JobParams record_params_;
   JobState record_state_;
   QuasiStaticLimits quasi_limits_;

@@ -308,7 +308,6 @@ void Simulation::report_from_record(const JobRecord& r) {
   o.quasi = r.quasi;
   last_status_ = r.status;
   job_halted_ = r.halted != 0;
-  tip_ = r.tip;
   if (r.puncture.punctured && !job_puncture_.punctured) {
     PunctureRecord& q = job_puncture_;
     q.punctured = true;

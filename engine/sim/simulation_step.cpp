@@ -10,14 +10,8 @@
 
 namespace zona {
 
-void Simulation::step1() {
-  // tools: the scripted pose at the end of this step (the job's runner takes the hand's).
-  if (has_needle_) tip_next_ = needle_tip_at(script_, state_.time + model_.dt);
-}
-
 void Simulation::set_needle_tip(Vec3d tip) {
-  tip_next_ = tip;
-  if (job_) job_->set_tip(tip);
+  if (job_) job_->set_tip(tip);  // the host path has no needle
 }
 
 StepStatus Simulation::step2() {

@@ -1,6 +1,7 @@
 // Needle geometry (signed distance of the tip and shaft) and its scripted motion.
 #include "engine/tools/needle.h"
 
+#include "engine/tools/tool_params.h"
 #include "engine/tools/tool_sdf.h"
 
 #include <algorithm>
@@ -71,20 +72,15 @@ Result<NeedleTrajectory> read_needle_trajectory(const std::string& path) {
 }
 
 Vec3d needle_tip_at(const NeedleScript& script, double t) {
-  const NeedleTrajectory& tr = script.trajectory;
-  if (!tr.time.empty()) {
-    if (t <= tr.time.front()) return tr.position.front();
-    if (t >= tr.time.back()) return tr.position.back();
-    // Binary search for the segment; no allocation.
-    const size_t i = static_cast<size_t>(
-        std::upper_bound(tr.time.begin(), tr.time.end(), t) - tr.time.begin());
-    const double t0 = tr.time[i - 1], t1 = tr.time[i];
-    const double a = (t - t0) / (t1 - t0);
-    return (1 - a) * tr.position[i - 1] + a * tr.position[i];
-  }
-  double travel = script.speed * std::max(t, 0.0);
-  if (script.max_travel > 0) travel = std::min(travel, script.max_travel);
-  return script.start + travel * script.direction;
+  NeedleParams p;
+  p.start = script.start;
+  p.direction = script.direction;
+  p.speed = script.speed;
+  p.max_travel = script.max_travel;
+  p.path_count = static_cast<int32_t>(script.trajectory.time.size());
+  p.path_time = script.trajectory.time.data();
+  p.path_position = script.trajectory.position.data();
+  return needle_scripted_tip(p, t);
 }
 
 double needle_script_end_time(const NeedleScript& script) {

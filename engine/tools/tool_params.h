@@ -3,6 +3,7 @@
 
 #include <cstdint>
 
+#include "engine/core/base.h"
 #include "engine/core/vec.h"
 
 namespace zona {
@@ -37,6 +38,29 @@ struct NeedleParams {
   /// the tool through (the record stage halts: kStepToolBreach) [m]; 0: not checked.
   double breach_depth = 0;
 };
+
+/// The needle's scripted tip at time t [s] [m]: the path interpolated (linear between its
+/// points, held before the first and after the last), else start + speed t direction, stopped
+/// at max_travel. One function for the host's script (needle_tip_at) and the step's tool stage.
+ZONA_HOST_DEVICE ZONA_INLINE Vec3d needle_scripted_tip(const NeedleParams& needle, double t) {
+  const int32_t n = needle.path_count;
+  if (n > 0) {
+    const double* time = needle.path_time;
+    const Vec3d* x = needle.path_position;
+    if (!(t > time[0])) return x[0];
+    if (!(t < time[n - 1])) return x[n - 1];
+    int32_t lo = 0, hi = n - 1;  // time[lo] < t < time[hi]
+    while (hi - lo > 1) {
+      const int32_t mid = (lo + hi) / 2;
+      if (time[mid] <= t) lo = mid; else hi = mid;
+    }
+    const double a = (t - time[lo]) / (time[hi] - time[lo]);
+    return (1.0 - a) * x[lo] + a * x[hi];
+  }
+  double travel = needle.speed * (t > 0 ? t : 0.0);
+  if (needle.max_travel > 0 && travel > needle.max_travel) travel = needle.max_travel;
+  return needle.start + travel * needle.direction;
+}
 
 /// The holding pipette in suction mode: its rim as a contact tool, the suction ramped in.
 struct RimParams {
