@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """Summarise a static run's Newton trace (ZONA_NEWTON_TRACE=1 zona run ... --solver static 2> T).
 
-Prints the solves (converged / failed) with their Newton iterations, the line search's steps
-(how far below the capped step it backtracked: 2^-k), the vertices where the residual sat in
-the iterations that backtracked, and, with --solves, every solve's travel and outcome.
+Prints the solves (converged / failed) with their Newton iterations, CG iterations and wall
+time per Newton iteration (median / largest), the CG iterations at the fixed tolerance of
+ZONA_KRYLOV_PROBE where the trace has them, the line search's steps (how far below the capped
+step it backtracked: 2^-k), the vertices where the residual sat in the iterations that
+backtracked, and, with --solves, every solve's travel and outcome.
 
     python3 bench/newton_trace.py T [--solves]
 """
@@ -32,6 +34,17 @@ def main():
     count = lambda ss: sum(len(s["its"]) for s in ss)
     print(f"solves {len(solves)}: converged {len(ok)} ({count(ok)} Newton iterations), "
           f"failed {len(bad)} ({count(bad)})")
+    its = [it for s in solves for it in s["its"]]
+
+    def spread(key, cast=float):
+        v = sorted(cast(it[key]) for it in its if key in it and cast(it[key]) >= 0)
+        return (v[len(v) // 2], v[-1], sum(v)) if v else None
+
+    for key, what in (("cg", "CG per Newton iteration"), ("ms", "ms per Newton iteration"),
+                      ("probe_cg", "CG at the probe's tolerance")):
+        m = spread(key)
+        if m:
+            print(f"{what}: median {m[0]:g}, largest {m[1]:g}, total {m[2]:g}")
     steps = collections.Counter()
     where = collections.Counter()
     for s in solves:

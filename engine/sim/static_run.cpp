@@ -220,6 +220,7 @@ void StaticRun::build() {
   // ZONA_NEWTON_TRACE=1: a line per Newton iteration and per solve on stderr.
   if (const char* t = std::getenv("ZONA_NEWTON_TRACE"); t != nullptr && t[0] != '0')
     newton.trace = stderr;
+  if (const char* t = std::getenv("ZONA_KRYLOV_PROBE")) newton.krylov_probe = std::atof(t);
   newton_ = std::make_unique<NewtonSolver>(terms, ElasticEnergy::hessian_pattern(model_),
                                            model_.vertex_fixed, std::move(linear), newton);
   if (def_.oracle) {

@@ -9,6 +9,8 @@
 
 #include <Eigen/Dense>
 
+#include "engine/core/parallel.h"
+
 namespace zona {
 namespace {
 
@@ -98,9 +100,16 @@ struct Level {
   std::vector<Mat3d> t_values;
   std::vector<int32_t> t_target;  // per (block k of A, pair of P's row cols[k])
   std::vector<int32_t> c_target;  // per (row i, pair of P's row i, block of T's row i)
-  // The rank-one part's restriction P^T g_k: per (position p of A's rank-one vectors, pair of
-  // P's row at p's vertex) the position in the coarser operator's rank-one vectors.
+  // The rank-one part's restriction c_k = P^T g_k, added into the coarser operator's blocks as
+  // c_k c_k^T (no level below the finest keeps a rank-one part: there every term spans some 30
+  // lattice nodes, so as vectors a coarse product would cost more than the fine one). Per
+  // (position p of A's rank-one vectors, pair of P's row at p's vertex) the position in c;
+  // c's terms by node (offsets, nodes, values); per coarse row, the positions of c on it.
   std::vector<int32_t> r1_target;
+  std::vector<int64_t> c1_offsets;
+  std::vector<int32_t> c1_nodes, c1_term;
+  std::vector<Vec3d> c1_values;
+  std::vector<int64_t> c1_row_offsets, c1_row_positions;
   // Chebyshev smoothing on D^-1 A.
   std::vector<Mat3d> dinv;
   double lambda_max = 0;
@@ -237,6 +246,49 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
               fine.t_cols.begin()));
       }
     }
+    // The rank-one part's restriction: each term's coarse nodes, and where each fine entry's
+    // pairs land among them.
+    fine.r1_target.clear();
+    fine.c1_offsets.assign(1, 0);
+    fine.c1_nodes.clear();
+    fine.c1_term.clear();
+    if (pattern->rank_one_terms() > 0) {
+      std::span<const int64_t> off = pattern->rank_one_offsets();
+      std::span<const int32_t> vert = pattern->rank_one_vertices();
+      std::vector<int32_t> nodes;
+      for (size_t k = 0; k + 1 < off.size(); ++k) {
+        nodes.clear();
+        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
+          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
+          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+            nodes.push_back(ip.nodes[static_cast<size_t>(q)]);
+        }
+        std::sort(nodes.begin(), nodes.end());
+        nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
+          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
+          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+            fine.r1_target.push_back(static_cast<int32_t>(
+                fine.c1_offsets.back() + (std::lower_bound(nodes.begin(), nodes.end(),
+                                                           ip.nodes[static_cast<size_t>(q)]) -
+                                          nodes.begin())));
+        }
+        fine.c1_nodes.insert(fine.c1_nodes.end(), nodes.begin(), nodes.end());
+        fine.c1_term.insert(fine.c1_term.end(), nodes.size(), static_cast<int32_t>(k));
+        fine.c1_offsets.push_back(static_cast<int64_t>(fine.c1_nodes.size()));
+      }
+      // Per coarse row, the positions of c on it.
+      fine.c1_row_offsets.assign(ip.coarse_count + 1, 0);
+      for (int32_t node : fine.c1_nodes) ++fine.c1_row_offsets[static_cast<size_t>(node) + 1];
+      for (size_t r = 0; r < ip.coarse_count; ++r)
+        fine.c1_row_offsets[r + 1] += fine.c1_row_offsets[r];
+      fine.c1_row_positions.resize(fine.c1_nodes.size());
+      std::vector<int64_t> fill(fine.c1_row_offsets.begin(), fine.c1_row_offsets.end() - 1);
+      for (size_t q = 0; q < fine.c1_nodes.size(); ++q)
+        fine.c1_row_positions[static_cast<size_t>(
+            fill[static_cast<size_t>(fine.c1_nodes[q])]++)] = static_cast<int64_t>(q);
+    }
+    fine.c1_values.assign(fine.c1_nodes.size(), Vec3d{0, 0, 0});
     // A_c = P^T T: coarse row I gathers T's rows i over the pairs (i, I).
     std::vector<std::vector<int32_t>> rows(ip.coarse_count);
     for (size_t i = 0; i < n; ++i)
@@ -244,6 +296,13 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
         std::vector<int32_t>& r = rows[static_cast<size_t>(ip.nodes[static_cast<size_t>(q)])];
         r.insert(r.end(), fine.t_cols.begin() + fine.t_offsets[i],
                  fine.t_cols.begin() + fine.t_offsets[i + 1]);
+      }
+    // c_k c_k^T couples every pair of a term's nodes.
+    for (size_t k = 0; k + 1 < fine.c1_offsets.size(); ++k)
+      for (int64_t e = fine.c1_offsets[k]; e < fine.c1_offsets[k + 1]; ++e) {
+        std::vector<int32_t>& r = rows[static_cast<size_t>(fine.c1_nodes[static_cast<size_t>(e)])];
+        r.insert(r.end(), fine.c1_nodes.begin() + fine.c1_offsets[k],
+                 fine.c1_nodes.begin() + fine.c1_offsets[k + 1]);
       }
     for (std::vector<int32_t>& r : rows) {
       std::sort(r.begin(), r.end());
@@ -261,36 +320,6 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
           fine.c_target.push_back(static_cast<int32_t>(
               coarse.galerkin.find(ci, fine.t_cols[static_cast<size_t>(t)]) - base));
       }
-    // The rank-one part restricts to rank-one terms P^T g_k over the coarse nodes of the
-    // term's vertices (kept as vectors on every level, as on the finest).
-    if (pattern->rank_one_terms() > 0) {
-      std::span<const int64_t> off = pattern->rank_one_offsets();
-      std::span<const int32_t> vert = pattern->rank_one_vertices();
-      std::vector<int64_t> c_off(1, 0);
-      std::vector<int32_t> c_vert, nodes;
-      fine.r1_target.clear();
-      for (size_t k = 0; k + 1 < off.size(); ++k) {
-        nodes.clear();
-        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
-          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
-          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
-            nodes.push_back(ip.nodes[static_cast<size_t>(q)]);
-        }
-        std::sort(nodes.begin(), nodes.end());
-        nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
-        for (int64_t e = off[k]; e < off[k + 1]; ++e) {
-          const size_t j = static_cast<size_t>(vert[static_cast<size_t>(e)]);
-          for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
-            fine.r1_target.push_back(static_cast<int32_t>(
-                c_off.back() + (std::lower_bound(nodes.begin(), nodes.end(),
-                                                 ip.nodes[static_cast<size_t>(q)]) -
-                                nodes.begin())));
-        }
-        c_vert.insert(c_vert.end(), nodes.begin(), nodes.end());
-        c_off.push_back(static_cast<int64_t>(c_vert.size()));
-      }
-      coarse.galerkin.set_rank_one_pattern(std::move(c_off), std::move(c_vert));
-    }
     levels_.push_back(std::move(coarse));
     levels_.back().a = &levels_.back().galerkin;
     // levels_ may have moved: the pattern of the next round is the new coarse operator.
@@ -339,17 +368,32 @@ void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
       }
     }
   if (a.rank_one_terms() == 0) return;
+  // c_k = P^T g_k, then c_k c_k^T into the coarse blocks, row by row (each row written by one
+  // thread, in a fixed order: the same bits on any thread count).
   std::span<const int32_t> vert = a.rank_one_vertices();
   std::span<const Vec3d> g = a.rank_one_vectors();
-  std::span<Vec3d> gc = coarse.rank_one_vectors();
-  std::copy(a.rank_one_coefficients().begin(), a.rank_one_coefficients().end(),
-            coarse.rank_one_coefficients().begin());
+  std::span<const double> coef = a.rank_one_coefficients();
+  std::fill(fine.c1_values.begin(), fine.c1_values.end(), Vec3d{0, 0, 0});
   pos = 0;
   for (size_t p = 0; p < vert.size(); ++p) {
     const size_t j = static_cast<size_t>(vert[p]);
     for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
-      gc[static_cast<size_t>(fine.r1_target[pos++])] += ip.weights[static_cast<size_t>(q)] * g[p];
+      fine.c1_values[static_cast<size_t>(fine.r1_target[pos++])] +=
+          ip.weights[static_cast<size_t>(q)] * g[p];
   }
+  pooled_ranges(coarse.rows(), 64, [&](size_t, size_t begin, size_t end) {
+    for (size_t row = begin; row < end; ++row)
+      for (int64_t r = fine.c1_row_offsets[row]; r < fine.c1_row_offsets[row + 1]; ++r) {
+        const size_t pa = static_cast<size_t>(fine.c1_row_positions[static_cast<size_t>(r)]);
+        const size_t k = static_cast<size_t>(fine.c1_term[pa]);
+        const Vec3d ca = coef[k] * fine.c1_values[pa];
+        for (int64_t pb = fine.c1_offsets[k]; pb < fine.c1_offsets[k + 1]; ++pb) {
+          Mat3d& block =
+              *coarse.find(static_cast<int32_t>(row), fine.c1_nodes[static_cast<size_t>(pb)]);
+          block = block + outer(ca, fine.c1_values[static_cast<size_t>(pb)]);
+        }
+      }
+  });
 }
 
 Status LatticeMultigrid::smoother(Level& lv, size_t l) const {

@@ -4,7 +4,8 @@
 // lengths) and a displacement on the lattice's nodes is interpolated to it trilinearly; each
 // coarser level is the lattice of twice the spacing, interpolated to the finer lattice's nodes
 // the same way. Coarse operators are Galerkin (P^T A P, kept in 3 x 3 blocks, so every level is
-// a BlockSparseMatrix), the smoother is a Chebyshev polynomial in the block-Jacobi-scaled
+// a BlockSparseMatrix; the finest level's rank-one part, nodal pressure's terms, is restricted
+// and added into the first coarse level's blocks, so no coarser level keeps one), the smoother is a Chebyshev polynomial in the block-Jacobi-scaled
 // operator, and the coarsest level is solved densely. One V-cycle is a fixed symmetric positive
 // definite operator, as CG needs.
 //

@@ -2,6 +2,7 @@
 #include "engine/solver/newton.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -78,6 +79,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
   int64_t cg_at_setup = 0, last_cg = 0;
   stats.residual = max_imbalance(g_);
   stats.energy = e;
+  auto clock_start = std::chrono::steady_clock::now();
   while (stats.residual > tolerance) {
     if (stats.iterations >= options_.max_iterations) {
       char line[200];
@@ -97,6 +99,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     double slope = 0;
     int64_t cg = 0;
     int project_used = 0;
+    int64_t probe_cg = -1;
     std::string why;
     for (bool project : {false, true}) {
       const BlockSparseMatrix& h = hessian(u, project);
@@ -122,6 +125,11 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       }
       cg += ls->iterations;
       last_cg = ls->iterations;
+      if (options_.trace && options_.krylov_probe > 0) {
+        probe_.assign(n, Vec3d{0, 0, 0});
+        Result<LinearSolveStats> pr = linear_->solve(rhs_, probe_, options_.krylov_probe);
+        probe_cg = pr.ok() ? pr->iterations : -1;
+      }
       if (full) cg_at_setup = ls->iterations;
       slope = 0;
       for (size_t i = 0; i < n; ++i) slope += dot(g_[i], d_[i]);
@@ -168,9 +176,13 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     if (options_.trace) {
       std::fprintf(options_.trace,
                    "newton iteration %d residual %.4e at_vertex %zu step %.4g of %.4g "
-                   "energy_change %.4e slope %.4e cg %lld projected %d\n",
+                   "energy_change %.4e slope %.4e cg %lld projected %d eta %.3g ms %.1f probe_cg %lld\n",
                    stats.iterations, stats.residual, largest_imbalance_vertex(g_), alpha / alpha_start, alpha_start,
-                   e_trial - e, slope, static_cast<long long>(cg), project_used);
+                   e_trial - e, slope, static_cast<long long>(cg), project_used, eta,
+                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                             clock_start).count(),
+                   static_cast<long long>(probe_cg));
+      clock_start = std::chrono::steady_clock::now();
     }
     u.swap(trial_);
     e = evaluate(u, g_);

@@ -45,6 +45,10 @@ struct NewtonOptions {
   /// search's step, the energy change, CG iterations) and each solve its end; null: nowhere.
   /// The diagnostic of docs/static.md's "Cost" (ZONA_NEWTON_TRACE).
   std::FILE* trace = nullptr;
+  /// With a trace, each iteration's system solved a second time from zero to this relative
+  /// residual, its CG iterations traced as `probe_cg` (the preconditioner's count at a fixed
+  /// tolerance, comparable across meshes; ZONA_KRYLOV_PROBE); 0: none. The step is unchanged.
+  double krylov_probe = 0;
 };
 
 /// How a solve went.
@@ -92,7 +96,7 @@ class NewtonSolver {
   std::vector<uint8_t> fixed_;
   std::unique_ptr<LinearSolver> linear_;
   NewtonOptions options_;
-  std::vector<Vec3d> g_, d_, trial_, rhs_;
+  std::vector<Vec3d> g_, d_, trial_, rhs_, probe_;
 };
 
 }  // namespace zona
