@@ -8,6 +8,10 @@ step it backtracked: 2^-k), the vertices where the residual sat in the iteration
 backtracked, and, with --solves, every solve's travel and outcome.
 
     python3 bench/newton_trace.py T [--solves]
+    python3 bench/newton_trace.py T --row LABEL   # one CSV row (header with --header)
+
+The row: label, Newton iterations traced, CG per Newton iteration (median, largest), ms per
+Newton iteration (median), CG at the probe's tolerance (median, largest; empty without it).
 """
 import collections
 import math
@@ -29,17 +33,25 @@ def main():
             solves[-1]["its"].append(dict(zip(f[3::2], f[4::2])))
         elif f[0] == "newton" and f[1] == "end" and solves:
             solves[-1]["end"] = f[2]
-    ok = [s for s in solves if s["end"] == "converged"]
-    bad = [s for s in solves if s["end"] == "failed"]
-    count = lambda ss: sum(len(s["its"]) for s in ss)
-    print(f"solves {len(solves)}: converged {len(ok)} ({count(ok)} Newton iterations), "
-          f"failed {len(bad)} ({count(bad)})")
     its = [it for s in solves for it in s["its"]]
 
     def spread(key, cast=float):
         v = sorted(cast(it[key]) for it in its if key in it and cast(it[key]) >= 0)
         return (v[len(v) // 2], v[-1], sum(v)) if v else None
 
+    if "--row" in sys.argv:
+        label = sys.argv[sys.argv.index("--row") + 1]
+        cg, ms, probe = spread("cg"), spread("ms"), spread("probe_cg")
+        if "--header" in sys.argv:
+            print("label,newton_iterations,cg_median,cg_max,ms_median,probe_cg_median,probe_cg_max")
+        print(f"{label},{len(its)},{cg[0]:g},{cg[1]:g},{ms[0]:g}," +
+              (f"{probe[0]:g},{probe[1]:g}" if probe else ","))
+        return 0
+    ok = [s for s in solves if s["end"] == "converged"]
+    bad = [s for s in solves if s["end"] == "failed"]
+    count = lambda ss: sum(len(s["its"]) for s in ss)
+    print(f"solves {len(solves)}: converged {len(ok)} ({count(ok)} Newton iterations), "
+          f"failed {len(bad)} ({count(bad)})")
     for key, what in (("cg", "CG per Newton iteration"), ("ms", "ms per Newton iteration"),
                       ("probe_cg", "CG at the probe's tolerance")):
         m = spread(key)

@@ -259,7 +259,8 @@ void read_solver(Reader& root, Scene& scene) {
             Choice<LinearSolverKind>{"cg", LinearSolverKind::kCg}},
            &s.linear);
   r.choice("preconditioner",
-           {Choice<PreconditionerKind>{"jacobi", PreconditionerKind::kJacobi},
+           {Choice<PreconditionerKind>{"auto", PreconditionerKind::kAuto},
+            Choice<PreconditionerKind>{"jacobi", PreconditionerKind::kJacobi},
             Choice<PreconditionerKind>{"multigrid", PreconditionerKind::kMultigrid}},
            &s.preconditioner);
   r.number("barrier_volume", &s.barrier_volume,

@@ -152,8 +152,7 @@ json scene_to_json(const Scene& scene) {
   solver["tolerance"] = sv.tolerance;
   solver["max_iterations"] = sv.max_iterations;
   solver["linear"] = sv.linear == LinearSolverKind::kDirect ? "direct" : "cg";
-  solver["preconditioner"] =
-      sv.preconditioner == PreconditionerKind::kMultigrid ? "multigrid" : "jacobi";
+  solver["preconditioner"] = preconditioner_name(sv.preconditioner);
   solver["barrier_volume"] = sv.barrier_volume;
   solver["medium_viscosity"] = quantity_json(sv.medium_viscosity, kPressure * kTime);
   solver["puncture_tolerance"] = quantity_json(sv.puncture_tolerance, kLength);

@@ -256,6 +256,11 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
     const SolverDef& d = scene.solver;
     j["solver"] = "static";
     j["static_solver"] = {{"linear", d.linear == LinearSolverKind::kDirect ? "direct" : "cg"},
+                          {"preconditioner",
+                           d.linear == LinearSolverKind::kDirect
+                               ? "none"
+                               : preconditioner_name(
+                                     resolved_preconditioner(d, model.vertex_count()))},
                           {"tolerance", d.tolerance},
                           {"travel_step_m", d.travel_step},
                           {"barrier_volume", d.barrier_volume},

@@ -207,7 +207,8 @@ void StaticRun::build() {
   std::unique_ptr<LinearSolver> linear =
       def_.linear == LinearSolverKind::kDirect
           ? make_direct_solver()
-          : make_cg_solver(def_.preconditioner == PreconditionerKind::kMultigrid
+          : make_cg_solver(resolved_preconditioner(def_, model_.vertex_count()) ==
+                                   PreconditionerKind::kMultigrid
                                ? make_multigrid(model_.rest_positions, model_.vertex_fixed)
                                : make_block_jacobi(),
                            20000);

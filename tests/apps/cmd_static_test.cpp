@@ -91,6 +91,8 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   // The loading branch rises; the puncture at 0.6 uN, bracketed to 5 nm of travel.
   nlohmann::json summary = nlohmann::json::parse(std::ifstream(out / "summary.json"));
   EXPECT_EQ(summary["solver"], "static");
+  // "auto" on 600 vertices: block Jacobi.
+  EXPECT_EQ(summary["static_solver"]["preconditioner"], "jacobi");
   ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump();
   const double fp = summary["puncture"]["force_N"].get<double>();
   EXPECT_GE(fp, 0.6e-6);

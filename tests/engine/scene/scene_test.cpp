@@ -672,5 +672,26 @@ TEST(Scene, InjectionKeysHaveDefaultsRangesAndRoundTrip) {
   expect_error(j, "integrator.stiffness_damping", "unit");
 }
 
+// solver.preconditioner: "auto" by default, resolved by the mesh's size (block Jacobi below
+// kMultigridFromVertices, the multigrid from there); a name it does not know is an error on
+// the key.
+TEST(Scene, PreconditionerAutoFollowsTheMeshSize) {
+  Result<Scene> r = parse_scene(minimal(), "dir/minimal.json");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->solver.preconditioner, PreconditionerKind::kAuto);
+  EXPECT_EQ(resolved_preconditioner(r->solver, 6000), PreconditionerKind::kJacobi);
+  EXPECT_EQ(resolved_preconditioner(r->solver, kMultigridFromVertices - 1),
+            PreconditionerKind::kJacobi);
+  EXPECT_EQ(resolved_preconditioner(r->solver, kMultigridFromVertices),
+            PreconditionerKind::kMultigrid);
+  json j = minimal();
+  j["solver"] = {{"preconditioner", "jacobi"}};
+  Result<Scene> jac = parse_scene(j, "dir/minimal.json");
+  ASSERT_TRUE(jac.ok()) << jac.error().message;
+  EXPECT_EQ(resolved_preconditioner(jac->solver, 1000000), PreconditionerKind::kJacobi);
+  j["solver"] = {{"preconditioner", "amg"}};
+  expect_error(j, "solver.preconditioner", "amg");
+}
+
 }  // namespace
 }  // namespace zona
