@@ -53,7 +53,7 @@ for spec in "$@"; do
     echo "$name,$vertices,$precond,$rc,$wall,0,,,,,,,,,,,," >> "$csv"
     continue
   fi
-  # Columns by name (schema 4): deformation_m, force_N, newton_iterations, krylov_iterations,
+  # Columns by name (schema 4 and later): deformation_m, force_N, newton_iterations, krylov_iterations,
   # residual_N.
   # Every solve of the run (summary.json numerics.static: the failed ones included).
   all=",,"
