@@ -424,7 +424,7 @@ Status Simulation::setup_mass_scaling(SetupContext&) {
                     "%.3g um at %.3g mm/s",
                     lo * 1e6, target * 1e6, at_target * 1e3, target * 1e6, loading * 1e3,
                     travel * 1e6, speed * 1e3);
-      notes_.push_back(line);
+      note_explicit(line);
       target = lo;
     }
   }
@@ -436,7 +436,7 @@ Status Simulation::setup_mass_scaling(SetupContext&) {
                 "selective mass scaling: total mass x %.4g, largest vertex factor %.4g, %.1f %% of "
                 "vertices raised",
                 r->mass_after / r->mass_before, r->max_vertex_factor, 100.0 * r->scaled_fraction);
-  notes_.push_back(line);
+  note_explicit(line);
   return Status::ok_status();
 }
 
@@ -548,6 +548,10 @@ Status Simulation::setup_runner(SetupContext& setup) {
     record_params_.record.stiffness_window = options_.stiffness_window;
   }
   return Status::ok_status();
+}
+
+void Simulation::note_explicit(std::string line) {
+  if (scene_.solver.method != SolverMethod::kStatic) notes_.push_back(std::move(line));
 }
 
 }  // namespace zona

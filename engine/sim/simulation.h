@@ -268,6 +268,9 @@ class Simulation {
   double volume_change_rel_ = 0, volume_change_max_rel_ = 0;
   std::string backend_description_;
   std::vector<std::string> notes_;
+  // A note about the explicit step's own setup (mass scaling, contact masses, drift damping,
+  // the target step): left out of a static run's notes, which uses none of it.
+  void note_explicit(std::string line);
 
   // Tools.
   bool has_needle_ = false;

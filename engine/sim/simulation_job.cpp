@@ -195,7 +195,7 @@ Status Simulation::prepare_job() {
                   "contact: %lld surface vertices' masses raised for the contact stiffness "
                   "(total mass x %.4g)",
                   static_cast<long long>(raised), total > 0 ? (total + added) / total : 1.0);
-    notes_.push_back(line);
+    note_explicit(line);
   }
 
   // Drift damping (job_drift_update). "auto" matches it to the cell's swing on its holder: the
@@ -222,7 +222,7 @@ Status Simulation::prepare_job() {
                     "estimated at a %.3g ms period)",
                     p.damping.drift, p.damping.drift_window * 1e3,
                     omega > 0 ? 2e3 * std::numbers::pi / omega : 0.0);
-      notes_.push_back(line);
+      note_explicit(line);
     }
   }
 

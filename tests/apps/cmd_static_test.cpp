@@ -93,6 +93,13 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   EXPECT_EQ(summary["solver"], "static");
   // "auto" on 600 vertices: block Jacobi.
   EXPECT_EQ(summary["static_solver"]["preconditioner"], "jacobi");
+  // Nothing of the explicit step's setup: no time step, no mass scaling, no dynamics check.
+  EXPECT_TRUE(summary["numerics"]["dt_s"].is_null()) << summary["numerics"].dump();
+  EXPECT_TRUE(summary["numerics"]["mass_scaling"].is_null());
+  EXPECT_TRUE(summary["quasi_static_check"].is_null());
+  EXPECT_EQ(summary["quasi_static"], true);
+  for (const auto& note : summary["notes"])
+    EXPECT_EQ(note.get<std::string>().find("mass scaling:"), std::string::npos) << note;
   ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump();
   const double fp = summary["puncture"]["force_N"].get<double>();
   EXPECT_GE(fp, 0.6e-6);
