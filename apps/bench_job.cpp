@@ -40,13 +40,53 @@ int block_steps(int64_t vertices, bool gpu) {
   return static_cast<int>(std::clamp(50.0 / per_step_ms, 20.0, gpu ? 2000.0 : 20000.0));
 }
 
+// A static run's row: the whole run to the puncture and its release (no time step, no bare
+// kernel: those columns stay empty), wall to the puncture's state, and the solver's work.
+Status static_row(const MachineInfo& machine, const Scene& scene,
+                  Simulation& sim, int64_t target, double setup_s, FILE* csv) {
+  const Model& model = sim.model();
+  std::fprintf(stderr, "zona bench --job: static, %lld vertices: setup %.2f s\n",
+               static_cast<long long>(model.vertex_count()), setup_s);
+  RunOptions ro;
+  ro.stop_after_puncture = 0;
+  const RunResult run = run_simulation(sim, ro);
+  std::string status = run.stopped_early ? "stopped: " + run.stop_reason
+                       : run.puncture.punctured ? "ok" : "no puncture";
+  for (char& c : status)
+    if (c == ',') c = ';';
+  const bool measured = run.puncture.punctured && run.puncture_wall_seconds >= 0;
+  std::fprintf(csv,
+               "cpu,%s,%s,%lld,%zu,%zu,,,%d,,,,,,,,%.4g,,%.4g,%d,%.4g,%.4g,%s,static,%lld,%lld,"
+               "%lld,%s\n",
+               machine.cpu_model.c_str(), scene.name.c_str(), static_cast<long long>(target),
+               model.vertex_count(), model.tet_count(), 1, setup_s,
+               measured ? setup_s + run.puncture_wall_seconds : 0.0, measured ? 1 : 0,
+               run.puncture.deformation * 1e6, run.puncture.force * 1e6, status.c_str(),
+               static_cast<long long>(run.newton_iterations),
+               static_cast<long long>(run.krylov_iterations),
+               static_cast<long long>(run.failed_solves),
+               scene.solver.linear == LinearSolverKind::kDirect
+                   ? "none"
+                   : preconditioner_name(resolved_preconditioner(scene.solver, model.vertex_count())));
+  std::fflush(csv);
+  std::fprintf(stderr,
+               "zona bench --job: static, %lld vertices: to puncture %.3g s, %lld Newton "
+               "iterations (%lld failed solves)%s\n",
+               static_cast<long long>(model.vertex_count()),
+               measured ? setup_s + run.puncture_wall_seconds : 0.0,
+               static_cast<long long>(run.newton_iterations),
+               static_cast<long long>(run.failed_solves), measured ? "" : " (no puncture)");
+  return {};
+}
+
 }  // namespace
 
 std::string job_bench_csv_header() {
   return "backend,device,scene,target_vertices,vertices,tets,dt_s,steps_per_block,repeats,"
          "job_ms_median,job_ms_p10,job_ms_p90,kernel_ms_median,job_over_kernel,realtime_factor,"
          "host_bytes_per_step,setup_s,puncture_step,wall_to_puncture_s,puncture_measured,"
-         "puncture_deformation_um,puncture_force_un,status";
+         "puncture_deformation_um,puncture_force_un,status,solver,newton_iterations,"
+         "krylov_iterations,failed_solves,preconditioner";
 }
 
 Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
@@ -72,6 +112,11 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
                "(launch, tools, element pass, update, measurement, record; the GPU's blocks end "
                "with a stream synchronisation); kernel_ms: the bare step of the same model "
                "(Backend::step, zona bench's row); realtime_factor: simulated s per wall s\n");
+  std::fprintf(csv,
+               "# solver static (--solver static or the scene's solver.method): one run to the "
+               "puncture and its release per size; wall_to_puncture_s: setup and the run to the "
+               "puncture's state; newton_iterations, krylov_iterations, failed_solves: over the "
+               "whole run; the step columns empty (docs/static.md)\n");
   std::fprintf(csv, "%s\n", job_bench_csv_header().c_str());
   std::fflush(csv);
 
@@ -98,6 +143,11 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
       return make_error("%s: the scene does not run the injection step (contact.model)",
                         scene->name.c_str());
     const Model& model = sim.model();
+    if (scene->solver.method == SolverMethod::kStatic) {
+      if (gpu) return make_error("--solver static: the static solver runs on the CPU (--backend cpu)");
+      if (Status s = static_row(machine, *scene, sim, target, setup_s, csv); !s) return s;
+      continue;
+    }
     const int steps = a.steps > 0 ? a.steps : block_steps(static_cast<int64_t>(model.vertex_count()), gpu);
     std::fprintf(stderr, "zona bench --job: %s %lld vertices: setup %.2f s, %d steps per block\n",
                  a.backend.c_str(), static_cast<long long>(model.vertex_count()), setup_s, steps);
@@ -180,7 +230,7 @@ Status run_job_bench(const JobBenchArgs& a, FILE* csv) {
       if (c == ',') c = ';';
     std::fprintf(csv,
                  "%s,%s,%s,%lld,%zu,%zu,%.6g,%d,%d,%.6g,%.6g,%.6g,%.6g,%.4g,%.4g,%.4g,%.4g,%lld,"
-                 "%.4g,%d,%.4g,%.4g,%s\n",
+                 "%.4g,%d,%.4g,%.4g,%s,explicit,,,,\n",
                  a.backend.c_str(), gpu ? a.device_name.c_str() : machine.cpu_model.c_str(),
                  scene->name.c_str(), static_cast<long long>(target), model.vertex_count(),
                  model.tet_count(), model.dt, steps, a.repeats, job_ms, quantile(ms, 0.1),

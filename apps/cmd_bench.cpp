@@ -57,6 +57,7 @@ struct BenchArgs {
   bool job = false;
   std::string scene = "mouse_oocyte";
   std::vector<std::string> sets;
+  std::string solver;
   double max_run_seconds = 120;
 };
 
@@ -242,6 +243,7 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--scene", args->scene, "--job: the scene (default mouse_oocyte)")
       ->capture_default_str();
   cmd->add_option("--set", args->sets, "--job: override a scene key, key.path=value (repeatable)");
+  add_solver_option(cmd, &args->solver);
   cmd->add_option("--max-run-seconds", args->max_run_seconds,
                   "--job: run to puncture when the estimated run is shorter than this [s]; "
                   "otherwise the time to puncture is estimated from the measured step")
@@ -250,7 +252,7 @@ void add_bench_command(CLI::App& app) {
     if (args->job) {
       JobBenchArgs j;
       j.scene = args->scene;
-      j.sets = args->sets;
+      j.sets = with_solver(args->sets, args->solver);
       j.backend = args->backend;
       j.vertices = args->vertices == "table2" ? "1e3,4e3,16e3" : args->vertices;
       j.threads = std::atoi(args->threads.c_str());
@@ -261,6 +263,7 @@ void add_bench_command(CLI::App& app) {
       j.command = "zona bench --job --backend " + args->backend + " --scene " + args->scene +
                   " --vertices " + j.vertices + " --repeats " + std::to_string(args->repeats);
       for (const std::string& s : args->sets) j.command += " --set " + s;
+      if (!args->solver.empty()) j.command += " --solver " + args->solver;
       std::string notice;
       const std::vector<DeviceInfo> devices = cuda_devices(&notice);
       if (!devices.empty()) j.device_name = devices.front().name;

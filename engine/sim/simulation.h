@@ -383,6 +383,9 @@ struct RunResult {
   int64_t steps = 0;
   double simulated_time = 0;          ///< [s]
   double wall_seconds = 0;
+  /// The static solver: wall time from the run's start to the puncture's state, before its
+  /// release [s] (-1: no puncture, or the explicit path).
+  double puncture_wall_seconds = -1;
   StepStatus status = kStepOk;        ///< OR of every step's flags
   bool stopped_early = false;         ///< a step was not advanced
   std::string stop_reason;            ///< describe_step_status of the failing step

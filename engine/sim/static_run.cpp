@@ -635,6 +635,7 @@ RunResult StaticRun::run() {
       needle_->add_gradient(u_hi, g_needle);
       accept(u_hi, hi, st_hi);
       if (result_.stopped_early) break;
+      result_.puncture_wall_seconds = wall();
       punctured_ = true;
       puncture_.punctured = true;
       puncture_.step = step_;

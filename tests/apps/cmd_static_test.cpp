@@ -188,6 +188,42 @@ TEST(CmdRunStatic, TheDirectOracleAgreesWithCgToTheTolerance) {
   EXPECT_GE(tight, 0.0);
 }
 
+// `zona bench --job --solver static`: one row per size with the run to the puncture measured
+// (wall time, the puncture's force), the solver's work, and the explicit step's columns empty.
+TEST(CmdRunStatic, JobBenchmarkTimesTheStaticRunToThePuncture) {
+  TempDir dir;
+  const fs::path scene = dir.path / "tiny_static.json";
+  std::ofstream(scene) << kScene;
+  const fs::path csv = dir.path / "job.csv";
+  const CliRun r = run_zona("bench --job --solver static --scene " + scene.string() +
+                                " --vertices 600 --out " + csv.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::ifstream in(csv);
+  std::vector<std::vector<std::string>> rows;
+  for (std::string line; std::getline(in, line);) {
+    if (line.empty() || line[0] == '#') continue;
+    std::vector<std::string> cells;
+    std::stringstream row(line + ",");  // a trailing empty cell counts
+    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    rows.push_back(cells);
+  }
+  ASSERT_EQ(rows.size(), 2u);
+  const std::vector<std::string>& head = rows[0];
+  ASSERT_EQ(rows[1].size(), head.size());
+  std::map<std::string, std::string> row;
+  for (size_t i = 0; i < head.size(); ++i) row[head[i]] = rows[1][i];
+  EXPECT_EQ(row["solver"], "static");
+  EXPECT_EQ(row["status"], "ok");
+  EXPECT_EQ(row["puncture_measured"], "1");
+  EXPECT_GT(std::stod(row["wall_to_puncture_s"]), 0);
+  EXPECT_NEAR(std::stod(row["puncture_force_un"]), 0.6, 0.006);
+  EXPECT_GT(std::stoll(row["newton_iterations"]), 0);
+  EXPECT_EQ(row["preconditioner"], "jacobi");
+  EXPECT_EQ(row["job_ms_median"], "");
+  EXPECT_EQ(row["dt_s"], "");
+}
+
 // `zona study convergence --solver static`: each size is a static run (its line counts load
 // steps, not time steps), and the summary compares the sizes' forces at 10 um.
 TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
