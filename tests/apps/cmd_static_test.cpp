@@ -58,10 +58,16 @@ std::map<std::string, std::vector<double>> read_csv(const fs::path& path) {
   return columns;
 }
 
-TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
-  TempDir dir;
+// kScene written into the test's folder.
+fs::path write_tiny_scene(const TempDir& dir) {
   const fs::path scene = dir.path / "tiny_static.json";
   std::ofstream(scene) << kScene;
+  return scene;
+}
+
+TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
+  TempDir dir;
+  const fs::path scene = write_tiny_scene(dir);
   const fs::path out = dir.path / "out";
   const CliRun r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -119,8 +125,7 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
 // unloading left the needle 21 % above the released load one step later.)
 TEST(CmdRunStatic, TheReleasedLoadStaysWithTheNeedlesFriction) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   const fs::path out = dir.path / "out";
   const CliRun r = run_zona("run " + scene.string() +
                                 " --headless --no-frames --set needle.friction=0.3 "
@@ -143,8 +148,7 @@ TEST(CmdRunStatic, TheReleasedLoadStaysWithTheNeedlesFriction) {
 // nothing else: ten times the viscosity leaves the curve where it was.
 TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   const std::string base = "run " + scene.string() + " --headless --no-frames --set needle.max_travel=10um";
   const CliRun a = run_zona(base + " --out " + (dir.path / "a").string(), dir.path);
   const CliRun b = run_zona(base + " --set 'solver.medium_viscosity=8.9e-3 Pa*s' --out " +
@@ -165,8 +169,7 @@ TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
 // and at 1e-8 by less than 1e-6 of the largest displacement.
 TEST(CmdRunStatic, TheDirectOracleAgreesWithCgToTheTolerance) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   auto oracle = [&](const std::string& tolerance) {
     const fs::path out = dir.path / ("tol" + tolerance);
     const CliRun r = run_zona("run " + scene.string() +
@@ -192,8 +195,7 @@ TEST(CmdRunStatic, TheDirectOracleAgreesWithCgToTheTolerance) {
 // (wall time, the puncture's force), the solver's work, and the explicit step's columns empty.
 TEST(CmdRunStatic, JobBenchmarkTimesTheStaticRunToThePuncture) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   const fs::path csv = dir.path / "job.csv";
   const CliRun r = run_zona("bench --job --solver static --scene " + scene.string() +
                                 " --vertices 600 --out " + csv.string(),
@@ -228,8 +230,7 @@ TEST(CmdRunStatic, JobBenchmarkTimesTheStaticRunToThePuncture) {
 // steps, not time steps), and the summary compares the sizes' forces at 10 um.
 TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   const CliRun r = run_zona("study convergence " + scene.string() +
                                 " --solver static --vertices 300,600 --deformations 10 --quiet "
                                 "--set needle.max_travel=11um --out " +
@@ -266,8 +267,7 @@ TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
 
 TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
   TempDir dir;
-  const fs::path scene = dir.path / "tiny_static.json";
-  std::ofstream(scene) << kScene;
+  const fs::path scene = write_tiny_scene(dir);
   auto one_line_error = [&](const std::string& args, const std::string& words) {
     const CliRun r = run_zona("run " + scene.string() + " --headless --out " +
                                   (dir.path / "o").string() + " " + args,
