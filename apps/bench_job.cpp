@@ -65,9 +65,7 @@ Status static_row(const MachineInfo& machine, const Scene& scene,
                static_cast<long long>(run.newton_iterations),
                static_cast<long long>(run.krylov_iterations),
                static_cast<long long>(run.failed_solves),
-               scene.solver.linear == LinearSolverKind::kDirect
-                   ? "none"
-                   : preconditioner_name(resolved_preconditioner(scene.solver, model.vertex_count())));
+               preconditioner_used(scene.solver, model.vertex_count()));
   std::fflush(csv);
   std::fprintf(stderr,
                "zona bench --job: static, %lld vertices: to puncture %.3g s, %lld Newton "

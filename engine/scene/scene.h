@@ -155,6 +155,13 @@ inline const char* preconditioner_name(PreconditionerKind k) {
   return k == PreconditionerKind::kAuto ? "auto"
          : k == PreconditionerKind::kMultigrid ? "multigrid" : "jacobi";
 }
+/// The name of the preconditioner a static run on `vertices` takes: "none" with the direct
+/// solver (summary.json's static_solver.preconditioner, zona bench --job's column).
+inline const char* preconditioner_used(const SolverDef& s, size_t vertices) {
+  return s.linear == LinearSolverKind::kDirect
+             ? "none"
+             : preconditioner_name(resolved_preconditioner(s, vertices));
+}
 
 /// Time stepping (explicit centred difference, Ladjal et al. eq. 7).
 struct IntegratorDef {

@@ -256,11 +256,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
     const SolverDef& d = scene.solver;
     j["solver"] = "static";
     j["static_solver"] = {{"linear", d.linear == LinearSolverKind::kDirect ? "direct" : "cg"},
-                          {"preconditioner",
-                           d.linear == LinearSolverKind::kDirect
-                               ? "none"
-                               : preconditioner_name(
-                                     resolved_preconditioner(d, model.vertex_count()))},
+                          {"preconditioner", preconditioner_used(d, model.vertex_count())},
                           {"tolerance", d.tolerance},
                           {"travel_step_m", d.travel_step},
                           {"barrier_volume", d.barrier_volume},
@@ -295,8 +291,13 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   }
   j["puncture"] = p;
   j["peak_force_N"] = run.peak_force;
-  // The quasi-static check (engine/sim/quasi_static.h, docs/outputs.md).
-  {
+  // The quasi-static check (engine/sim/quasi_static.h, docs/outputs.md). A static run is in
+  // equilibrium at every row by construction: the check of the explicit step's dynamics does
+  // not apply to it.
+  if (scene.solver.method == SolverMethod::kStatic) {
+    j["quasi_static"] = scene.needle.enabled ? json(true) : json(nullptr);
+    j["quasi_static_check"] = nullptr;
+  } else {
     const QuasiStaticLimits& lim = run.quasi_limits;
     const QuasiStaticState& q = run.quasi;
     const bool needle = scene.needle.enabled;
@@ -326,12 +327,6 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
     j["quasi_static"] =
         needle && quasi_static_measured(lim) ? json(run.quasi_static()) : json(nullptr);
     j["quasi_static_check"] = c;
-    // A static run is in equilibrium at every row by construction: the check of the explicit
-    // step's dynamics does not apply.
-    if (scene.solver.method == SolverMethod::kStatic) {
-      j["quasi_static"] = needle ? json(true) : json(nullptr);
-      j["quasi_static_check"] = nullptr;
-    }
   }
   j["peak_deformation_m"] = run.peak_deformation;
   j["training"] = {{"mean_insertion_speed_m_per_s", metrics.mean_insertion_speed},
