@@ -417,8 +417,8 @@ bool read_auto_point(Reader& r, std::string_view key, std::optional<Vec3d>* out)
 
 void read_needle(Reader& root, Scene& scene) {
   Reader r = root.object("needle", {"enabled", "shape", "tip_radius", "direction", "start",
-                                    "standoff", "speed", "max_travel", "friction", "force_filter",
-                                    "trajectory"});
+                                    "standoff", "speed", "max_travel", "friction", "stick_length",
+                                    "force_filter", "trajectory"});
   if (!r.present()) return;
   NeedleDef& n = scene.needle;
   n.enabled = true;
@@ -434,6 +434,7 @@ void read_needle(Reader& root, Scene& scene) {
   r.quantity("speed", dim::kSpeed, &n.speed, Range::positive());
   r.quantity("max_travel", dim::kLength, &n.max_travel, Range::non_negative());
   r.number("friction", &n.friction, Range::non_negative());
+  r.quantity("stick_length", dim::kLength, &n.stick_length, Range::non_negative());
   r.quantity("force_filter", dim::kTime, &n.force_filter, Range::non_negative());
   r.file_path("trajectory", &n.trajectory);
 }
@@ -482,7 +483,7 @@ void read_contact(Reader& root, Scene& scene) {
 
 void read_holding_pipette(Reader& root, Scene& scene) {
   Reader r = root.object("holding_pipette", {"enabled", "mode", "inner_radius", "outer_radius",
-                                             "edge_radius", "suction", "friction", "side",
+                                             "edge_radius", "suction", "friction", "stick_length", "side",
                                              "position"});
   if (!r.present()) return;
   HoldingPipetteDef& h = scene.holding_pipette;
@@ -510,6 +511,7 @@ void read_holding_pipette(Reader& root, Scene& scene) {
   }
   r.quantity("suction", dim::kPressure, &h.suction, Range::non_negative());
   r.number("friction", &h.friction, Range::non_negative());
+  r.quantity("stick_length", dim::kLength, &h.stick_length, Range::non_negative());
   Vec3d side{};
   if (r.direction("side", &side)) h.side = side;
   read_auto_point(r, "position", &h.position);

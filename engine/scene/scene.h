@@ -272,6 +272,11 @@ struct NeedleDef {
   double speed = 1e-4;        ///< insertion speed [m/s]
   double max_travel = 0.0;    ///< travel after which the needle stops [m]; 0: no limit
   double friction = 0.3;      ///< Coulomb coefficient needle-cell [-] (Hajiyavand et al. 2019's contacts: 0.3)
+  /// The friction's stick zone at least this wide [m] (HoldingPipetteDef::stick_length); 0 (the
+  /// default): the contact's own (mu times the penetration). With 0.1 um the membrane slid
+  /// around the tip and the tip went through the 64k-256k fine meshes before 40 um of
+  /// deformation (docs/injection.md).
+  double stick_length = 0;
   /// Time constant of the first-order low-pass on the published needle force (a load cell's
   /// finite bandwidth; the puncture criterion reads the filtered force) [s]; 0: none.
   double force_filter = 0.0;
@@ -334,6 +339,13 @@ struct HoldingPipetteDef {
   double edge_radius = 0.0;
   double suction = 2.5e3;     ///< suction pressure [Pa]
   double friction = 0.3;      ///< Coulomb friction coefficient rim-cell [-]
+  /// The rim friction's stick zone is at least this wide [m]: a contact point carries its
+  /// tangential load elastically over this much slip before it slides (its stick spring is the
+  /// contact's stiffness, or mu f_n / stick_length where that is softer; engine/tools/penalty.h
+  /// friction_stiffness). 0 (the default): the contact's stiffness alone, a zone of mu times the
+  /// penetration (nanometres), which the static solver's Newton iterations cross back and forth;
+  /// 0.1 um takes a fifth of them off the default scene's static run (docs/static.md, "Cost").
+  double stick_length = 0;
   std::optional<Vec3d> side;  ///< unit vector from the cell centre to the pipette; nullopt:
                               ///< needle.direction (opposite the needle)
   std::optional<Vec3d> position;  ///< centre of the pipette mouth [m]; nullopt: the cell surface

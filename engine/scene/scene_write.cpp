@@ -204,6 +204,7 @@ json scene_to_json(const Scene& scene) {
     needle["speed"] = quantity_json(n.speed, kSpeed);
     needle["max_travel"] = quantity_json(n.max_travel, kLength);
     needle["friction"] = n.friction;
+    needle["stick_length"] = quantity_json(n.stick_length, kLength);
     needle["force_filter"] = quantity_json(n.force_filter, kTime);
     if (!n.trajectory.empty()) needle["trajectory"] = n.trajectory;
   }
@@ -238,6 +239,7 @@ json scene_to_json(const Scene& scene) {
     holding["edge_radius"] = quantity_json(h.edge_radius, kLength);
     holding["suction"] = quantity_json(h.suction, kPressure);
     holding["friction"] = h.friction;
+    holding["stick_length"] = quantity_json(h.stick_length, kLength);
     if (h.side) holding["side"] = direction_json(*h.side);
     holding["position"] = h.position ? vec_json(*h.position, kLength) : json("auto");
   }

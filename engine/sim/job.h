@@ -196,7 +196,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const NeedleParam
     if (sdf.distance < 0) {
       out.needle_depth = -sdf.distance;
       out.needle = pose.needle_scale * penalty_contact_force(sdf, needle.pressure_stiffness,
-                                                             needle.friction, in.area,
+                                                             needle.friction,
+                                                             needle.stick_length, in.area,
                                                              in.x - pose.tip, pose.step,
                                                              needle_anchor) +
                    pose.drag_per_contact;
@@ -208,7 +209,8 @@ ZONA_HOST_DEVICE ZONA_INLINE ToolVertexForce tool_vertex_force(const NeedleParam
         holding_sdf(rim.mouth, rim.axis, rim.inner_radius, rim.outer_radius, in.x,
                     rim.edge_radius);
     if (sdf.distance < 0) {
-      out.rim = penalty_contact_force(sdf, rim.pressure_stiffness, rim.friction, in.area,
+      out.rim = penalty_contact_force(sdf, rim.pressure_stiffness, rim.friction,
+                                      rim.stick_length, in.area,
                                       in.x - rim.mouth, pose.step, rim_anchor,
                                       rim_damper_coefficient(rim, dt, in.area, in.mass), in.velocity);
       out.rim_contact = 1;
@@ -275,7 +277,8 @@ ZONA_HOST_DEVICE ZONA_INLINE bool needle_face_point(const NeedleParams& needle,
   if (n_len > 0 && dot(n, sdf.normal) < 0) sdf.normal = (-1.0 / n_len) * n;
   constexpr double w = 1.0 / kFacePoints;
   *force = pose.needle_scale * penalty_contact_force(sdf, needle.pressure_stiffness,
-                                                     needle.friction, w * in.area, x - pose.tip,
+                                                     needle.friction, needle.stick_length,
+                                                     w * in.area, x - pose.tip,
                                                      pose.step, anchor) +
            pose.drag_per_contact;
   return true;

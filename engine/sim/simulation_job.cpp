@@ -80,6 +80,7 @@ Status Simulation::prepare_job() {
     p.needle.radius = scene_.needle.tip_radius;
     p.needle.pressure_stiffness = kappa;
     p.needle.friction = scene_.needle.friction;
+    p.needle.stick_length = scene_.needle.stick_length;
     p.needle.breach_depth = kNeedleBreachFraction * p.needle.radius;
     p.record.force_filter = scene_.needle.force_filter;
     p.record.force_filter_weight =
@@ -128,6 +129,7 @@ Status Simulation::prepare_job() {
     p.rim.edge_radius = holding_->geometry.edge_radius;
     p.rim.pressure_stiffness = kappa;
     p.rim.friction = holding_->friction;
+    p.rim.stick_length = holding_->stick_length;
     p.rim.damping = scene_.contact.rim_damping;
     // Suction ramped in over half the needle's approach, so the cell settles without ringing.
     double ramp_time = 0.05 * end_time_;

@@ -162,7 +162,7 @@ void StaticRun::build() {
     needle_ = std::make_unique<PenaltyContactTerm>("needle contact", needle_field(0), rest,
                                                    std::move(points),
                                                    p_.needle.pressure_stiffness,
-                                                   p_.needle.friction);
+                                                   p_.needle.friction, p_.needle.stick_length);
   }
   if (p_.rim.on) {
     ToolField rim;
@@ -175,7 +175,8 @@ void StaticRun::build() {
     rim_ = std::make_unique<PenaltyContactTerm>("rim contact", rim, rest,
                                                 vertex_contact_points(setup.tool_vertices,
                                                                       setup.tool_area),
-                                                p_.rim.pressure_stiffness, p_.rim.friction);
+                                                p_.rim.pressure_stiffness, p_.rim.friction,
+                                                p_.rim.stick_length);
     for (size_t i = 0; i < setup.tool_vertices.size(); ++i) {
       const Vec3d f = setup.tool_suction[i];
       if (f.x == 0 && f.y == 0 && f.z == 0) continue;

@@ -147,11 +147,15 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     }
     // Backtracking: halve until the energy falls enough, from the capped step.
     double alpha = 1, e_trial = 0;
-    if (options_.max_displacement > 0) {
-      double longest = 0;
-      for (const Vec3d& v : d_) longest = std::max(longest, norm(v));
-      if (longest > options_.max_displacement) alpha = options_.max_displacement / longest;
-    }
+    double longest = 0;  // the direction's longest vertex move [m], and its vertex
+    size_t longest_at = 0;
+    for (size_t i = 0; i < n; ++i)
+      if (const double l = norm(d_[i]); l > longest) {
+        longest = l;
+        longest_at = i;
+      }
+    if (options_.max_displacement > 0 && longest > options_.max_displacement)
+      alpha = options_.max_displacement / longest;
     const double alpha_start = alpha;
     for (;;) {
       for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + alpha * d_[i];
@@ -176,12 +180,13 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     if (options_.trace) {
       std::fprintf(options_.trace,
                    "newton iteration %d residual %.4e at_vertex %zu step %.4g of %.4g "
-                   "energy_change %.4e slope %.4e cg %lld projected %d eta %.3g ms %.1f probe_cg %lld\n",
+                   "energy_change %.4e slope %.4e cg %lld projected %d eta %.3g ms %.1f probe_cg %lld "
+                   "longest %.3g at %zu\n",
                    stats.iterations, stats.residual, largest_imbalance_vertex(g_), alpha / alpha_start, alpha_start,
                    e_trial - e, slope, static_cast<long long>(cg), project_used, eta,
                    std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
                                                              clock_start).count(),
-                   static_cast<long long>(probe_cg));
+                   static_cast<long long>(probe_cg), longest, longest_at);
       clock_start = std::chrono::steady_clock::now();
     }
     u.swap(trial_);

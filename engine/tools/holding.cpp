@@ -22,6 +22,7 @@ Result<HoldingSetup> make_holding(const HoldingPipetteDef& def, const ContactSur
   HoldingSetup setup;
   setup.mode = def.mode;
   setup.friction = def.friction;
+  setup.stick_length = def.stick_length;
   Vec3d axis = def.side ? *def.side : needle_direction;
   const double axis_norm = norm(axis);
   if (!(axis_norm > 0)) return make_error("holding_pipette: the side direction is zero");

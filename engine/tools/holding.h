@@ -36,6 +36,7 @@ struct HoldingSetup {
   HoldingMode mode = HoldingMode::kFixed;
   HoldingGeometry geometry;
   double friction = 0.3;                  ///< Coulomb coefficient rim-cell [-]
+  double stick_length = 0;                ///< the friction's stick zone at least this wide [m]
   /// Corners of the surface triangles over the opening (centroid within inner_radius of the
   /// axis, on the pipette side), sorted.
   std::vector<int32_t> patch_vertices;

@@ -7,16 +7,19 @@
 // so its force -dE/dx = k (-phi) n (n = grad phi, out of the tool) and its Hessian
 // k (n n^T + phi hess phi), the second part the tool's curvature (tool_sdf.h).
 //
-// Friction: a stick spring of the same stiffness k from the point's anchor on the tool, on the
-// tangential part of d = rel - anchor (rel: the point relative to the tool's reference point;
-// P = I - n n^T with n held, the normal of the step's start or the current evaluation's), capped
-// at the Coulomb force c = mu f_n. As a potential this is the Huber function of s = |P d|:
-//   E_t = k s^2 / 2                (k s <= c: sticking)
-//   E_t = c s - c^2 / (2 k)        (k s > c: sliding),
-// continuously differentiable, with gradient k P d or c P d / s. The explicit step evaluates it
-// at its own state (n and c of the current evaluation: today's force), a static solver with n and
-// c lagged from the last accepted step (an incremental potential). Once a step is accepted, a
-// sliding point's anchor follows it so that the spring stays at the cap: anchor = rel - g / k
+// Friction: a stick spring from the point's anchor on the tool, on the tangential part of
+// d = rel - anchor (rel: the point relative to the tool's reference point; P = I - n n^T with n
+// held, the normal of the step's start or the current evaluation's), capped at the Coulomb force
+// c = mu f_n. Its stiffness k_t is the contact's own k, or c / l where that is softer
+// (friction_stiffness): a sticking point carries its tangential load elastically over at least
+// the stick length l of slip before it slides (contact.stick_length). As a potential this is the
+// Huber function of s = |P d|:
+//   E_t = k_t s^2 / 2                (k_t s <= c: sticking)
+//   E_t = c s - c^2 / (2 k_t)        (k_t s > c: sliding),
+// continuously differentiable, with gradient k_t P d or c P d / s. The explicit step evaluates
+// it at its own state (n and c of the current evaluation: today's force), a static solver with n
+// and c lagged from the last accepted step (an incremental potential). Once a step is accepted,
+// a sliding point's anchor follows it so that the spring stays at the cap: anchor = rel - g / k_t
 // (g the friction gradient) - penalty_anchor_after. Evaluating forces never moves an anchor.
 #pragma once
 
@@ -69,6 +72,15 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3d penalty_hessian(double k, const ToolSdf& sdf,
   return k * (outer(sdf.normal, sdf.normal) + sdf.distance * hess_phi);
 }
 
+/// The friction spring's stiffness k_t [N/m] for a contact of normal stiffness k [N/m] and
+/// Coulomb cap `cap` [N]: k, or cap / stick_length where that is softer, so that the stick zone
+/// (cap / k_t of tangential offset) is at least `stick_length` [m] wide; 0 keeps k. With the
+/// contact's own k alone the zone is mu times the penetration, nanometres on the default cell,
+/// and a static solver's Newton iterations cross it back and forth (docs/static.md, "Cost").
+ZONA_HOST_DEVICE ZONA_INLINE double friction_stiffness(double k, double cap, double stick_length) {
+  return stick_length > 0 && cap < k * stick_length ? cap / stick_length : k;
+}
+
 /// The friction spring's gradient [N] on d = rel - anchor [m]: k P d, scaled down to length
 /// `cap` [N] where longer (sliding; *slid set). n the held unit normal, k [N/m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d friction_spring(double k, double cap, Vec3d n, Vec3d d,
@@ -105,8 +117,8 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3d friction_hessian(double k, double cap, Vec3d 
 }
 
 /// Where a contact point's anchor goes when the step is accepted: unchanged while it sticks; a
-/// sliding point's follows it, rel - g / k, so that its spring stays at the Coulomb limit. rel,
-/// anchor [m].
+/// sliding point's follows it, rel - g / k, so that its spring (of stiffness k) stays at the
+/// Coulomb limit. rel, anchor [m].
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_anchor_after(double k, double cap, Vec3d n, Vec3d rel,
                                                         Vec3d anchor) {
   bool slid;
@@ -158,7 +170,8 @@ struct PenaltyContact {
 
 /// Penalty contact of one point inside a tool (sdf.distance < 0): the normal pressure kappa x
 /// penetration over the point's area along sdf.normal, and the friction spring from `anchor`
-/// (stick_anchor_in_step) capped at mu times the normal force. `rel`: the point relative to
+/// (stick_anchor_in_step) capped at mu times the normal force, its stiffness
+/// friction_stiffness(kappa area, cap, stick_length) [m]. `rel`: the point relative to
 /// the tool's reference point [m]. A sticking point carries its tangential load at rest,
 /// whatever the step, the speed or the (scaled) mass: a viscous stick force (stop the slip
 /// velocity in one step, m v_t / dt) let it creep at a rate set by the mass scaling
@@ -170,8 +183,9 @@ struct PenaltyContact {
 /// carries nothing, so a static answer does not depend on it; it is the explicit step's
 /// dissipation, not part of any energy.
 ZONA_HOST_DEVICE ZONA_INLINE PenaltyContact penalty_contact(const ToolSdf& sdf, double kappa,
-                                                           double mu, double area, Vec3d rel,
-                                                           Vec3d anchor, double damper = 0,
+                                                           double mu, double stick_length,
+                                                           double area, Vec3d rel, Vec3d anchor,
+                                                           double damper = 0,
                                                            Vec3d velocity = Vec3d{0, 0, 0}) {
   const double k = kappa * area;
   double fn = k * (-sdf.distance);  // > 0 inside
@@ -180,12 +194,13 @@ ZONA_HOST_DEVICE ZONA_INLINE PenaltyContact penalty_contact(const ToolSdf& sdf, 
     if (fn < 0) fn = 0;
   }
   const double cap = mu * fn;
+  const double kt = friction_stiffness(k, cap, stick_length);
   bool slid;
-  const Vec3d g = friction_spring(k, cap, sdf.normal, rel - anchor, &slid);
+  const Vec3d g = friction_spring(kt, cap, sdf.normal, rel - anchor, &slid);
   PenaltyContact out;
   out.force = fn * sdf.normal - g;
   // The anchor after the step (penalty_anchor_after, from the same spring).
-  out.anchor = slid ? rel + (1.0 / k) * (-1.0 * g) : anchor;
+  out.anchor = slid ? rel + (1.0 / kt) * (-1.0 * g) : anchor;
   return out;
 }
 
@@ -194,11 +209,11 @@ ZONA_HOST_DEVICE ZONA_INLINE PenaltyContact penalty_contact(const ToolSdf& sdf, 
 /// anchors as it goes (each point owns its anchor, and nothing reads it again in the step); a
 /// solver that evaluates trial states calls penalty_contact and commits after acceptance.
 ZONA_HOST_DEVICE ZONA_INLINE Vec3d penalty_contact_force(const ToolSdf& sdf, double kappa,
-                                                       double mu, double area, Vec3d rel,
-                                                       int64_t step, StickAnchor* anchor,
-                                                       double damper = 0,
+                                                       double mu, double stick_length,
+                                                       double area, Vec3d rel, int64_t step,
+                                                       StickAnchor* anchor, double damper = 0,
                                                        Vec3d velocity = Vec3d{0, 0, 0}) {
-  const PenaltyContact c = penalty_contact(sdf, kappa, mu, area, rel,
+  const PenaltyContact c = penalty_contact(sdf, kappa, mu, stick_length, area, rel,
                                            stick_anchor_in_step(*anchor, step, rel), damper,
                                            velocity);
   *anchor = stick_anchor_commit(c.anchor, step);

@@ -34,6 +34,7 @@ struct NeedleParams {
   double radius = 0;              ///< tip and shaft radius [m]
   double pressure_stiffness = 0;  ///< contact pressure per penetration [Pa/m]
   double friction = 0;            ///< Coulomb coefficient [-]
+  double stick_length = 0;        ///< friction's stick zone at least this wide (penalty.h) [m]
   /// Before puncture, a contact point deeper than this inside the needle means the surface let
   /// the tool through (the record stage halts: kStepToolBreach) [m]; 0: not checked.
   double breach_depth = 0;
@@ -71,6 +72,7 @@ struct RimParams {
   double edge_radius = 0;    ///< rounding of the mouth's edges [m]
   double pressure_stiffness = 0;  ///< [Pa/m]
   double friction = 0;            ///< [-]
+  double stick_length = 0;        ///< friction's stick zone at least this wide (penalty.h) [m]
   /// Normal damper of the contact as a fraction of each contact point's critical damping
   /// (rim_damper_coefficient) [-]; 0: an undamped spring.
   double damping = 0;

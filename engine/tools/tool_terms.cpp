@@ -42,13 +42,15 @@ std::vector<ContactPoint> face_contact_points(std::span<const std::array<int32_t
 
 PenaltyContactTerm::PenaltyContactTerm(const char* name, ToolField field,
                                        std::span<const Vec3d> rest,
-                                       std::vector<ContactPoint> points, double kappa, double mu)
+                                       std::vector<ContactPoint> points, double kappa, double mu,
+                                       double stick_length)
     : name_(name),
       field_(field),
       rest_(rest),
       points_(std::move(points)),
       kappa_(kappa),
       mu_(mu),
+      stick_length_(stick_length),
       lagged_(points_.size()),
       anchor_(points_.size()),
       point_grad_(points_.size()),
@@ -74,7 +76,7 @@ double PenaltyContactTerm::energy(std::span<const Vec3d> u) {
       const double k = stiffness(i);
       e += penalty_energy(k, field_.eval(x).distance);
       const Lagged& l = lagged_[i];
-      if (l.cap > 0) e += friction_energy(k, l.cap, l.normal, x - field_.origin - l.anchor);
+      if (l.cap > 0) e += friction_energy(l.kt, l.cap, l.normal, x - field_.origin - l.anchor);
     }
     return e;
   });
@@ -85,7 +87,7 @@ Vec3d PenaltyContactTerm::point_gradient(std::span<const Vec3d> u, size_t i) con
   const double k = stiffness(i);
   Vec3d g = penalty_gradient(k, field_.eval(x));
   const Lagged& l = lagged_[i];
-  if (l.cap > 0) g += friction_gradient(k, l.cap, l.normal, x - field_.origin - l.anchor);
+  if (l.cap > 0) g += friction_gradient(l.kt, l.cap, l.normal, x - field_.origin - l.anchor);
   return g;
 }
 
@@ -118,7 +120,7 @@ Mat3d PenaltyContactTerm::point_hessian(std::span<const Vec3d> u, size_t i, bool
     h = q * d * transpose(q);
   }
   const Lagged& l = lagged_[i];
-  if (l.cap > 0) h = h + friction_hessian(k, l.cap, l.normal, x - field_.origin - l.anchor);
+  if (l.cap > 0) h = h + friction_hessian(l.kt, l.cap, l.normal, x - field_.origin - l.anchor);
   return h;
 }
 
@@ -180,6 +182,7 @@ void PenaltyContactTerm::lag(std::span<const Vec3d> u, int64_t step) {
     }
     l.normal = sdf.normal;
     l.cap = mu_ * stiffness(i) * (-sdf.distance);
+    l.kt = friction_stiffness(stiffness(i), l.cap, stick_length_);
     l.anchor = stick_anchor_in_step(anchor_[i], step, x - field_.origin);
   }
 }
@@ -190,7 +193,7 @@ int64_t PenaltyContactTerm::commit(std::span<const Vec3d> u) {
     const Lagged& l = lagged_[i];
     if (!(l.cap > 0)) continue;
     const Vec3d rel = position(u, i) - field_.origin;
-    const Vec3d after = penalty_anchor_after(stiffness(i), l.cap, l.normal, rel, l.anchor);
+    const Vec3d after = penalty_anchor_after(l.kt, l.cap, l.normal, rel, l.anchor);
     if (!(after.x == l.anchor.x && after.y == l.anchor.y && after.z == l.anchor.z)) ++slid;
     anchor_[i] = stick_anchor_commit(after, step_);
   }

@@ -64,14 +64,17 @@ std::vector<ContactPoint> face_contact_points(std::span<const std::array<int32_t
 class PenaltyContactTerm final : public EnergyTerm {
  public:
   /// `rest`: rest positions [m], (vertex_count), which must outlive the term; kappa [Pa/m];
-  /// mu [-].
+  /// mu [-]; stick_length: the friction's stick zone at least this wide [m]
+  /// (friction_stiffness).
   PenaltyContactTerm(const char* name, ToolField field, std::span<const Vec3d> rest,
-                     std::vector<ContactPoint> points, double kappa, double mu);
+                     std::vector<ContactPoint> points, double kappa, double mu,
+                     double stick_length = 0);
   /// At vertices (vertex_contact_points).
   PenaltyContactTerm(const char* name, ToolField field, std::span<const Vec3d> rest,
                      std::span<const int32_t> vertex, std::span<const double> area, double kappa,
-                     double mu)
-      : PenaltyContactTerm(name, field, rest, vertex_contact_points(vertex, area), kappa, mu) {}
+                     double mu, double stick_length = 0)
+      : PenaltyContactTerm(name, field, rest, vertex_contact_points(vertex, area), kappa, mu,
+                           stick_length) {}
 
   const char* name() const override { return name_; }
   double energy(std::span<const Vec3d> u) override;
@@ -106,6 +109,7 @@ class PenaltyContactTerm final : public EnergyTerm {
   struct Lagged {
     Vec3d normal{0, 0, 0};
     double cap = 0;  // mu x normal force [N]; 0: no friction this step
+    double kt = 0;   // the friction spring's stiffness (friction_stiffness) [N/m]
     Vec3d anchor{0, 0, 0};
   };
   Vec3d position(std::span<const Vec3d> u, size_t i) const;
@@ -118,7 +122,7 @@ class PenaltyContactTerm final : public EnergyTerm {
   ToolField field_;
   std::span<const Vec3d> rest_;
   std::vector<ContactPoint> points_;
-  double kappa_, mu_;
+  double kappa_, mu_, stick_length_;
   int64_t step_ = 0;
   std::vector<Lagged> lagged_;       // (point count)
   std::vector<StickAnchor> anchor_;  // committed anchors, (point count)

@@ -71,7 +71,7 @@ TEST(PenaltyContact, PressureTimesAreaAlongTheNormal) {
   sdf.distance = -0.2;
   sdf.normal = kX;
   StickAnchor anchor;
-  const Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 0.5, Vec3d{0, 0, 0}, 0, &anchor);
+  const Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &anchor);
   EXPECT_NEAR(f.x, 10.0 * 0.2 * 0.5, 1e-12);
   EXPECT_EQ(f.y, 0.0);
   EXPECT_EQ(f.z, 0.0);
@@ -84,35 +84,35 @@ TEST(PenaltyContact, FrictionSticksBelowTheConeAndSlidesOnIt) {
   sdf.normal = kX;
   StickAnchor anchor;
   // First contact: it sticks where it touched, no tangential load.
-  Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0}, 0, &anchor);
+  Vec3d f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0, 0}, 0, &anchor);
   EXPECT_NEAR(f.y, 0.0, 1e-12);
   // Displaced 0.2 along y relative to the tool: the spring pulls it back with 2 < 3, and keeps
   // doing so at rest (a step later, same place): a stuck point carries its load statically.
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0.2, 0}, 1, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0.2, 0}, 1, &anchor);
   EXPECT_NEAR(f.y, -2.0, 1e-12);
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0.2, 0}, 2, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0.2, 0}, 2, &anchor);
   EXPECT_NEAR(f.y, -2.0, 1e-12);
   // The normal part of the offset is not friction.
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0.1, 0.2, 0}, 3, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0.1, 0.2, 0}, 3, &anchor);
   EXPECT_NEAR(f.y, -2.0, 1e-12);
   EXPECT_NEAR(f.x, 10.0, 1e-12);
   // Pulled past the cone (0.5 along z): the Coulomb limit against the slip, and the anchor
   // slides so that it stays at the limit; moving back by 0.3 then unloads it to zero.
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.5}, 4, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0, 0.5}, 4, &anchor);
   EXPECT_NEAR(f.z, -3.0, 1e-12);
   EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 3.0, 1e-12);
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.5}, 5, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0, 0.5}, 5, &anchor);
   EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 3.0, 1e-12);
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 0, 0.2}, 6, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 0, 0.2}, 6, &anchor);
   EXPECT_NEAR(norm(Vec3d{0, f.y, f.z}), 0.0, 1e-12);
   // A point that left the tool (no contact at step 7) starts afresh where it touches again.
-  f = penalty_contact_force(sdf, 10.0, 0.3, 1.0, Vec3d{0, 5.0, 0}, 8, &anchor);
+  f = penalty_contact_force(sdf, 10.0, 0.3, 0.0, 1.0, Vec3d{0, 5.0, 0}, 8, &anchor);
   EXPECT_NEAR(f.y, 0.0, 1e-12);
   EXPECT_NEAR(f.z, 0.0, 1e-12);
   // Without friction there is no tangential load at all.
   StickAnchor other;
-  penalty_contact_force(sdf, 10.0, 0.0, 1.0, Vec3d{0, 0, 0}, 0, &other);
-  f = penalty_contact_force(sdf, 10.0, 0.0, 1.0, Vec3d{0, 1.0, 0}, 1, &other);
+  penalty_contact_force(sdf, 10.0, 0.0, 0.0, 1.0, Vec3d{0, 0, 0}, 0, &other);
+  f = penalty_contact_force(sdf, 10.0, 0.0, 0.0, 1.0, Vec3d{0, 1.0, 0}, 1, &other);
   EXPECT_NEAR(f.y, 0.0, 1e-12);
 }
 
@@ -123,16 +123,16 @@ TEST(PenaltyContact, DamperResistsApproachAndReboundButNeverPulls) {
   sdf.normal = kX;
   StickAnchor a0, a1, a2, a3;
   // Moving into the tool at 0.25 m/s: 1 + 2 x 0.25.
-  Vec3d f = penalty_contact_force(sdf, 10.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a0, 2.0,
+  Vec3d f = penalty_contact_force(sdf, 10.0, 0.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a0, 2.0,
                                   Vec3d{-0.25, 0, 0});
   EXPECT_NEAR(f.x, 1.5, 1e-12);
   // Leaving at 0.25 m/s: 1 - 0.5; leaving at 1 m/s: the pull is cut at zero.
-  f = penalty_contact_force(sdf, 10.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a1, 2.0, Vec3d{0.25, 0, 0});
+  f = penalty_contact_force(sdf, 10.0, 0.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a1, 2.0, Vec3d{0.25, 0, 0});
   EXPECT_NEAR(f.x, 0.5, 1e-12);
-  f = penalty_contact_force(sdf, 10.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a2, 2.0, Vec3d{1.0, 0, 0});
+  f = penalty_contact_force(sdf, 10.0, 0.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a2, 2.0, Vec3d{1.0, 0, 0});
   EXPECT_EQ(f.x, 0.0);
   // Sliding along the tool is not the normal damper's business; at rest it carries nothing.
-  f = penalty_contact_force(sdf, 10.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a3, 2.0, Vec3d{0, 3.0, 0});
+  f = penalty_contact_force(sdf, 10.0, 0.0, 0.0, 0.5, Vec3d{0, 0, 0}, 0, &a3, 2.0, Vec3d{0, 3.0, 0});
   EXPECT_NEAR(f.x, 1.0, 1e-12);
   EXPECT_NEAR(f.y, 0.0, 1e-12);
 }

@@ -4,6 +4,8 @@
 // anchor, and committing reproduces the stored-anchor form step by step.
 #include "engine/tools/penalty.h"
 
+#include <algorithm>
+
 #include <gtest/gtest.h>
 
 namespace zona {
@@ -62,21 +64,54 @@ TEST(Penalty, TheExplicitForceIsMinusTheGradientsAndEvaluatingMovesNoAnchor) {
   ToolSdf sdf;
   sdf.distance = -0.2;
   sdf.normal = Vec3d{0, 0, 1};
-  const double kappa = 10, mu = 0.3, area = 0.5, k = kappa * area;
+  const double kappa = 10, mu = 0.3, area = 0.5, k = kappa * area, cap = mu * k * 0.2;
   const Vec3d anchor{0, 0, 0};
-  for (const Vec3d rel : {Vec3d{0.01, 0, 0}, Vec3d{0.5, 0.2, 0.1}}) {
-    const PenaltyContact c = penalty_contact(sdf, kappa, mu, area, rel, anchor);
-    const Vec3d expect = -1.0 * (penalty_gradient(k, sdf) +
-                                 friction_gradient(k, mu * k * 0.2, sdf.normal, rel - anchor));
-    EXPECT_NEAR(norm(c.force - expect), 0, 1e-15);
-    // Sticking keeps the anchor; sliding moves it so that the spring sits at the cap.
-    const Vec3d d = c.anchor - rel;
-    const double spring = k * norm(d - dot(d, sdf.normal) * sdf.normal);
-    if (norm(rel - anchor) * k < mu * k * 0.2)
-      EXPECT_EQ(norm(c.anchor - anchor), 0);
-    else
-      EXPECT_NEAR(spring, mu * k * 0.2, 1e-12);
+  // Without a stick length (the spring as stiff as the contact) and with one wider than the
+  // contact's own zone mu |phi| = 0.06 (the spring softened to cap / 0.3).
+  for (const double stick : {0.0, 0.3}) {
+    const double kt = friction_stiffness(k, cap, stick);
+    EXPECT_DOUBLE_EQ(kt, stick > 0 ? cap / stick : k);
+    for (const Vec3d rel : {Vec3d{0.01, 0, 0}, Vec3d{0.1, 0.05, 0}, Vec3d{0.5, 0.2, 0.1}}) {
+      const PenaltyContact c = penalty_contact(sdf, kappa, mu, stick, area, rel, anchor);
+      const Vec3d expect = -1.0 * (penalty_gradient(k, sdf) +
+                                   friction_gradient(kt, cap, sdf.normal, rel - anchor));
+      EXPECT_NEAR(norm(c.force - expect), 0, 1e-15);
+      // Sticking keeps the anchor; sliding moves it so that the spring sits at the cap.
+      const Vec3d d = c.anchor - rel;
+      const double spring = kt * norm(d - dot(d, sdf.normal) * sdf.normal);
+      const double s = norm(rel - anchor - dot(rel - anchor, sdf.normal) * sdf.normal);
+      if (s * kt < cap)
+        EXPECT_EQ(norm(c.anchor - anchor), 0) << stick;
+      else
+        EXPECT_NEAR(spring, cap, 1e-12) << stick;
+    }
   }
+}
+
+// The stick zone (the tangential offset at which the spring reaches the Coulomb cap) is the
+// contact's own mu |phi| where that is wider than the stick length, else the stick length; the
+// spring is never stiffer than the contact.
+TEST(Penalty, TheStickZoneIsAtLeastTheStickLength) {
+  const double k = 8.0, mu = 0.25;
+  for (const double depth : {1e-3, 0.4}) {
+    const double cap = mu * k * depth;
+    for (const double stick : {0.0, 0.01, 0.05}) {
+      const double kt = friction_stiffness(k, cap, stick);
+      EXPECT_LE(kt, k);
+      EXPECT_NEAR(cap / kt, std::max(mu * depth, stick), 1e-15) << depth << " " << stick;
+      // Just inside the zone the point sticks (the force grows with the offset), just outside
+      // it slides at the cap.
+      const Vec3d n{0, 0, 1}, t{1, 0, 0};
+      bool slid = true;
+      const Vec3d in = friction_spring(kt, cap, n, 0.99 * (cap / kt) * t, &slid);
+      EXPECT_FALSE(slid);
+      EXPECT_NEAR(norm(in), 0.99 * cap, 1e-12);
+      friction_spring(kt, cap, n, 1.01 * (cap / kt) * t, &slid);
+      EXPECT_TRUE(slid);
+    }
+  }
+  // No normal force, no friction.
+  EXPECT_EQ(friction_stiffness(k, 0.0, 0.01), 0.0);
 }
 
 // A point dragged along the surface over several steps: evaluate, then commit, gives what the
@@ -86,14 +121,15 @@ TEST(Penalty, CommittingAfterEachStepReproducesTheStoredAnchorForm) {
   sdf.distance = -0.1;
   sdf.normal = Vec3d{0, 1, 0};
   StickAnchor stored, committed;
+  const double stick = 0.05;  // wider than the contact's own zone (0.02)
   for (int64_t step = 0; step < 12; ++step) {
     const Vec3d rel{0.03 * static_cast<double>(step), 0, 0.01 * static_cast<double>(step % 3)};
-    const Vec3d f_stored = penalty_contact_force(sdf, 10, 0.2, 1, rel, step, &stored);
+    const Vec3d f_stored = penalty_contact_force(sdf, 10, 0.2, stick, 1, rel, step, &stored);
     const PenaltyContact c =
-        penalty_contact(sdf, 10, 0.2, 1, rel, stick_anchor_in_step(committed, step, rel));
+        penalty_contact(sdf, 10, 0.2, stick, 1, rel, stick_anchor_in_step(committed, step, rel));
     const StickAnchor before = committed;
     // Evaluating twice at trial states changes nothing.
-    penalty_contact(sdf, 10, 0.2, 1, rel + Vec3d{1, 0, 0}, stick_anchor_in_step(committed, step, rel));
+    penalty_contact(sdf, 10, 0.2, stick, 1, rel + Vec3d{1, 0, 0}, stick_anchor_in_step(committed, step, rel));
     EXPECT_EQ(before.mark, committed.mark);
     committed = stick_anchor_commit(c.anchor, step);
     EXPECT_EQ(norm(f_stored - c.force), 0) << step;

@@ -96,7 +96,7 @@ TEST(ToolTerms, RimFrictionIsAPotentialWithItsNormalAndCapHeld) {
   rim.radius = 0.2;
   rim.outer_radius = 0.7;
   rim.edge_radius = 0.1;
-  PenaltyContactTerm term("rim contact", rim, p.rest, p.vertex, p.area, 40.0, 0.4);
+  PenaltyContactTerm term("rim contact", rim, p.rest, p.vertex, p.area, 40.0, 0.4, 0.002);
   // Lagged at a state shifted sideways: at u the points have moved from their anchors, some
   // little (sticking), some far (sliding).
   std::vector<Vec3d> lag_state = p.u;
@@ -107,12 +107,16 @@ TEST(ToolTerms, RimFrictionIsAPotentialWithItsNormalAndCapHeld) {
   term.commit(lag_state);  // the anchors of step 0
   term.lag(lag_state, 1);
   expect_consistent(term, p.u);
+  // Both regimes were checked: at u some lagged points slide past their stick zone, some stick.
+  const int64_t slid = term.commit(p.u);
+  EXPECT_GT(slid, 0);
+  EXPECT_LT(slid, term.lagged_contacts());
 }
 
 TEST(ToolTerms, AtTheLaggedStateTheGradientIsMinusTheExplicitContactForce) {
   Patch p = patch();
-  const double kappa = 50.0, mu = 0.3;
-  PenaltyContactTerm term("needle contact", needle(), p.rest, p.vertex, p.area, kappa, mu);
+  const double kappa = 50.0, mu = 0.3, stick = 0.004;
+  PenaltyContactTerm term("needle contact", needle(), p.rest, p.vertex, p.area, kappa, mu, stick);
   std::vector<StickAnchor> anchors(p.vertex.size());
   std::vector<Vec3d> u = p.u;
   for (int64_t step = 0; step < 4; ++step) {
@@ -123,7 +127,7 @@ TEST(ToolTerms, AtTheLaggedStateTheGradientIsMinusTheExplicitContactForce) {
     for (size_t i = 0; i < u.size(); ++i) {
       const Vec3d x = p.rest[i] + u[i];
       const ToolSdf sdf = needle().eval(x);
-      const Vec3d f = sdf.distance < 0 ? penalty_contact_force(sdf, kappa, mu, p.area[i],
+      const Vec3d f = sdf.distance < 0 ? penalty_contact_force(sdf, kappa, mu, stick, p.area[i],
                                                                x - needle().origin, step, &anchors[i])
                                        : Vec3d{0, 0, 0};
       EXPECT_LE(norm(g[i] + f), 1e-12 * (1 + norm(f))) << "step " << step << " point " << i;
