@@ -12,7 +12,7 @@
 // held, the normal of the step's start or the current evaluation's), capped at the Coulomb force
 // c = mu f_n. Its stiffness k_t is the contact's own k, or c / l where that is softer
 // (friction_stiffness): a sticking point carries its tangential load elastically over at least
-// the stick length l of slip before it slides (contact.stick_length). As a potential this is the
+// the stick length l of slip before it slides (the tool's stick_length). As a potential this is the
 // Huber function of s = |P d|:
 //   E_t = k_t s^2 / 2                (k_t s <= c: sticking)
 //   E_t = c s - c^2 / (2 k_t)        (k_t s > c: sliding),
@@ -171,7 +171,7 @@ struct PenaltyContact {
 /// Penalty contact of one point inside a tool (sdf.distance < 0): the normal pressure kappa x
 /// penetration over the point's area along sdf.normal, and the friction spring from `anchor`
 /// (stick_anchor_in_step) capped at mu times the normal force, its stiffness
-/// friction_stiffness(kappa area, cap, stick_length) [m]. `rel`: the point relative to
+/// friction_stiffness(kappa area, cap, stick_length), stick_length [m]. `rel`: the point relative to
 /// the tool's reference point [m]. A sticking point carries its tangential load at rest,
 /// whatever the step, the speed or the (scaled) mass: a viscous stick force (stop the slip
 /// velocity in one step, m v_t / dt) let it creep at a rate set by the mass scaling
