@@ -131,7 +131,7 @@ nlohmann::json run_summary_json(const Simulation& simulation, const RunResult& r
 /// lambda_v (Jbar_v - 1) added. Cell: "green_strain" [-] (6: xx yy zz xy yz xz),
 /// "von_mises_stress" [Pa] (1). Cauchy stress of the model's law: F S F^T / J for SVK, P F^T /
 /// J for the stable neo-Hookean law, the small-strain stress for linear; an inverted element
-/// (J <= 0) gives S or P.
+/// (J <= 0) gives the Kirchhoff stress J sigma (F S F^T or P F^T), symmetric and defined.
 void frame_fields(const Model& model, const State& state, std::vector<VtkField>* point_data,
                   std::vector<VtkField>* cell_data);
 

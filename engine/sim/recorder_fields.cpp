@@ -19,7 +19,8 @@ double von_mises(const Mat3d& s) {
 
 // Cauchy stress [Pa] of tetrahedron t at displacement gradient h, by the model's law: F S F^T / J
 // for SVK, P F^T / J for SNH, the small-strain stress for the linear law. An inverted element
-// (J <= 0) reports S or P, which stay defined. Under nodal pressure: the element part only (the
+// (J <= 0) reports the Kirchhoff stress J sigma (F S F^T, P F^T), which stays defined and
+// symmetric (P alone is not symmetric). Under nodal pressure: the element part only (the
 // law with lambda_s = mu, snh_first_piola_nodal at zero pressure); the pressure is the vertex's.
 Mat3d tet_cauchy_stress(const Model& model, size_t t, const Mat3d& h) {
   const Lame& lame = model.tet_lame(t);
@@ -30,7 +31,8 @@ Mat3d tet_cauchy_stress(const Model& model, size_t t, const Mat3d& h) {
     case ConstitutiveModel::kSvk: {
       const Mat3d s = isotropic_stress(green_strain(h), lame.lambda, lame.mu, &psi);
       const double det = determinant(f);
-      return det > 0 ? (1.0 / det) * (f * s * transpose(f)) : s;
+      const Mat3d tau = f * s * transpose(f);
+      return det > 0 ? (1.0 / det) * tau : tau;
     }
     case ConstitutiveModel::kStableNeoHookean: {
       Mat3d p;
@@ -39,7 +41,8 @@ Mat3d tet_cauchy_stress(const Model& model, size_t t, const Mat3d& h) {
         snh_first_piola_nodal(h, lame.mu, 0.0, &p, &jm1);
       else
         snh_first_piola(h, lame.lambda, lame.mu, &p, &jm1);
-      return jm1 > -1.0 ? (1.0 / (1.0 + jm1)) * (p * transpose(f)) : p;
+      const Mat3d tau = p * transpose(f);
+      return jm1 > -1.0 ? (1.0 / (1.0 + jm1)) * tau : tau;
     }
     case ConstitutiveModel::kLinear:
       break;

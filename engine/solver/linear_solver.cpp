@@ -1,6 +1,7 @@
 // The linear solvers of a Newton step (linear_solver.h).
 #include "engine/solver/linear_solver.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/SparseCholesky>
@@ -43,31 +44,42 @@ class BlockJacobi final : public Preconditioner {
   std::vector<Mat3d> inverse_;
 };
 
-// The exact oracle: CHOLMOD's supernodal Cholesky (Debian's libsuitesparse-dev, multithreaded
-// through its BLAS) where the build found it, else Eigen's simplicial LDL^T. Both refuse a matrix
-// that is not positive definite, so that Newton takes the projected Hessian instead.
-class DirectSolver final : public LinearSolver {
+// The factorisation of the exact oracle, as a preconditioner: CHOLMOD's supernodal Cholesky
+// (Debian's libsuitesparse-dev, multithreaded through its BLAS) where the build found it, else
+// Eigen's simplicial LDL^T. setup factors the matrix and refuses one that is not positive
+// definite (Newton then takes the projected Hessian); refresh only copies the new values in,
+// keeping the factor of the last setup's matrix, and factor() brings it up to date on demand.
+class Factorisation final : public Preconditioner {
  public:
 #ifdef ZONA_HAVE_CHOLMOD
   // A matrix that is not positive definite is an answer here (Newton projects), not a warning.
-  DirectSolver() {
-    factor_.cholmod().print = 0;
-  }
-#endif
-  const char* name() const override {
-#ifdef ZONA_HAVE_CHOLMOD
-    return "direct (CHOLMOD supernodal LL^T)";
+  Factorisation() { factor_.cholmod().print = 0; }
+  const char* name() const override { return "CHOLMOD supernodal LL^T"; }
 #else
-    return "direct (Eigen simplicial LDL^T)";
+  const char* name() const override { return "Eigen simplicial LDL^T"; }
 #endif
-  }
   Status setup(const BlockSparseMatrix& a) override {
-    matrix_ = a.to_eigen();
+    copy_values(a);
+    return factor();
+  }
+  Status refresh(const BlockSparseMatrix& a) override {
+    copy_values(a);
+    return {};
+  }
+  void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {
+    const Eigen::Index n = matrix_.rows();
+    Eigen::Map<Eigen::VectorXd>(&z[0].x, n) =
+        factor_.solve(Eigen::Map<const Eigen::VectorXd>(&r[0].x, n));
+  }
+  bool current() const { return current_; }
+  // Factors the values copied in last (the pattern analysed once).
+  Status factor() {
     if (!analysed_) {
       factor_.analyzePattern(matrix_);
       analysed_ = true;
     }
     factor_.factorize(matrix_);
+    current_ = false;
 #ifdef ZONA_HAVE_CHOLMOD
     if (factor_.info() != Eigen::Success)
       return make_error("the Hessian is not positive definite (CHOLMOD, %zu unknowns)",
@@ -80,24 +92,75 @@ class DirectSolver final : public LinearSolver {
       return make_error("the Hessian is not positive definite (a pivot of %.3g)",
                         factor_.vectorD().minCoeff());
 #endif
+    current_ = true;
     return {};
-  }
-  Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
-                                 double) override {
-    const Eigen::Index n = matrix_.rows();
-    Eigen::Map<const Eigen::VectorXd> rhs(&b[0].x, n);
-    Eigen::VectorXd x = factor_.solve(rhs);
-    if (factor_.info() != Eigen::Success || !x.allFinite())
-      return make_error("the direct solve of the Newton step failed");
-    Eigen::Map<Eigen::VectorXd>(&d[0].x, n) = x;
-    LinearSolveStats stats;
-    const double bn = rhs.norm();
-    stats.relative_residual = bn > 0 ? (matrix_ * x - rhs).norm() / bn : 0.0;
-    return stats;
   }
 
  private:
+  // The matrix's values into matrix_, whose pattern (column-major, both triangles) is built
+  // once with a map from each 3 x 3 block, and each pair of a rank-one term's vertices, to the
+  // block's place in its columns: the same pattern again costs one pass over the values.
+  void copy_values(const BlockSparseMatrix& a) {
+    current_ = false;
+    if (matrix_.rows() == 0) {
+      matrix_ = a.to_eigen();
+      matrix_.makeCompressed();
+      const int* outer = matrix_.outerIndexPtr();
+      const int* inner = matrix_.innerIndexPtr();
+      // The block (i, j)'s row 3 i within column 3 j (columns 3 j + 1 and 3 j + 2 alike).
+      auto place = [&](int64_t i, int64_t j) {
+        const int* begin = inner + outer[3 * j];
+        return static_cast<int32_t>(std::lower_bound(begin, inner + outer[3 * j + 1],
+                                                     static_cast<int>(3 * i)) - begin);
+      };
+      block_place_.resize(a.block_count());
+      for (size_t i = 0; i < a.rows(); ++i)
+        for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k)
+          block_place_[static_cast<size_t>(k)] =
+              place(static_cast<int64_t>(i), a.cols()[static_cast<size_t>(k)]);
+      pair_place_.clear();
+      const std::span<const int64_t> off = a.rank_one_offsets();
+      const std::span<const int32_t> vert = a.rank_one_vertices();
+      for (size_t k = 0; k < a.rank_one_terms(); ++k)
+        for (int64_t p = off[k]; p < off[k + 1]; ++p)
+          for (int64_t q = off[k]; q < off[k + 1]; ++q)
+            pair_place_.push_back(place(vert[static_cast<size_t>(p)], vert[static_cast<size_t>(q)]));
+      return;
+    }
+    ZONA_ASSERT(a.block_count() == block_place_.size());
+    double* value = matrix_.valuePtr();
+    const int* outer = matrix_.outerIndexPtr();
+    std::fill(value, value + matrix_.nonZeros(), 0.0);
+    auto add = [&](int64_t i, int64_t j, int32_t at, const auto& entry) {
+      for (int c = 0; c < 3; ++c) {
+        double* column = value + outer[3 * j + c] + at;
+        for (int r = 0; r < 3; ++r) column[r] += entry(r, c);
+      }
+      (void)i;
+    };
+    for (size_t i = 0; i < a.rows(); ++i)
+      for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
+        const Mat3d& b = a.values()[static_cast<size_t>(k)];
+        add(static_cast<int64_t>(i), a.cols()[static_cast<size_t>(k)],
+            block_place_[static_cast<size_t>(k)], [&](int r, int c) { return b.m[r][c]; });
+      }
+    const std::span<const int64_t> off = a.rank_one_offsets();
+    const std::span<const int32_t> vert = a.rank_one_vertices();
+    const std::span<const Vec3d> vec = a.rank_one_vectors();
+    size_t pair = 0;
+    for (size_t k = 0; k < a.rank_one_terms(); ++k)
+      for (int64_t p = off[k]; p < off[k + 1]; ++p) {
+        const Vec3d u = a.rank_one_coefficients()[k] * vec[static_cast<size_t>(p)];
+        for (int64_t q = off[k]; q < off[k + 1]; ++q) {
+          const Vec3d& w = vec[static_cast<size_t>(q)];
+          add(vert[static_cast<size_t>(p)], vert[static_cast<size_t>(q)], pair_place_[pair++],
+              [&](int r, int c) { return u[r] * w[c]; });
+        }
+      }
+  }
+
   Eigen::SparseMatrix<double> matrix_;
+  std::vector<int32_t> block_place_, pair_place_;
 #ifdef ZONA_HAVE_CHOLMOD
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> factor_;
 #else
@@ -105,6 +168,7 @@ class DirectSolver final : public LinearSolver {
       factor_;
 #endif
   bool analysed_ = false;
+  bool current_ = false;  // factor_ is of the values in matrix_
 };
 
 class CgSolver final : public LinearSolver {
@@ -221,6 +285,51 @@ class CgSolver final : public LinearSolver {
   const BlockSparseMatrix* a_ = nullptr;
   std::vector<Vec3d> r_, z_, p_, q_;
   std::vector<double> partial_, rr_partial_;  // the dot products' sums per chunk
+};
+
+// The exact oracle: Newton's systems solved to a relative residual of kExactResidual. A whole
+// setup factors the matrix (the first iteration of each load step, and wherever Newton asks);
+// a refresh keeps that factor and CG preconditioned by it finishes the solve, a few iterations
+// while the matrix is near the one factored. Where it is not (CG past kRefineIterations, or a
+// direction of non-positive curvature), the current matrix is factored and the solve redone.
+class DirectSolver final : public LinearSolver {
+ public:
+  static constexpr double kExactResidual = 1e-12;
+  static constexpr int64_t kRefineIterations = 40;
+  DirectSolver() {
+    auto f = std::make_unique<Factorisation>();
+    factor_ = f.get();
+    cg_ = std::make_unique<CgSolver>(std::move(f), kRefineIterations);
+    name_ = std::string("direct (") + factor_->name() + ")";
+  }
+  const char* name() const override { return name_.c_str(); }
+  Status setup(const BlockSparseMatrix& a) override { return cg_->setup(a); }
+  Status refresh(const BlockSparseMatrix& a) override { return cg_->refresh(a); }
+  Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
+                                 double) override {
+    const std::vector<Vec3d> start(d.begin(), d.end());
+    Result<LinearSolveStats> r = cg_->solve(b, d, kExactResidual);
+    if ((r.ok() && !r->truncated) || factor_->current()) {
+      if (!r.ok() || r->truncated)
+        return make_error("the direct solve of the Newton step failed (%s)",
+                          r.ok() ? "a direction of non-positive curvature" : r.error().message.c_str());
+      return r;
+    }
+    const int64_t spent = r.ok() ? r->iterations : kRefineIterations;
+    if (Status st = factor_->factor(); !st) return st.error();
+    std::copy(start.begin(), start.end(), d.begin());
+    r = cg_->solve(b, d, kExactResidual);
+    if (!r.ok() || r->truncated)
+      return make_error("the direct solve of the Newton step failed (%s)",
+                        r.ok() ? "a direction of non-positive curvature" : r.error().message.c_str());
+    r->iterations += spent;
+    return r;
+  }
+
+ private:
+  Factorisation* factor_;  // owned by cg_
+  std::unique_ptr<CgSolver> cg_;
+  std::string name_;
 };
 
 }  // namespace

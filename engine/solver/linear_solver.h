@@ -33,7 +33,7 @@ std::unique_ptr<Preconditioner> make_block_jacobi();
 
 /// How a solve ended.
 struct LinearSolveStats {
-  int64_t iterations = 0;      ///< CG iterations (0 for the direct solver)
+  int64_t iterations = 0;      ///< CG iterations (the direct solver's: CG on its factor)
   double relative_residual = 0;  ///< |H d + g| / |g| reached
   /// CG met a direction of non-positive curvature after its first iteration and returned the
   /// iterate before it (which descends where the matrix is the Hessian of an energy).
@@ -50,14 +50,17 @@ class LinearSolver {
   /// The same for a matrix close to the last setup's (Preconditioner::refresh); by default the
   /// whole setup.
   virtual Status refresh(const BlockSparseMatrix& a) { return setup(a); }
-  /// Solves to a relative residual `tolerance` (the direct solver ignores it); d is the
+  /// Solves to a relative residual `tolerance` (the direct solver: to 1e-12 always); d is the
   /// starting guess on entry (CG), the solution on exit.
   virtual Result<LinearSolveStats> solve(std::span<const Vec3d> b, std::span<Vec3d> d,
                                          double tolerance) = 0;
 };
 
-/// The sparse direct solver (the pattern analysed once): CHOLMOD's supernodal Cholesky where
-/// the build has libcholmod (ZONA_HAVE_CHOLMOD), else Eigen's simplicial LDL^T with AMD ordering.
+/// The sparse direct solver, the exact oracle: CHOLMOD's supernodal Cholesky where the build has
+/// libcholmod (ZONA_HAVE_CHOLMOD), else Eigen's simplicial LDL^T with AMD ordering (the pattern
+/// analysed once). setup factors and refuses a matrix that is not positive definite; refresh
+/// keeps the last factor, and solve finishes with CG on it to a relative residual of 1e-12,
+/// factoring the current matrix where that CG does not converge in 40 iterations.
 std::unique_ptr<LinearSolver> make_direct_solver();
 /// CG preconditioned by `preconditioner`, at most max_iterations.
 std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,

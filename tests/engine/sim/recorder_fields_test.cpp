@@ -139,6 +139,46 @@ TEST(RecorderFields, NeoHookeanStressAtTheVerticesWithAndWithoutNodalPressure) {
   }
 }
 
+// An inverted element (J < 0) reports its Kirchhoff stress J sigma: symmetric and finite (its
+// first Piola stress, which the output once gave there, is not symmetric), and that of the law in
+// closed form (SNH: mu F F^T + J (-mu + (lambda + mu) (J - 1)) I; SVK: F S F^T).
+TEST(RecorderFields, AnInvertedElementReportsItsSymmetricKirchhoffStress) {
+  const Mesh box = test_box();
+  const Lame l = lame_from_young_poisson(kYoung, kPoisson);
+  Mat3d f = diag(1.1, 0.9, -0.2);  // inverted through z, with shear
+  f.m[0][1] = 0.3;
+  f.m[1][2] = -0.2;
+  const double j = determinant(f);
+  ASSERT_LT(j, 0);
+  Mat3d snh = l.mu * (f * transpose(f));
+  for (int i = 0; i < 3; ++i) snh.m[i][i] += j * (-l.mu + (l.lambda + l.mu) * (j - 1));
+  Mat3d h = f;
+  for (int i = 0; i < 3; ++i) h.m[i][i] -= 1.0;
+  double psi = 0;
+  const Mat3d svk = f * isotropic_stress(green_strain(h), l.lambda, l.mu, &psi) * transpose(f);
+  for (ConstitutiveModel law : {ConstitutiveModel::kStableNeoHookean, ConstitutiveModel::kSvk}) {
+    SCOPED_TRACE(law == ConstitutiveModel::kSvk ? "SVK" : "stable neo-Hookean");
+    const Model model = build(box, law);
+    const Mat3d& want = law == ConstitutiveModel::kSvk ? svk : snh;
+    const Fields out = fields_of(model, homogeneous_state(model, f));
+    double scale = 0;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) scale = std::max(scale, std::fabs(want.m[r][c]));
+    expect_vertex_tensor(out.point("stress"), want, 1e-9 * scale);
+  }
+  // Under nodal pressure the element part and the vertex's pressure are both symmetric.
+  const Model nodal = build(box, ConstitutiveModel::kStableNeoHookean, true);
+  const VtkField& s = fields_of(nodal, homogeneous_state(nodal, f)).point("stress");
+  for (size_t v = 0; v < s.values.size() / 9; ++v)
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < r; ++c) {
+        const double a = s.values[9 * v + static_cast<size_t>(3 * r + c)];
+        const double b = s.values[9 * v + static_cast<size_t>(3 * c + r)];
+        ASSERT_TRUE(std::isfinite(a));
+        ASSERT_NEAR(a, b, 1e-12 * std::fabs(a) + 1e-9) << "vertex " << v;
+      }
+}
+
 TEST(RecorderFields, HydrostaticStateHasNoVonMisesStress) {
   const Mesh box = test_box();
   const double s = 1.02;  // uniform dilation

@@ -1,7 +1,8 @@
 // The lattice multigrid preconditioner on an assembled elastic Hessian (a box of stable
 // neo-Hookean tetrahedra with nodal pressure, its bottom face fixed): CG with it reaches the
 // direct solution in far fewer iterations than with block Jacobi, it is a symmetric positive
-// definite operator, and a reused hierarchy follows a new matrix.
+// definite operator, and a reused hierarchy follows a new matrix; the direct solver (the
+// exact oracle) on a refreshed matrix solves it exactly and refuses one not positive definite.
 #include "engine/solver/multigrid.h"
 
 #include <gtest/gtest.h>
@@ -111,6 +112,49 @@ TEST_F(MultigridTest, ConvergesToTheDirectSolutionInFewIterations) {
   EXPECT_GT(mg, 0);
   EXPECT_LE(mg, 50);
   EXPECT_GE(jacobi, 7 * mg) << "multigrid " << mg << ", block Jacobi " << jacobi;
+}
+
+// The direct solver (the exact oracle) on a refreshed matrix keeps its factor and refines with
+// CG on it: the box's Hessian with nodal pressure's rank-one terms at twice the strain is solved
+// to the exact solver's residual, equal to a fresh factorisation's solution; a refresh to a
+// matrix that is not positive definite (the Hessian negated) is refused, as a setup is.
+TEST_F(MultigridTest, DirectSolverRefreshedSolvesTheNewMatrixExactly) {
+  auto true_residual = [&](const BlockSparseMatrix& a, const std::vector<Vec3d>& x) {
+    std::vector<Vec3d> ax(x.size());
+    a.multiply(x, ax);
+    double rr = 0, bb = 0;
+    for (size_t v = 0; v < x.size(); ++v) {
+      rr += dot(ax[v] - b_[v], ax[v] - b_[v]);
+      bb += dot(b_[v], b_[v]);
+    }
+    return std::sqrt(rr / bb);
+  };
+  std::unique_ptr<LinearSolver> direct = make_direct_solver();
+  ASSERT_TRUE(direct->setup(h_).ok());
+  std::vector<Vec3d> x(b_.size(), Vec3d{0, 0, 0});
+  ASSERT_TRUE(direct->solve(b_, x, 0).ok());
+  EXPECT_LE(true_residual(h_, x), 1e-10);
+
+  BlockSparseMatrix h2 = assemble(0.05);
+  ASSERT_TRUE(direct->refresh(h2).ok());
+  x.assign(b_.size(), Vec3d{0, 0, 0});
+  Result<LinearSolveStats> refined = direct->solve(b_, x, 0);
+  ASSERT_TRUE(refined.ok()) << refined.error().message;
+  EXPECT_GT(refined->iterations, 1);  // the old factor alone does not solve the new matrix
+  EXPECT_LE(true_residual(h2, x), 1e-10);
+  std::unique_ptr<LinearSolver> fresh = make_direct_solver();
+  ASSERT_TRUE(fresh->setup(h2).ok());
+  std::vector<Vec3d> y(b_.size(), Vec3d{0, 0, 0});
+  ASSERT_TRUE(fresh->solve(b_, y, 0).ok());
+  EXPECT_LE(std::sqrt(dot_all(x, x) - 2 * dot_all(x, y) + dot_all(y, y)),
+            1e-9 * std::sqrt(dot_all(y, y)));
+
+  for (Mat3d& m : h2.values()) m = -1.0 * m;
+  for (double& c : h2.rank_one_coefficients()) c = -c;
+  ASSERT_TRUE(direct->refresh(h2).ok());
+  x.assign(b_.size(), Vec3d{0, 0, 0});
+  EXPECT_FALSE(direct->solve(b_, x, 0).ok());
+  EXPECT_FALSE(fresh->setup(h2).ok());
 }
 
 // One V-cycle is a fixed symmetric positive definite operator: x^T M^-1 y = y^T M^-1 x and

@@ -83,8 +83,9 @@ TEST(Newton, IterativeSolveMatchesTheDirectOracle) {
   ASSERT_TRUE(sc.converged) << sc.failure;
   EXPECT_LE(sd.residual, tolerance);
   EXPECT_LE(sc.residual, tolerance);
-  EXPECT_EQ(sd.krylov, 0);
-  EXPECT_GT(sc.krylov, 0);
+  // The direct solver's CG refines on a kept factor: a few iterations where block Jacobi takes
+  // hundreds.
+  EXPECT_LT(sd.krylov, sc.krylov / 4);
   const PenaltyContactTerm::Load load = a.needle->load(ud);
   ASSERT_GT(load.contacts, 3);
   EXPECT_GT(-load.force.z, 3e-8);  // the needle presses down
