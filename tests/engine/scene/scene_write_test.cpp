@@ -1,4 +1,5 @@
-// Tests for engine/scene_write: scene_to_json writes SI values that read back to the same scene.
+// Tests for engine/scene_write: scene_to_json writes SI values that read back to the same scene
+// (the tools' stick lengths with their range check among them).
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -53,6 +54,32 @@ TEST(SceneWrite, WritesSiValuesAndResolvedChoices) {
   Result<Scene> element = load_scene(kScenes + "mouse_oocyte.json", {"volumetric=element"});
   ASSERT_TRUE(element.ok()) << element.error().message;
   EXPECT_EQ(scene_to_json(*element)["volumetric"], "element");
+}
+
+// The friction's stick lengths (needle and holding pipette) read with their unit, write in SI and
+// read back; a negative one is refused with its key named. Unset, both are 0 (the old law).
+TEST(SceneWrite, StickLengthsReadWriteAndReadBack) {
+  Result<Scene> plain = load_scene(kScenes + "mouse_oocyte.json");
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_EQ(plain->holding_pipette.stick_length, 0.0);
+  EXPECT_EQ(plain->needle.stick_length, 0.0);
+  Result<Scene> s = load_scene(kScenes + "mouse_oocyte.json",
+                               {"holding_pipette.stick_length=0.1 um", "needle.stick_length=50 nm"});
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_DOUBLE_EQ(s->holding_pipette.stick_length, 1e-7);
+  EXPECT_DOUBLE_EQ(s->needle.stick_length, 5e-8);
+  const json j = scene_to_json(*s);
+  EXPECT_EQ(j["holding_pipette"]["stick_length"], "1e-07 m");
+  EXPECT_EQ(j["needle"]["stick_length"], "5e-08 m");
+  Result<Scene> back = parse_scene(j, "");
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->holding_pipette.stick_length, s->holding_pipette.stick_length);
+  EXPECT_EQ(back->needle.stick_length, s->needle.stick_length);
+  for (const char* key : {"holding_pipette.stick_length", "needle.stick_length"}) {
+    Result<Scene> bad = load_scene(kScenes + "mouse_oocyte.json", {std::string(key) + "=-1 um"});
+    ASSERT_FALSE(bad.ok()) << key;
+    EXPECT_NE(bad.error().message.find(key), std::string::npos) << bad.error().message;
+  }
 }
 
 TEST(SceneWrite, DisabledToolsAndDefaultsReadBack) {
