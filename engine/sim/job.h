@@ -442,11 +442,17 @@ ZONA_HOST_DEVICE ZONA_INLINE double job_release_factor(const JobParams& p, doubl
 /// load: the tip is frozen, the load is displacement-driven, and the cell pushes its surface
 /// deeper into the softer contact until it carries nearly the same force (7.5 -> 7.0 uN at
 /// force_drop 0.9 on the fine mouse cell). At most a 20 % change per step: the surface answers a
-/// step later, and a larger gain rang.
+/// step later, and a larger gain rang. A contact that pulls the needle back (a negative axial
+/// load: the cell springs back past the frozen tip, whose inside then pushes the surface along
+/// -direction) is released by the same 20 % per step: a needle does not pull the cell.
 ZONA_HOST_DEVICE ZONA_INLINE void job_follow_release(const JobParams& p, JobState& s,
                                                      const JobSums& sums, double needle_force) {
   const double drag = dot(s.pose.drag_per_contact, p.needle.direction) * sums.needle_contacts;
   const double contact = needle_force - drag;
+  if (contact < 0) {
+    s.release_scale *= 0.8;
+    return;
+  }
   if (!(contact > 0)) return;  // nothing touches the tip: nothing to release
   const double target = job_release_factor(p, s.time - s.puncture.time) * s.puncture.force;
   double f = target / contact;
