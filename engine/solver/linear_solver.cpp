@@ -131,19 +131,17 @@ class Factorisation final : public Preconditioner {
     double* value = matrix_.valuePtr();
     const int* outer = matrix_.outerIndexPtr();
     std::fill(value, value + matrix_.nonZeros(), 0.0);
-    auto add = [&](int64_t i, int64_t j, int32_t at, const auto& entry) {
+    // Adds entry(r, c) to the block of column block j whose rows start `at` into its columns.
+    auto add = [&](int64_t j, int32_t at, const auto& entry) {
       for (int c = 0; c < 3; ++c) {
         double* column = value + outer[3 * j + c] + at;
         for (int r = 0; r < 3; ++r) column[r] += entry(r, c);
       }
-      (void)i;
     };
-    for (size_t i = 0; i < a.rows(); ++i)
-      for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
-        const Mat3d& b = a.values()[static_cast<size_t>(k)];
-        add(static_cast<int64_t>(i), a.cols()[static_cast<size_t>(k)],
-            block_place_[static_cast<size_t>(k)], [&](int r, int c) { return b.m[r][c]; });
-      }
+    for (size_t k = 0; k < a.block_count(); ++k) {
+      const Mat3d& b = a.values()[k];
+      add(a.cols()[k], block_place_[k], [&](int r, int c) { return b.m[r][c]; });
+    }
     const std::span<const int64_t> off = a.rank_one_offsets();
     const std::span<const int32_t> vert = a.rank_one_vertices();
     const std::span<const Vec3d> vec = a.rank_one_vectors();
@@ -153,7 +151,7 @@ class Factorisation final : public Preconditioner {
         const Vec3d u = a.rank_one_coefficients()[k] * vec[static_cast<size_t>(p)];
         for (int64_t q = off[k]; q < off[k + 1]; ++q) {
           const Vec3d& w = vec[static_cast<size_t>(q)];
-          add(vert[static_cast<size_t>(p)], vert[static_cast<size_t>(q)], pair_place_[pair++],
+          add(vert[static_cast<size_t>(q)], pair_place_[pair++],
               [&](int r, int c) { return u[r] * w[c]; });
         }
       }
@@ -309,20 +307,17 @@ class DirectSolver final : public LinearSolver {
                                  double) override {
     const std::vector<Vec3d> start(d.begin(), d.end());
     Result<LinearSolveStats> r = cg_->solve(b, d, kExactResidual);
-    if ((r.ok() && !r->truncated) || factor_->current()) {
-      if (!r.ok() || r->truncated)
-        return make_error("the direct solve of the Newton step failed (%s)",
-                          r.ok() ? "a direction of non-positive curvature" : r.error().message.c_str());
-      return r;
+    const bool solved = r.ok() && !r->truncated;
+    if (!solved && !factor_->current()) {  // the kept factor is too far: factor this matrix
+      const int64_t spent = r.ok() ? r->iterations : kRefineIterations;
+      if (Status st = factor_->factor(); !st) return st.error();
+      std::copy(start.begin(), start.end(), d.begin());
+      r = cg_->solve(b, d, kExactResidual);
+      if (r.ok()) r->iterations += spent;
     }
-    const int64_t spent = r.ok() ? r->iterations : kRefineIterations;
-    if (Status st = factor_->factor(); !st) return st.error();
-    std::copy(start.begin(), start.end(), d.begin());
-    r = cg_->solve(b, d, kExactResidual);
     if (!r.ok() || r->truncated)
       return make_error("the direct solve of the Newton step failed (%s)",
                         r.ok() ? "a direction of non-positive curvature" : r.error().message.c_str());
-    r->iterations += spent;
     return r;
   }
 
