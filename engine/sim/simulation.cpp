@@ -16,6 +16,7 @@
 #include "engine/fem/mass_scaling.h"
 #include "engine/scene/scene_mesh.h"
 #include "engine/sim/boundary_runner.h"
+#include "engine/solver/linear_solver.h"
 
 namespace zona {
 namespace {
@@ -219,6 +220,9 @@ Status Simulation::build(const Scene& scene, const SimulationOptions& options) {
     times += item;
   }
   notes_.push_back("setup: " + times);
+  if (scene.solver.method == SolverMethod::kStatic &&
+      (scene.solver.linear == LinearSolverKind::kDirect || scene.solver.oracle))
+    if (std::string note = direct_solver_note(); !note.empty()) notes_.push_back(std::move(note));
   return Status::ok_status();
 }
 

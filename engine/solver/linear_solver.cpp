@@ -1,8 +1,11 @@
 // The linear solvers of a Newton step (linear_solver.h).
 #include "engine/solver/linear_solver.h"
 
+#include <dlfcn.h>
+
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 
 #include <Eigen/SparseCholesky>
 
@@ -332,6 +335,18 @@ class DirectSolver final : public LinearSolver {
 std::unique_ptr<Preconditioner> make_block_jacobi() { return std::make_unique<BlockJacobi>(); }
 
 std::unique_ptr<LinearSolver> make_direct_solver() { return std::make_unique<DirectSolver>(); }
+
+std::string direct_solver_note() {
+#ifdef ZONA_HAVE_CHOLMOD
+  // OpenBLAS (CHOLMOD's BLAS on Debian) reads its settings when it loads, before main.
+  if (std::getenv("OPENBLAS_THREAD_TIMEOUT") == nullptr &&
+      dlsym(RTLD_DEFAULT, "openblas_get_config") != nullptr)
+    return "direct solver: OpenBLAS's idle threads spin for about 0.1 s after each call and "
+           "take the cores from zona's; OPENBLAS_THREAD_TIMEOUT=4 in the environment puts them "
+           "to sleep at once (docs/static.md, \"The direct oracle\")";
+#endif
+  return {};
+}
 
 std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,
                                              int64_t max_iterations) {

@@ -62,6 +62,9 @@ class LinearSolver {
 /// keeps the last factor, and solve finishes with CG on it to a relative residual of 1e-12,
 /// factoring the current matrix where that CG does not converge in 40 iterations.
 std::unique_ptr<LinearSolver> make_direct_solver();
+/// A note for a run that uses the direct solver ("" when there is nothing to say): where its
+/// BLAS is OpenBLAS and OPENBLAS_THREAD_TIMEOUT is unset, the spinning of its idle threads.
+std::string direct_solver_note();
 /// CG preconditioned by `preconditioner`, at most max_iterations.
 std::unique_ptr<LinearSolver> make_cg_solver(std::unique_ptr<Preconditioner> preconditioner,
                                              int64_t max_iterations);

@@ -2,13 +2,16 @@
 // neo-Hookean tetrahedra with nodal pressure, its bottom face fixed): CG with it reaches the
 // direct solution in far fewer iterations than with block Jacobi, it is a symmetric positive
 // definite operator, and a reused hierarchy follows a new matrix; the direct solver (the
-// exact oracle) on a refreshed matrix solves it exactly and refuses one not positive definite.
+// exact oracle) on a refreshed matrix solves it exactly and refuses one not positive definite,
+// and its note on OpenBLAS's idle threads.
 #include "engine/solver/multigrid.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <string>
 #include <vector>
 
 #include "engine/fem/elastic_energy.h"
@@ -155,6 +158,19 @@ TEST_F(MultigridTest, DirectSolverRefreshedSolvesTheNewMatrixExactly) {
   x.assign(b_.size(), Vec3d{0, 0, 0});
   EXPECT_FALSE(direct->solve(b_, x, 0).ok());
   EXPECT_FALSE(fresh->setup(h2).ok());
+}
+
+// The direct solver's note: where its BLAS is OpenBLAS it names OPENBLAS_THREAD_TIMEOUT while
+// that is unset, and says nothing once it is set.
+TEST(DirectSolverNote, NamesTheOpenBlasThreadTimeoutOnlyWhileItIsUnset) {
+  unsetenv("OPENBLAS_THREAD_TIMEOUT");
+  const std::string unset = direct_solver_note();
+  if (!unset.empty()) {
+    EXPECT_NE(unset.find("OPENBLAS_THREAD_TIMEOUT=4"), std::string::npos);
+  }
+  setenv("OPENBLAS_THREAD_TIMEOUT", "4", 1);
+  EXPECT_EQ(direct_solver_note(), "");
+  unsetenv("OPENBLAS_THREAD_TIMEOUT");
 }
 
 // One V-cycle is a fixed symmetric positive definite operator: x^T M^-1 y = y^T M^-1 x and
