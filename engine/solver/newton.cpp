@@ -102,6 +102,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     int64_t probe_cg = -1;
     std::string why;
     for (bool project : {false, true}) {
+      if (options_.project_always && !project) continue;
       const BlockSparseMatrix& h = hessian(u, project);
       if (on_hessian) on_hessian(h, u, g_);
       // The preconditioner's whole setup at a solve's first iteration, on a change between the

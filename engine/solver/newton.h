@@ -49,6 +49,10 @@ struct NewtonOptions {
   /// residual, its CG iterations traced as `probe_cg` (the preconditioner's count at a fixed
   /// tolerance, comparable across meshes; ZONA_KRYLOV_PROBE); 0: none. The step is unchanged.
   double krylov_probe = 0;
+  /// Every iteration on the projected Hessian (the descent across an instability,
+  /// docs/static.md "Snaps"): each step minimises a convex model, so the iterates go downhill
+  /// where the exact Hessian is indefinite, at a linear rate near the answer.
+  bool project_always = false;
 };
 
 /// How a solve went.

@@ -1,7 +1,8 @@
 // `zona run` with the static solver, end to end on a small held cell: rows exactly at 10 um of
 // deformation and at every load step, each converged (its residual column below the stated
 // tolerance), the needle's and the holder's forces in balance, the puncture bracketed to the
-// stated travel tolerance and its release reached; and the scenes it refuses, with one line.
+// stated travel tolerance and its release reached; the breach and the lost holder as errors; and
+// the scenes it refuses, with one line.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -263,6 +264,36 @@ TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
     }
   }
   EXPECT_GE(rows, 3u);  // the header and a row per size
+}
+
+TEST(CmdRunStatic, ABreachAndALostHolderEndTheRunAsErrors) {
+  // The static run's two outcomes that are not results: a contact too soft to hold the membrane
+  // lets the tip through the surface before any puncture, and a rim without grip (friction
+  // 1e-6) lets every one of its contacts slide while the needle pushes. Each ends the run with
+  // one line and exit 1, and summary.json says it stopped early.
+  TempDir dir;
+  const fs::path scene = write_tiny_scene(dir);
+  auto stops = [&](const std::string& name, const std::string& sets, const std::string& words) {
+    const fs::path out = dir.path / name;
+    const CliRun r = run_zona("run " + scene.string() + " --headless --no-frames --out " +
+                                  out.string() + " " + sets,
+                              dir.path);
+    EXPECT_EQ(r.exit_code, 1) << name << "\n" << r.err;
+    EXPECT_NE(r.err.find(words), std::string::npos) << name << "\n" << r.err;
+    std::ifstream in(out / "summary.json");
+    ASSERT_TRUE(in.good()) << name;
+    const nlohmann::json j = nlohmann::json::parse(in);
+    EXPECT_TRUE(j["numerics"]["stopped_early"].get<bool>()) << name;
+    EXPECT_FALSE(j["puncture"]["punctured"].get<bool>()) << name;
+  };
+  stops("breach", "--set contact.stiffness=1 --set puncture.criterion=none",
+        "the needle went through the cell surface without a puncture");
+  stops("lost", "--set holding_pipette.friction=1e-6", "the holder lost the cell");
+  // With the rim's grip the same cell is held to its puncture.
+  const CliRun held = run_zona("run " + scene.string() + " --headless --no-frames --out " +
+                                   (dir.path / "held").string(),
+                               dir.path);
+  EXPECT_EQ(held.exit_code, 0) << held.err;
 }
 
 TEST(CmdRunStatic, RefusesWhatItCannotSolveWithOneLine) {
