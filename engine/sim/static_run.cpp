@@ -765,7 +765,7 @@ RunResult StaticRun::run() {
           if (stats.iterations <= 4) dfraction *= 1.5;
         } else {
           held_travel_ = held;
-          if ((dfraction *= 0.5) < 1e-3)
+          if ((dfraction *= 0.5) < kReleaseFirstStep / 64)
             stop("the state after the puncture's release did not converge at " +
                  std::to_string(fraction) + " of the puncture load: " +
                  (failure_.empty() ? std::string("the tip's load did not reach its target")
