@@ -352,11 +352,7 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   if (scene.solver.method == SolverMethod::kStatic) {
     j["numerics"]["static"] = {{"newton_iterations", run.newton_iterations},
                                {"krylov_iterations", run.krylov_iterations},
-                               {"failed_solves", run.failed_solves},
-                               {"descents", run.descents},
-                               {"first_descent_travel_m",
-                                run.first_descent_travel >= 0 ? nlohmann::json(run.first_descent_travel)
-                                                              : nlohmann::json(nullptr)}};
+                               {"failed_solves", run.failed_solves}};
     // The explicit step's time step and mass scaling: a static run has neither (its
     // regulariser takes the real mass, docs/static.md).
     for (const char* key : {"dt_s", "dt_critical_s", "mass_scaling", "mass_scaling_mode",

@@ -400,10 +400,6 @@ struct RunResult {
   /// The static solver's work over the run, every solve counted (those that failed and were
   /// retried with a shorter load step, the bisections' and the release's included).
   int64_t newton_iterations = 0, krylov_iterations = 0, failed_solves = 0;
-  /// Static load steps that converged only by the projected descent across an instability
-  /// (docs/static.md, "Snaps"), and the travel [m] of the first (-1: none).
-  int64_t descents = 0;
-  double first_descent_travel = -1;
   double oracle_max_difference = -1;
   /// The quasi-static check over the run (the last report's): worst values, first failure.
   QuasiStaticState quasi;

@@ -38,12 +38,6 @@ Status check_static_scene(const Scene& scene) {
 
 namespace {
 
-// The descent across an instability (StaticRun::descend_at): tried once a load step has failed
-// at a step of at most this fraction of solver.travel_step, with this many projected Newton
-// iterations.
-constexpr double kDescentBelow = 1.0 / 64;
-constexpr int kDescentIterations = 300;
-
 // What a state measures, for a row and for the events (targets, puncture).
 struct Measures {
   double travel = 0, deformation = 0;
@@ -73,11 +67,6 @@ class StaticRun {
   // Solves at needle travel s (after the puncture, with the tip's contact at held_travel_),
   // from the accepted state and the guess in u (updated). False with a reason in failure_.
   bool solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats);
-  // A load step that failed at a short step: the descent across an instability, from u (the
-  // failed solve's last iterate), then Newton as usual from where it got (docs/static.md,
-  // "Snaps").
-  bool descend_at(double s, std::vector<Vec3d>& u, NewtonStats* stats);
-  bool descent_tried_ = false;  // since the last accepted load step
   Measures measure(std::span<const Vec3d> u, double travel);
   // solver.oracle: the solve just made, again from its start on the direct solver; the
   // difference of the two solutions into the result.
@@ -311,19 +300,6 @@ bool StaticRun::solve_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
   return stats->converged;
 }
 
-bool StaticRun::descend_at(double s, std::vector<Vec3d>& u, NewtonStats* stats) {
-  NewtonOptions& options = newton_->options();
-  const NewtonOptions saved = options;
-  options.project_always = true;
-  options.max_iterations = kDescentIterations;
-  if (options.trace) std::fprintf(options.trace, "descent\n");
-  bool ok = solve_at(s, u, stats);
-  options = saved;
-  if (!ok) ok = solve_at(s, u, stats);  // exact Newton from where the descent got
-  if (ok && result_.descents++ == 0) result_.first_descent_travel = s;
-  return ok;
-}
-
 void StaticRun::compare_with_oracle(std::span<const Vec3d> u) {
   std::vector<Vec3d> direct = oracle_start_;
   const auto start = std::chrono::steady_clock::now();
@@ -436,7 +412,6 @@ void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats
   const double h = (ds > 0 ? ds : def_.travel_step) / speed_;
   for (size_t i = 0; i < u.size(); ++i) v_[i] = (1.0 / h) * (u[i] - u_[i]);
   ++step_;
-  descent_tried_ = false;
   // Measured with the friction the state was solved with (before the anchors move).
   if (ds > 0) last_force_before_ = accepted_.force;
   accepted_ = measure(u, s);
@@ -565,20 +540,10 @@ RunResult StaticRun::run() {
       const double f = (s - travel_) / (travel_ - travel_before_);
       for (size_t i = 0; i < trial.size(); ++i) trial[i] += f * (u_[i] - u_before_[i]);
     }
-    bool solved = solve_at(s, trial, &stats);
-    // Halving a step that keeps failing has reached a load where the equilibrium the loading
-    // came up on loses its stability (a snap: CG meets negative curvature at every iteration and
-    // each Newton step lowers the energy a little while the residual grows): descend from the
-    // failed solve's last state to the equilibrium beyond it.
-    // Once per accepted state: a descent that fails is not tried again at a shorter step.
-    if (!solved && step <= def_.travel_step * kDescentBelow && !descent_tried_) {
-      descent_tried_ = true;
-      solved = descend_at(s, trial, &stats);
-    }
-    if (!solved) {
+    if (!solve_at(s, trial, &stats)) {
       step *= 0.5;
       if (step < def_.min_travel_step) {
-        char line[400];
+        char line[640];
         std::snprintf(line, sizeof line,
                       "the load step from %.4g um of travel did not converge down to a step of "
                       "%.3g um: %s; nothing after it is a result",

@@ -82,11 +82,20 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
   auto clock_start = std::chrono::steady_clock::now();
   while (stats.residual > tolerance) {
     if (stats.iterations >= options_.max_iterations) {
-      char line[200];
-      std::snprintf(line, sizeof line,
-                    "Newton did not converge in %d iterations (force imbalance %.3g N, "
-                    "tolerance %.3g N)",
-                    options_.max_iterations, stats.residual, tolerance);
+      char line[400];
+      const int written =
+          std::snprintf(line, sizeof line,
+                        "Newton did not converge in %d iterations (force imbalance %.3g N, "
+                        "tolerance %.3g N)",
+                        options_.max_iterations, stats.residual, tolerance);
+      // Most iterations on an indefinite Hessian: the state the loading came up on is losing
+      // its stability, which a shorter load step does not cure (docs/static.md, "Stability").
+      if (2 * stats.negative_curvature > stats.iterations && written > 0 &&
+          static_cast<size_t>(written) < sizeof line)
+        std::snprintf(line + written, sizeof line - static_cast<size_t>(written),
+                      "; the Hessian had a direction of negative curvature in %d of them: the "
+                      "equilibrium is losing its stability",
+                      stats.negative_curvature);
       stats.failure = line;
       if (options_.trace) std::fprintf(options_.trace, "newton end failed (iterations)\n");
       return stats;
@@ -99,10 +108,10 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
     double slope = 0;
     int64_t cg = 0;
     int project_used = 0;
+    bool curvature = false;  // the exact Hessian has a direction of non-positive curvature
     int64_t probe_cg = -1;
     std::string why;
     for (bool project : {false, true}) {
-      if (options_.project_always && !project) continue;
       const BlockSparseMatrix& h = hessian(u, project);
       if (on_hessian) on_hessian(h, u, g_);
       // The preconditioner's whole setup at a solve's first iteration, on a change between the
@@ -126,6 +135,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       }
       cg += ls->iterations;
       last_cg = ls->iterations;
+      if (!project && ls->truncated) curvature = true;
       if (options_.trace && options_.krylov_probe > 0) {
         probe_.assign(n, Vec3d{0, 0, 0});
         Result<LinearSolveStats> pr = linear_->solve(rhs_, probe_, options_.krylov_probe);
@@ -142,6 +152,7 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       why = "the Newton direction does not descend";
     }
     stats.krylov += cg;
+    if (curvature || project_used) ++stats.negative_curvature;
     if (!(slope < 0)) {
       stats.failure = "no Newton direction on the projected Hessian: " + why;
       return stats;

@@ -49,16 +49,15 @@ struct NewtonOptions {
   /// residual, its CG iterations traced as `probe_cg` (the preconditioner's count at a fixed
   /// tolerance, comparable across meshes; ZONA_KRYLOV_PROBE); 0: none. The step is unchanged.
   double krylov_probe = 0;
-  /// Every iteration on the projected Hessian (the descent across an instability,
-  /// docs/static.md "Snaps"): each step minimises a convex model, so the iterates go downhill
-  /// where the exact Hessian is indefinite, at a linear rate near the answer.
-  bool project_always = false;
 };
 
 /// How a solve went.
 struct NewtonStats {
   int iterations = 0;          ///< Newton iterations
   int projected = 0;           ///< of them, on the projected Hessian
+  /// of them, where the exact Hessian showed a direction of non-positive curvature (CG
+  /// truncated there, or no direction on it and the projected one taken)
+  int negative_curvature = 0;
   int64_t krylov = 0;          ///< CG iterations summed over them
   double residual = 0;         ///< largest free vertex force imbalance at the end [N]
   double energy = 0;           ///< total energy at the end [J]

@@ -105,26 +105,62 @@ TEST(Newton, IterativeSolveMatchesTheDirectOracle) {
   }
 }
 
-TEST(Newton, TheProjectedDescentReachesTheSameMinimumOnProjectedSteps) {
-  // The static run's descent across an instability (docs/static.md, "Snaps"): every iteration on
-  // the projected Hessian. It ends at the minimum the exact Newton finds, at a linear rate.
-  Problem a(0.15 * kL), b(0.15 * kL);
-  NewtonSolver exact = a.solver(make_direct_solver());
-  NewtonSolver projected = b.solver(make_direct_solver());
-  projected.options().project_always = true;
-  projected.options().max_iterations = 300;
-  const double tolerance = 1e-15;  // [N]
-  std::vector<Vec3d> ue(a.model.vertex_count(), Vec3d{0, 0, 0}), up = ue;
-  const NewtonStats se = exact.solve(ue, tolerance);
-  const NewtonStats sp = projected.solve(up, tolerance);
-  ASSERT_TRUE(se.converged) << se.failure;
-  ASSERT_TRUE(sp.converged) << sp.failure;
-  EXPECT_EQ(sp.projected, sp.iterations);
-  EXPECT_LT(se.projected, se.iterations);  // the exact Hessian near the answer
-  EXPECT_GE(sp.iterations, se.iterations);
-  std::vector<Vec3d> diff(ue.size());
-  for (size_t i = 0; i < ue.size(); ++i) diff[i] = ue[i] - up[i];
-  EXPECT_LE(largest(diff), 1e-6 * largest(ue));
+// E = u^T A u / 2 - b . u on two vertices, A = [[I, 2I], [2I, I]] (eigenvalues 3 and -1): a
+// state with no stable equilibrium near it.
+class SaddleTerm final : public EnergyTerm {
+ public:
+  const char* name() const override { return "saddle"; }
+  double energy(std::span<const Vec3d> u) override {
+    return 0.5 * (dot(u[0], u[0]) + dot(u[1], u[1])) + 2 * dot(u[0], u[1]) - dot(b_[0], u[0]) -
+           dot(b_[1], u[1]);
+  }
+  void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override {
+    g[0] += u[0] + 2.0 * u[1] - b_[0];
+    g[1] += u[1] + 2.0 * u[0] - b_[1];
+  }
+  void add_hessian_product(std::span<const Vec3d>, std::span<const Vec3d> v,
+                           std::span<Vec3d> y) override {
+    y[0] += v[0] + 2.0 * v[1];
+    y[1] += v[1] + 2.0 * v[0];
+  }
+  void add_hessian_diagonal(std::span<const Vec3d>, std::span<Mat3d> d) override {
+    for (Mat3d& m : d) m = m + Mat3d::identity();
+  }
+  void add_hessian(std::span<const Vec3d>, BlockSparseMatrix& h, bool project) override {
+    // Projected: [[I, I], [I, I]] * 1.5 + I / 2 (the eigenvalue -1 raised to 0.5).
+    const double diag = project ? 2.0 : 1.0, off = project ? 1.5 : 2.0;
+    for (int32_t i = 0; i < 2; ++i) {
+      h.add(i, i, diag * Mat3d::identity());
+      h.add(i, 1 - i, off * Mat3d::identity());
+    }
+  }
+
+ private:
+  Vec3d b_[2] = {Vec3d{1, 0, 0}, Vec3d{0.1, 0, 0}};
+};
+
+TEST(Newton, AFailureOnAnIndefiniteHessianSaysTheEquilibriumIsLosingItsStability) {
+  SaddleTerm saddle;
+  NewtonSolver solver({&saddle},
+                      BlockSparseMatrix(std::vector<std::vector<int32_t>>{{0, 1}, {0, 1}}),
+                      std::vector<uint8_t>(2, 0), make_cg_solver(make_block_jacobi(), 100));
+  solver.options().max_iterations = 3;
+  std::vector<Vec3d> u(2, Vec3d{0, 0, 0});
+  const NewtonStats s = solver.solve(u, 1e-12);
+  ASSERT_FALSE(s.converged);
+  EXPECT_EQ(s.iterations, 3);
+  EXPECT_GE(s.negative_curvature, 2);
+  EXPECT_NE(s.failure.find("losing its stability"), std::string::npos) << s.failure;
+  // A convex problem that runs out of iterations says only that.
+  Problem p(0.15 * kL);
+  NewtonSolver convex = p.solver(make_cg_solver(make_block_jacobi(), 100000));
+  convex.options().max_iterations = 1;
+  std::vector<Vec3d> w(p.model.vertex_count(), Vec3d{0, 0, 0});
+  const NewtonStats c = convex.solve(w, 1e-18);
+  ASSERT_FALSE(c.converged);
+  EXPECT_EQ(c.negative_curvature, 0);
+  EXPECT_NE(c.failure.find("did not converge in 1 iterations"), std::string::npos) << c.failure;
+  EXPECT_EQ(c.failure.find("stability"), std::string::npos) << c.failure;
 }
 
 TEST(Newton, TheBarrierKeepsEveryElementOpenUnderADeepTip) {
