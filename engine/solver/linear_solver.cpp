@@ -179,6 +179,8 @@ class CgSolver final : public LinearSolver {
     name_ = std::string("CG, ") + preconditioner_->name();
   }
   const char* name() const override { return name_.c_str(); }
+  /// The iterations the last solve completed, where it returned an error too.
+  int64_t last_iterations() const { return last_iterations_; }
   Status setup(const BlockSparseMatrix& a) override {
     a_ = &a;
     const size_t n = a.rows();
@@ -236,11 +238,14 @@ class CgSolver final : public LinearSolver {
     double rz = sum(partial_);
     double rn = std::sqrt(sum(rr_partial_));
     while (rn > tolerance * bn) {
-      if (stats.iterations >= max_iterations_)
+      if (stats.iterations >= max_iterations_) {
+        last_iterations_ = stats.iterations;
         return make_error("CG (%s) did not reach a relative residual of %.3g in %lld iterations "
                           "(%.3g)",
                           preconditioner_->name(), tolerance,
                           static_cast<long long>(max_iterations_), rn / bn);
+      }
+      last_iterations_ = stats.iterations;
       a_->multiply(p_, q_);
       const double pq = pooled_chunk_sum(n, kVectorChunk, partial_, [&](size_t begin, size_t end) {
         double s = 0;
@@ -282,6 +287,7 @@ class CgSolver final : public LinearSolver {
  private:
   std::unique_ptr<Preconditioner> preconditioner_;
   int64_t max_iterations_;
+  int64_t last_iterations_ = 0;  // iterations the last solve completed, its errors' included
   std::string name_;
   const BlockSparseMatrix* a_ = nullptr;
   std::vector<Vec3d> r_, z_, p_, q_;
@@ -312,7 +318,7 @@ class DirectSolver final : public LinearSolver {
     Result<LinearSolveStats> r = cg_->solve(b, d, kExactResidual);
     const bool solved = r.ok() && !r->truncated;
     if (!solved && !factor_->current()) {  // the kept factor is too far: factor this matrix
-      const int64_t spent = r.ok() ? r->iterations : kRefineIterations;
+      const int64_t spent = r.ok() ? r->iterations : cg_->last_iterations();
       if (Status st = factor_->factor(); !st) return st.error();
       std::copy(start.begin(), start.end(), d.begin());
       r = cg_->solve(b, d, kExactResidual);
