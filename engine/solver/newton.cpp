@@ -88,13 +88,13 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
                         "Newton did not converge in %d iterations (force imbalance %.3g N, "
                         "tolerance %.3g N)",
                         options_.max_iterations, stats.residual, tolerance);
-      // Most iterations on an indefinite Hessian: the state the loading came up on is losing
-      // its stability, which a shorter load step does not cure (docs/static.md, "Stability").
+      // Most iterations on an indefinite Hessian: the load step is too long or the state the
+      // loading came up on is losing its stability (docs/static.md, "Stability").
       if (2 * stats.negative_curvature > stats.iterations && written > 0 &&
           static_cast<size_t>(written) < sizeof line)
         std::snprintf(line + written, sizeof line - static_cast<size_t>(written),
                       "; the Hessian had a direction of negative curvature in %d of them: the "
-                      "equilibrium is losing its stability",
+                      "equilibrium may be losing its stability",
                       stats.negative_curvature);
       stats.failure = line;
       if (options_.trace) std::fprintf(options_.trace, "newton end failed (iterations)\n");
