@@ -179,7 +179,7 @@ class CgSolver final : public LinearSolver {
     name_ = std::string("CG, ") + preconditioner_->name();
   }
   const char* name() const override { return name_.c_str(); }
-  /// The iterations the last solve completed, where it returned an error too.
+  /// The iterations the last solve that returned an error completed.
   int64_t last_iterations() const { return last_iterations_; }
   Status setup(const BlockSparseMatrix& a) override {
     a_ = &a;
@@ -239,13 +239,12 @@ class CgSolver final : public LinearSolver {
     double rn = std::sqrt(sum(rr_partial_));
     while (rn > tolerance * bn) {
       if (stats.iterations >= max_iterations_) {
-        last_iterations_ = stats.iterations;
+        last_iterations_ = max_iterations_;
         return make_error("CG (%s) did not reach a relative residual of %.3g in %lld iterations "
                           "(%.3g)",
                           preconditioner_->name(), tolerance,
                           static_cast<long long>(max_iterations_), rn / bn);
       }
-      last_iterations_ = stats.iterations;
       a_->multiply(p_, q_);
       const double pq = pooled_chunk_sum(n, kVectorChunk, partial_, [&](size_t begin, size_t end) {
         double s = 0;
@@ -256,8 +255,10 @@ class CgSolver final : public LinearSolver {
         // Truncated at the direction of non-positive curvature (Steihaug): the iterate so far
         // minimises the quadratic model over the directions CG has seen, where it is convex,
         // and descends; at the first iteration there is none, and the caller decides.
-        if (stats.iterations == 0)
+        if (stats.iterations == 0) {
+          last_iterations_ = 0;
           return make_error("CG met a direction of non-positive curvature (%.3g)", pq);
+        }
         stats.relative_residual = rn / bn;
         stats.truncated = true;
         return stats;
@@ -287,7 +288,7 @@ class CgSolver final : public LinearSolver {
  private:
   std::unique_ptr<Preconditioner> preconditioner_;
   int64_t max_iterations_;
-  int64_t last_iterations_ = 0;  // iterations the last solve completed, its errors' included
+  int64_t last_iterations_ = 0;  // iterations the last failed solve completed
   std::string name_;
   const BlockSparseMatrix* a_ = nullptr;
   std::vector<Vec3d> r_, z_, p_, q_;

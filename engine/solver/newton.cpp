@@ -82,21 +82,18 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
   auto clock_start = std::chrono::steady_clock::now();
   while (stats.residual > tolerance) {
     if (stats.iterations >= options_.max_iterations) {
-      char line[400];
-      const int written =
-          std::snprintf(line, sizeof line,
-                        "Newton did not converge in %d iterations (force imbalance %.3g N, "
-                        "tolerance %.3g N)",
-                        options_.max_iterations, stats.residual, tolerance);
+      char line[200];
+      std::snprintf(line, sizeof line,
+                    "Newton did not converge in %d iterations (force imbalance %.3g N, "
+                    "tolerance %.3g N)",
+                    options_.max_iterations, stats.residual, tolerance);
+      stats.failure = line;
       // Most iterations on an indefinite Hessian: the load step is too long or the state the
       // loading came up on is losing its stability (docs/static.md, "Stability").
-      if (2 * stats.negative_curvature > stats.iterations && written > 0 &&
-          static_cast<size_t>(written) < sizeof line)
-        std::snprintf(line + written, sizeof line - static_cast<size_t>(written),
-                      "; the Hessian had a direction of negative curvature in %d of them: the "
-                      "equilibrium may be losing its stability",
-                      stats.negative_curvature);
-      stats.failure = line;
+      if (2 * stats.negative_curvature > stats.iterations)
+        stats.failure += "; the Hessian had a direction of negative curvature in " +
+                         std::to_string(stats.negative_curvature) +
+                         " of them: the equilibrium may be losing its stability";
       if (options_.trace) std::fprintf(options_.trace, "newton end failed (iterations)\n");
       return stats;
     }
