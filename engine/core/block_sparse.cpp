@@ -7,6 +7,7 @@
 #include <memory>
 
 #include "engine/core/parallel.h"
+#include "engine/core/simd_pack.h"
 
 namespace zona {
 
@@ -104,6 +105,56 @@ void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
         static_cast<int64_t>(p);
 }
 
+namespace {
+// y_i = sum_k values_k x_cols_k over rows [begin, end): the products' bulk, with an AVX2 clone.
+ZONA_SIMD_CLONES void block_rows(size_t begin, size_t end, const int64_t* offsets,
+                                 const int32_t* cols, const Mat3d* values, const Vec3d* x,
+                                 Vec3d* y) {
+  for (size_t i = begin; i < end; ++i) {
+    double s0 = 0, s1 = 0, s2 = 0;
+    for (int64_t k = offsets[i]; k < offsets[i + 1]; ++k) {
+      const Mat3d& m = values[k];
+      const Vec3d v = x[cols[k]];
+      s0 += m.m[0][0] * v.x + m.m[0][1] * v.y + m.m[0][2] * v.z;
+      s1 += m.m[1][0] * v.x + m.m[1][1] * v.y + m.m[1][2] * v.z;
+      s2 += m.m[2][0] * v.x + m.m[2][1] * v.y + m.m[2][2] * v.z;
+    }
+    y[i] = Vec3d{s0, s1, s2};
+  }
+}
+// scratch_k = c_k (g_k . x) over terms [begin, end) of the rank-one part.
+ZONA_SIMD_CLONES void rank_one_dots(size_t begin, size_t end, const int64_t* offsets,
+                                    const int32_t* vertices, const Vec3d* vectors,
+                                    const double* coefficients, const Vec3d* x, double* scratch) {
+  for (size_t k = begin; k < end; ++k) {
+    double s = 0;
+    for (int64_t p = offsets[k]; p < offsets[k + 1]; ++p) {
+      const Vec3d g = vectors[p], v = x[vertices[p]];
+      s += g.x * v.x + g.y * v.y + g.z * v.z;
+    }
+    scratch[k] = coefficients[k] * s;
+  }
+}
+
+// y_i += sum over row i's rank-one entries p of scratch_term(p) g_p, rows [begin, end).
+ZONA_SIMD_CLONES void rank_one_rows(size_t begin, size_t end, const int64_t* row_offsets,
+                                    const int64_t* row_positions, const int32_t* term,
+                                    const Vec3d* vectors, const double* scratch, Vec3d* y) {
+  for (size_t i = begin; i < end; ++i) {
+    double s0 = y[i].x, s1 = y[i].y, s2 = y[i].z;
+    for (int64_t q = row_offsets[i]; q < row_offsets[i + 1]; ++q) {
+      const int64_t p = row_positions[q];
+      const double c = scratch[term[p]];
+      const Vec3d g = vectors[p];
+      s0 += c * g.x;
+      s1 += c * g.y;
+      s2 += c * g.z;
+    }
+    y[i] = Vec3d{s0, s1, s2};
+  }
+}
+}  // namespace
+
 void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const {
   ZONA_ASSERT(x.size() == rows() && y.size() == rows());
   // Rows (and terms) split over the machine's threads (each row written by one: the same bits
@@ -111,27 +162,14 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   const size_t terms = rank_one_terms();
   if (terms > 0)
     pooled_ranges(terms, 1024, [&](size_t, size_t begin, size_t end) {
-      for (size_t k = begin; k < end; ++k) {
-        double s = 0;
-        for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
-          s += dot(r1_vectors_[static_cast<size_t>(p)],
-                   x[static_cast<size_t>(r1_vertices_[static_cast<size_t>(p)])]);
-        r1_scratch_[k] = coefficients_[k] * s;
-      }
+      rank_one_dots(begin, end, r1_offsets_.data(), r1_vertices_.data(), r1_vectors_.data(),
+                    coefficients_.data(), x.data(), r1_scratch_.data());
     });
   pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) {
-      Vec3d s{0, 0, 0};
-      for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k)
-        s += values_[static_cast<size_t>(k)] *
-             x[static_cast<size_t>(cols_[static_cast<size_t>(k)])];
-      if (terms > 0)
-        for (int64_t q = r1_row_offsets_[i]; q < r1_row_offsets_[i + 1]; ++q) {
-          const size_t p = static_cast<size_t>(r1_row_positions_[static_cast<size_t>(q)]);
-          s += r1_scratch_[static_cast<size_t>(r1_term_[p])] * r1_vectors_[p];
-        }
-      y[i] = s;
-    }
+    block_rows(begin, end, offsets_.data(), cols_.data(), values_.data(), x.data(), y.data());
+    if (terms > 0)
+      rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_positions_.data(),
+                    r1_term_.data(), r1_vectors_.data(), r1_scratch_.data(), y.data());
   });
 }
 
