@@ -122,6 +122,7 @@ ZONA_SIMD_CLONES void block_rows(size_t begin, size_t end, const int64_t* offset
     y[i] = Vec3d{s0, s1, s2};
   }
 }
+
 // scratch_k = c_k (g_k . x) over terms [begin, end) of the rank-one part.
 ZONA_SIMD_CLONES void rank_one_dots(size_t begin, size_t end, const int64_t* offsets,
                                     const int32_t* vertices, const Vec3d* vectors,
