@@ -47,6 +47,10 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     return make_error(
         "cuda backend: nodal pressure (\"volumetric\": \"nodal\") needs a scatter assembly "
         "(atomic or fixed)");
+  if (model.nodal_stabilisation > 0)
+    return make_error(
+        "cuda backend: \"volumetric_stabilisation\" is not in the CUDA element kernels yet; run "
+        "it on the CPU (--backend cpu)");
   kind_ = choose_kind(model, form);
 
   Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder, 0});

@@ -77,6 +77,7 @@ ElementLaw<double> ElasticEnergy::law(size_t t) const {
     double p = 0;
     for (int c = 0; c < 4; ++c) p += pressure_[static_cast<size_t>(model_->tets[t][c])];
     law.pressure = 0.25 * p;
+    law.element_lambda = model_->nodal_stabilisation * lame.lambda;
   }
   if (barrier_volume_ > 0 && law.model == ConstitutiveModel::kStableNeoHookean) {
     law.barrier_volume = barrier_volume_;

@@ -33,6 +33,9 @@ struct ElementLaw {
   T lambda = 0, mu = 0;  ///< the material's Lame constants [Pa]
   bool nodal = false;    ///< stable neo-Hookean with the volumetric term at the vertices
   T pressure = 0;        ///< [Pa]
+  /// With nodal pressure: the part of the volumetric stiffness kept per element, beta x lambda
+  /// (ModelDesc::nodal_stabilisation) [Pa]; the element law's lambda_s is then mu + this.
+  T element_lambda = 0;
   /// The volume barrier (volume_barrier below): active below J = barrier_volume [-], of
   /// stiffness barrier_stiffness [Pa]; 0: none.
   T barrier_volume = 0;
@@ -81,7 +84,8 @@ ZONA_HOST_DEVICE ZONA_INLINE T element_stress(const ElementLaw<T>& law, const Ma
       *j_minus_one = snh_volume_change(h);
       return svk_first_piola(h, law.lambda, law.mu, p);
     default: {
-      T psi = law.nodal ? snh_first_piola_nodal(h, law.mu, law.pressure, p, j_minus_one)
+      T psi = law.nodal ? snh_first_piola_with(h, law.mu, snh_lambda(law.element_lambda, law.mu),
+                                               law.pressure, p, j_minus_one)
                         : snh_first_piola(h, law.lambda, law.mu, p, j_minus_one);
       if (law.barrier_volume > T(0)) {
         const BarrierValue<T> b =
@@ -120,9 +124,9 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLa
     default: {
       Mat3<T> f = h;
       for (int i = 0; i < 3; ++i) f.m[i][i] += T(1);
-      // With nodal pressure, the element part: the law with lambda_s = mu (a material lambda
-      // of 0), plus the held pressure's pressure x d cof(F)[dF].
-      Mat3<T> dp = law.nodal ? snh_stress_differential(h, T(0), law.mu, df) +
+      // With nodal pressure, the element part: the law with lambda_s = mu + element_lambda (a
+      // material lambda of element_lambda), plus the held pressure's pressure x d cof(F)[dF].
+      Mat3<T> dp = law.nodal ? snh_stress_differential(h, law.element_lambda, law.mu, df) +
                                    law.pressure * cofactor_differential(f, df)
                              : snh_stress_differential(h, law.lambda, law.mu, df);
       if (law.barrier_volume > T(0)) {
@@ -147,7 +151,7 @@ ZONA_HOST_DEVICE ZONA_INLINE Mat3<T> element_stress_differential(const ElementLa
 template <class T>
 ZONA_HOST_DEVICE ZONA_INLINE void snh_tangent_coefficients(const ElementLaw<T>& law, T jm1, T* a,
                                                            T* b) {
-  const T lam = law.nodal ? snh_lambda(T(0), law.mu) : snh_lambda(law.lambda, law.mu);
+  const T lam = snh_lambda(law.nodal ? law.element_lambda : law.lambda, law.mu);
   *a = lam;
   *b = lam * jm1 - law.mu + (law.nodal ? law.pressure : T(0));
   if (law.barrier_volume > T(0)) {

@@ -734,7 +734,8 @@ template <class L>
 // element (tests check it), with batch_pass's layouts, scatter and energy order. The law's one
 // health flag is informational: J <= 0 (or NaN) is counted as inverted and the law stays
 // defined there (fem_element.h); the lanes are looked at one by one only where some fails.
-// kNodal (Model::nodal_pressure): the element part of snh_first_piola_nodal with each lane's
+// kNodal (Model::nodal_pressure): the element part of snh_first_piola_nodal (lambda_s = mu +
+// beta lambda with Model::nodal_stabilisation) with each lane's
 // corner mean of State::vertex_pressure, and that mean's energy density, which sums to the
 // nodal term's energy (sum_e V_e mean_e = sum_v V_v e_v).
 template <class L, bool kNodal>
@@ -750,6 +751,7 @@ template <class L, bool kNodal>
   const int32_t* codes = s.assembly.corner_code.data();
   const typename L::Row* rows = L::rows(m);
   const int32_t* offsets = m.cpu_tet_corner_offsets.data();
+  const double beta = m.nodal_stabilisation;
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     double energy = 0;
@@ -776,7 +778,9 @@ template <class L, bool kNodal>
         if constexpr (kNodal) {
           P pressure, density;
           nodal_means<L>(s.vertex_pressure.data(), o8 + half, &pressure, &density);
-          const P psi = snh_first_piola_nodal(h, mu, pressure, &p, &jm1);
+          // lambda_s = mu + beta lambda (Model::nodal_stabilisation; beta 0: mu exactly).
+          const P psi = snh_first_piola_with(h, mu, snh_lambda(P(beta) * lambda, mu), pressure,
+                                             &p, &jm1);
           w = shape.volume * (psi + density);
         } else {
           w = shape.volume * snh_first_piola(h, lambda, mu, &p, &jm1);

@@ -64,6 +64,8 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
         "formulation");
   if (d.nodal_pressure && d.constitutive != ConstitutiveModel::kStableNeoHookean)
     return make_error("model: nodal pressure is implemented for the neohookean model only");
+  if (!(d.nodal_stabilisation >= 0 && d.nodal_stabilisation < 1))
+    return make_error("model: nodal_stabilisation %g outside [0, 1)", d.nodal_stabilisation);
   if (d.inversion == InversionHandling::kClampStretch &&
       (d.constitutive != ConstitutiveModel::kSvk || d.formulation != Formulation::kGradient))
     return make_error(
@@ -116,6 +118,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.element_precision = desc.element_precision;
   model.clamp_stretch = desc.clamp_stretch;
   model.nodal_pressure = desc.nodal_pressure;
+  model.nodal_stabilisation = desc.nodal_pressure ? desc.nodal_stabilisation : 0.0;
   model.energy_blowup_factor = desc.energy_blowup_factor;
   model.unsafe_allow_dt_above_critical = desc.unsafe_allow_dt_above_critical;
 
@@ -167,7 +170,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
     for (size_t v = 0; v < nv; ++v)
       if (lumped_volume[v] > 0) {
         model.vertex_inverse_volume[v] = 1.0 / lumped_volume[v];
-        model.vertex_lambda[v] /= lumped_volume[v];
+        model.vertex_lambda[v] *= (1.0 - model.nodal_stabilisation) / lumped_volume[v];
       }
   }
   std::vector<double> alpha(nv, 0.0);

@@ -92,6 +92,12 @@ struct ModelDesc {
   /// (nu 0.49: coarse meshes far too stiff); with one volume per vertex they do not
   /// (docs/physics.md, "Nodal pressure").
   bool nodal_pressure = false;
+  /// With nodal_pressure: the fraction beta in [0, 1) of each element's lambda kept in the
+  /// element (lambda_s = mu + beta lambda) and not averaged at the vertices (lambda_v scaled by
+  /// 1 - beta), so that vertex-to-vertex pressure modes meet beta lambda (docs/physics.md,
+  /// "Nodal pressure"). 0: none. The CPU's element passes (explicit and static) take it; the
+  /// CUDA backend does not yet and refuses a model with it.
+  double nodal_stabilisation = 0;
   /// CPU element math precision; kFloat32 needs the gradient form without the stretch clamp.
   /// The CUDA backend always evaluates elements in float32 and ignores this.
   ElementPrecision element_precision = ElementPrecision::kFloat64;
@@ -132,6 +138,7 @@ struct Model {
   /// adjacent element's volume [1/m^3], and lambda_v the V_e / 4-weighted mean of their
   /// materials' lambda [Pa], (vertex_count); empty otherwise.
   bool nodal_pressure = false;
+  double nodal_stabilisation = 0;  ///< ModelDesc::nodal_stabilisation; lambda_v carries 1 - it
   std::vector<double> vertex_inverse_volume;
   std::vector<double> vertex_lambda;
 

@@ -898,7 +898,8 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   scene.source = source_name;
   scene.name = fs::path(source_name).stem().string();
   Reader root(ctx, &doc, "",
-              {"version", "name", "description", "mesh", "model", "volumetric", "materials",
+              {"version", "name", "description", "mesh", "model", "volumetric",
+               "volumetric_stabilisation", "materials",
                "integrator",
                "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
                "output", "particles", "experiment", "quasi_static", "solver"});
@@ -914,6 +915,10 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   if (scene.nodal_pressure && scene.model != ModelKind::kStableNeoHookean)
     root.fail("volumetric", "\"nodal\" is implemented for \"model\": \"neohookean\" only "
                             "(with another model, set \"volumetric\": \"element\")");
+  if (root.number("volumetric_stabilisation", &scene.volumetric_stabilisation,
+                  Range{0.0, 1.0, false, true, "the fraction of lambda kept per element"}) &&
+      !scene.nodal_pressure && scene.volumetric_stabilisation > 0)
+    root.fail("volumetric_stabilisation", "needs \"volumetric\": \"nodal\"");
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);

@@ -437,6 +437,10 @@ struct Scene {
   /// "volumetric": "nodal" (neohookean only): the law's volumetric term averaged at the
   /// vertices (ModelDesc::nodal_pressure); "element" (the default) takes it per element.
   bool nodal_pressure = false;
+  /// "volumetric_stabilisation": with nodal pressure, the fraction beta of each element's
+  /// lambda kept per element (ModelDesc::nodal_stabilisation); 0 (the default): none. Static
+  /// solver only, for now.
+  double volumetric_stabilisation = 0;
   ParticlesDef particles;  ///< used when model is kParticles
   std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
   IntegratorDef integrator;

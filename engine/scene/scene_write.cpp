@@ -75,6 +75,8 @@ json scene_to_json(const Scene& scene) {
   j["mesh"] = mesh;
   j["model"] = model_name(scene.model);
   j["volumetric"] = scene.nodal_pressure ? "nodal" : "element";
+  if (scene.volumetric_stabilisation > 0)
+    j["volumetric_stabilisation"] = scene.volumetric_stabilisation;
 
   json materials = json::object();
   for (const RegionMaterialDef& entry : scene.materials) {

@@ -38,7 +38,8 @@ Mat3d tet_cauchy_stress(const Model& model, size_t t, const Mat3d& h) {
       Mat3d p;
       double jm1 = 0;
       if (model.nodal_pressure)
-        snh_first_piola_nodal(h, lame.mu, 0.0, &p, &jm1);
+        snh_first_piola_with(h, lame.mu, snh_lambda(model.nodal_stabilisation * lame.lambda, lame.mu),
+                             0.0, &p, &jm1);
       else
         snh_first_piola(h, lame.lambda, lame.mu, &p, &jm1);
       const Mat3d tau = p * transpose(f);

@@ -25,12 +25,15 @@ struct LawCase {
   const char* name;
   ConstitutiveModel law;
   bool nodal;
+  double stabilisation = 0;  ///< ModelDesc::nodal_stabilisation
 };
 
 const LawCase kLaws[] = {{"linear", ConstitutiveModel::kLinear, false},
                          {"svk", ConstitutiveModel::kSvk, false},
                          {"neohookean", ConstitutiveModel::kStableNeoHookean, false},
-                         {"neohookean_nodal", ConstitutiveModel::kStableNeoHookean, true}};
+                         {"neohookean_nodal", ConstitutiveModel::kStableNeoHookean, true},
+                         {"neohookean_nodal_stabilised", ConstitutiveModel::kStableNeoHookean, true,
+                          0.3}};
 
 Model build(const Mesh& mesh, const LawCase& c) {
   ModelDesc d;
@@ -38,6 +41,7 @@ Model build(const Mesh& mesh, const LawCase& c) {
   d.material.young = 13.4e3;
   d.material.poisson = 0.45;
   d.nodal_pressure = c.nodal;
+  d.nodal_stabilisation = c.stabilisation;
   Result<Model> m = build_model(mesh, d);
   EXPECT_TRUE(m.ok()) << (m.ok() ? "" : m.error().message);
   return std::move(m).value();

@@ -22,12 +22,13 @@ constexpr double kL = 10e-6;  // box edge [m]
 // 4 x 3 x 3 cubes, nu 0.49: several chunks of vertices, interior vertices with full stars.
 Mesh test_box() { return box_mesh({0, 0, 0}, {kL, 0.75 * kL, 0.75 * kL}, 4, 3, 3); }
 
-Model build(const Mesh& mesh, bool nodal) {
+Model build(const Mesh& mesh, bool nodal, double stabilisation = 0) {
   ModelDesc d;
   d.constitutive = ConstitutiveModel::kStableNeoHookean;
   d.material.young = 13.4e3;
   d.material.poisson = 0.49;
   d.nodal_pressure = nodal;
+  d.nodal_stabilisation = stabilisation;
   Result<Model> m = build_model(mesh, d);
   EXPECT_TRUE(m.ok()) << (m.ok() ? "" : m.error().message);
   return std::move(m).value();
@@ -77,6 +78,39 @@ TEST(NodalPressure, UniformVolumeChangeIsTheElementLaw) {
     EXPECT_LE(norm(fn[v] - fe[v]), 1e-11 * scale) << "vertex " << v;
   EXPECT_NEAR(w_nodal, w_element, 1e-11 * w_element);
   EXPECT_GT(w_element, 0);
+}
+
+// The stabilisation (ModelDesc::nodal_stabilisation) moves a part beta of lambda from the
+// vertices back into the elements: under a uniform volume change it is the element law still;
+// where the volume change alternates its energy lies between the nodal law's and the element
+// law's, beta of the way up (the volumetric energy is linear in where lambda sits).
+TEST(NodalPressure, TheStabilisationKeepsBetaOfLambdaPerElement) {
+  const Mesh mesh = test_box();
+  const Model element = build(mesh, false), nodal = build(mesh, true);
+  const Model stabilised = build(mesh, true, 0.25);
+  const Mat3d a{{{-0.08, 0.03, 0.0}, {0.01, 0.05, -0.02}, {0.0, 0.02, -0.04}}};
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v];
+  double w_element = 0, w_stabilised = 0;
+  const std::vector<Vec3d> fe = forces_at(element, u, &w_element);
+  const std::vector<Vec3d> fs = forces_at(stabilised, u, &w_stabilised);
+  for (size_t v = 0; v < u.size(); ++v)
+    EXPECT_LE(norm(fs[v] - fe[v]), 1e-11 * largest(fe)) << "vertex " << v;
+  EXPECT_NEAR(w_stabilised, w_element, 1e-11 * w_element);
+
+  const std::vector<Vec3d> w = wavy(mesh, 0.05);
+  double e_element = 0, e_nodal = 0, e_stabilised = 0;
+  (void)forces_at(element, w, &e_element);
+  (void)forces_at(nodal, w, &e_nodal);
+  (void)forces_at(stabilised, w, &e_stabilised);
+  ASSERT_LT(e_nodal, e_element);
+  EXPECT_NEAR(e_stabilised, e_nodal + 0.25 * (e_element - e_nodal), 1e-9 * e_element);
+
+  ModelDesc bad;
+  bad.constitutive = ConstitutiveModel::kStableNeoHookean;
+  bad.nodal_pressure = true;
+  bad.nodal_stabilisation = 1.0;
+  EXPECT_FALSE(build_model(mesh, bad).ok());
 }
 
 TEST(NodalPressure, ForcesAreTheNegativeEnergyGradient) {
