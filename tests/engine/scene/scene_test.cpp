@@ -560,6 +560,15 @@ TEST(Scene, OverridesApplyBeforeValidation) {
   EXPECT_FALSE(
       load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=element"}).nodal_pressure);
   EXPECT_FALSE(load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric=null"}).nodal_pressure);
+  // Nodal pressure's stabilisation: a fraction of lambda kept per element, 0 by default, and
+  // written back only where set.
+  EXPECT_EQ(load_ok(kScenes + "mouse_oocyte_fine.json", {}).volumetric_stabilisation, 0.0);
+  const Scene stabilised =
+      load_ok(kScenes + "mouse_oocyte_fine.json", {"volumetric_stabilisation=0.3"});
+  expect_rel(stabilised.volumetric_stabilisation, 0.3);
+  EXPECT_EQ(parse_scene(scene_to_json(stabilised), "back.json")->volumetric_stabilisation, 0.3);
+  EXPECT_FALSE(scene_to_json(load_ok(kScenes + "mouse_oocyte_fine.json", {}))
+                   .contains("volumetric_stabilisation"));
   // Array elements by index; several overrides in order.
   const Scene bench = load_ok(kScenes + "bench_ball.json",
                               {"boundary.1.depth=3 um", "boundary.1.depth=4 um", "output.frames=5"});
@@ -600,6 +609,10 @@ TEST(Scene, OverridesAreValidatedLikeTheFile) {
   expect_error(j, "volumetric", "not one of", {"volumetric=mixed"});
   expect_error(j, "volumetric", "for \"model\": \"neohookean\" only",
                {"model=svk", "volumetric=nodal"});
+  expect_error(j, "volumetric_stabilisation", "needs \"volumetric\": \"nodal\"",
+               {"model=neohookean", "volumetric=element", "volumetric_stabilisation=0.2"});
+  expect_error(j, "volumetric_stabilisation", "[0, 1)",
+               {"model=neohookean", "volumetric=nodal", "volumetric_stabilisation=1"});
   expect_error(j, "haptics.max_tip_speed", "missing unit", {"haptics.max_tip_speed=0.001"});
   // A material for a new region still needs its required keys.
   j["mesh"]["generate"]["zona_thickness"] = "5 um";
