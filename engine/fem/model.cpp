@@ -170,7 +170,8 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
     for (size_t v = 0; v < nv; ++v)
       if (lumped_volume[v] > 0) {
         model.vertex_inverse_volume[v] = 1.0 / lumped_volume[v];
-        model.vertex_lambda[v] *= (1.0 - model.nodal_stabilisation) / lumped_volume[v];
+        model.vertex_lambda[v] /= lumped_volume[v];
+        model.vertex_lambda[v] *= 1.0 - model.nodal_stabilisation;  // exact where it is 0
       }
   }
   std::vector<double> alpha(nv, 0.0);
