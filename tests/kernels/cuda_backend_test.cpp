@@ -482,6 +482,24 @@ TEST(CudaNeoHookean, CompressedAndInvertedElementsMatchCpu) {
       << gpu->description();
 }
 
+// Nodal pressure's stabilisation (ModelDesc::nodal_stabilisation) is not in the device's element
+// kernels: a model with it is refused at upload with one line, not run without it.
+TEST(CudaNeoHookean, RefusesTheNodalStabilisationWithOneLine) {
+  BackendOptions options;
+  options.assembly = Assembly::kScatterFixed;
+  ZONA_CUDA_BACKEND_OR_SKIP(gpu, options);
+  ModelDesc desc = cell_desc(ConstitutiveModel::kStableNeoHookean, Formulation::kGradient);
+  desc.nodal_pressure = true;
+  desc.nodal_stabilisation = 0.3;
+  Result<Model> model = build_model(small_cell(), desc);
+  ASSERT_TRUE(model.ok()) << model.error().message;
+  State state = make_state(*model, 1);
+  const Status st = gpu->upload(*model, state);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.error().message.find("volumetric_stabilisation"), std::string::npos)
+      << st.error().message;
+}
+
 // The law with nodal pressure (ModelDesc::nodal_pressure): the device's first pass (volume
 // changes summed at the vertices by float atomics) and element pass against the CPU's, forces
 // and energy, and again after a step (the sums are zeroed between steps).

@@ -56,6 +56,14 @@ std::vector<Vec3d> wavy(const Mesh& mesh, double strain) {
   return u;
 }
 
+// An affine compression with shear: the same J in every element, so Jbar = J.
+std::vector<Vec3d> affine_compression(const Mesh& mesh) {
+  const Mat3d a{{{-0.08, 0.03, 0.0}, {0.01, 0.05, -0.02}, {0.0, 0.02, -0.04}}};
+  std::vector<Vec3d> u(mesh.vertex_count());
+  for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v];
+  return u;
+}
+
 double largest(const std::vector<Vec3d>& f) {
   double m = 0;
   for (const Vec3d& v : f) m = std::max(m, norm(v));
@@ -65,10 +73,7 @@ double largest(const std::vector<Vec3d>& f) {
 TEST(NodalPressure, UniformVolumeChangeIsTheElementLaw) {
   const Mesh mesh = test_box();
   const Model element = build(mesh, false), nodal = build(mesh, true);
-  // An affine compression with shear: the same J in every element, so Jbar = J.
-  const Mat3d a{{{-0.08, 0.03, 0.0}, {0.01, 0.05, -0.02}, {0.0, 0.02, -0.04}}};
-  std::vector<Vec3d> u(mesh.vertex_count());
-  for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v];
+  const std::vector<Vec3d> u = affine_compression(mesh);
   double w_element = 0, w_nodal = 0;
   const std::vector<Vec3d> fe = forces_at(element, u, &w_element);
   const std::vector<Vec3d> fn = forces_at(nodal, u, &w_nodal);
@@ -88,9 +93,7 @@ TEST(NodalPressure, TheStabilisationKeepsBetaOfLambdaPerElement) {
   const Mesh mesh = test_box();
   const Model element = build(mesh, false), nodal = build(mesh, true);
   const Model stabilised = build(mesh, true, 0.25);
-  const Mat3d a{{{-0.08, 0.03, 0.0}, {0.01, 0.05, -0.02}, {0.0, 0.02, -0.04}}};
-  std::vector<Vec3d> u(mesh.vertex_count());
-  for (size_t v = 0; v < u.size(); ++v) u[v] = a * mesh.rest_positions[v];
+  const std::vector<Vec3d> u = affine_compression(mesh);
   double w_element = 0, w_stabilised = 0;
   const std::vector<Vec3d> fe = forces_at(element, u, &w_element);
   const std::vector<Vec3d> fs = forces_at(stabilised, u, &w_stabilised);
