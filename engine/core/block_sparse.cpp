@@ -64,6 +64,21 @@ void BlockSparseMatrix::set_zero() {
   });
   std::fill(coefficients_.begin(), coefficients_.end(), 0.0);
   std::fill(r1_vectors_.begin(), r1_vectors_.end(), Vec3d{0, 0, 0});
+  r1_by_row_stale_ = true;
+}
+
+void BlockSparseMatrix::refresh_rank_one_rows() const {
+  if (!r1_by_row_stale_) return;
+  r1_row_vectors_.resize(r1_row_positions_.size());
+  r1_row_term_.resize(r1_row_positions_.size());
+  pooled_ranges(r1_row_positions_.size(), 1 << 14, [&](size_t, size_t begin, size_t end) {
+    for (size_t q = begin; q < end; ++q) {
+      const size_t p = static_cast<size_t>(r1_row_positions_[q]);
+      r1_row_vectors_[q] = r1_vectors_[p];
+      r1_row_term_[q] = r1_term_[p];
+    }
+  });
+  r1_by_row_stale_ = false;
 }
 
 const Mat3d* BlockSparseMatrix::find(int32_t i, int32_t j) const {
@@ -86,6 +101,7 @@ void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
   const size_t terms = r1_offsets_.size() - 1;
   coefficients_.assign(terms, 0.0);
   r1_vectors_.assign(r1_vertices_.size(), Vec3d{0, 0, 0});
+  r1_by_row_stale_ = true;
   r1_scratch_.assign(terms, 0.0);
   r1_term_.resize(r1_vertices_.size());
   for (size_t k = 0; k < terms; ++k)
@@ -137,16 +153,16 @@ ZONA_SIMD_CLONES void rank_one_dots(size_t begin, size_t end, const int64_t* off
   }
 }
 
-// y_i += sum over row i's rank-one entries p of scratch_term(p) g_p, rows [begin, end).
+// y_i += sum over row i's rank-one entries q of scratch_term(q) g_q, rows [begin, end) (the
+// entries in row order).
 ZONA_SIMD_CLONES void rank_one_rows(size_t begin, size_t end, const int64_t* row_offsets,
-                                    const int64_t* row_positions, const int32_t* term,
-                                    const Vec3d* vectors, const double* scratch, Vec3d* y) {
+                                    const int32_t* term, const Vec3d* vectors,
+                                    const double* scratch, Vec3d* y) {
   for (size_t i = begin; i < end; ++i) {
     double s0 = y[i].x, s1 = y[i].y, s2 = y[i].z;
     for (int64_t q = row_offsets[i]; q < row_offsets[i + 1]; ++q) {
-      const int64_t p = row_positions[q];
-      const double c = scratch[term[p]];
-      const Vec3d g = vectors[p];
+      const double c = scratch[term[q]];
+      const Vec3d g = vectors[q];
       s0 += c * g.x;
       s1 += c * g.y;
       s2 += c * g.z;
@@ -161,6 +177,7 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   // Rows (and terms) split over the machine's threads (each row written by one: the same bits
   // for any count); short matrices stay on the caller's thread.
   const size_t terms = rank_one_terms();
+  if (terms > 0) refresh_rank_one_rows();
   if (terms > 0)
     pooled_ranges(terms, 1024, [&](size_t, size_t begin, size_t end) {
       rank_one_dots(begin, end, r1_offsets_.data(), r1_vertices_.data(), r1_vectors_.data(),
@@ -169,20 +186,28 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
     block_rows(begin, end, offsets_.data(), cols_.data(), values_.data(), x.data(), y.data());
     if (terms > 0)
-      rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_positions_.data(),
-                    r1_term_.data(), r1_vectors_.data(), r1_scratch_.data(), y.data());
+      rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_term_.data(),
+                    r1_row_vectors_.data(), r1_scratch_.data(), y.data());
   });
 }
 
 void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {
   out.resize(rows());
-  for (size_t i = 0; i < rows(); ++i) out[i] = *find(static_cast<int32_t>(i), static_cast<int32_t>(i));
-  for (size_t k = 0; k < rank_one_terms(); ++k)
-    for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p) {
-      const Vec3d& g = r1_vectors_[static_cast<size_t>(p)];
-      Mat3d& d = out[static_cast<size_t>(r1_vertices_[static_cast<size_t>(p)])];
-      d = d + coefficients_[k] * outer(g, g);
+  const bool rank_one = rank_one_terms() > 0;
+  if (rank_one) refresh_rank_one_rows();
+  // Row by row; a row's rank-one entries in row order, which is their terms' order.
+  pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      Mat3d d = *find(static_cast<int32_t>(i), static_cast<int32_t>(i));
+      if (rank_one)
+        for (int64_t q = r1_row_offsets_[i]; q < r1_row_offsets_[i + 1]; ++q) {
+          const Vec3d& g = r1_row_vectors_[static_cast<size_t>(q)];
+          d = d + coefficients_[static_cast<size_t>(r1_row_term_[static_cast<size_t>(q)])] *
+                      outer(g, g);
+        }
+      out[i] = d;
     }
+  });
 }
 
 void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
@@ -195,6 +220,7 @@ void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
     }
   for (size_t p = 0; p < r1_vertices_.size(); ++p)
     if (mask[static_cast<size_t>(r1_vertices_[p])]) r1_vectors_[p] = Vec3d{0, 0, 0};
+  r1_by_row_stale_ = true;
 }
 
 Eigen::SparseMatrix<double> BlockSparseMatrix::to_eigen() const {

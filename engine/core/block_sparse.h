@@ -62,7 +62,10 @@ class BlockSparseMatrix {
   std::span<double> rank_one_coefficients() { return coefficients_; }
   std::span<const double> rank_one_coefficients() const { return coefficients_; }
   /// The vectors' entries, at the positions of rank_one_vertices().
-  std::span<Vec3d> rank_one_vectors() { return r1_vectors_; }
+  std::span<Vec3d> rank_one_vectors() {
+    r1_by_row_stale_ = true;
+    return r1_vectors_;
+  }
   std::span<const Vec3d> rank_one_vectors() const { return r1_vectors_; }
 
   /// y = A x, (rows).
@@ -93,6 +96,12 @@ class BlockSparseMatrix {
   std::vector<int64_t> r1_row_positions_;
   std::vector<int32_t> r1_term_;
   mutable std::vector<double> r1_scratch_;  // c_k (g_k . x) of the product in progress
+  // r1_vectors_ and r1_term_ in row order (r1_row_positions_'s), for the products' row pass
+  // (sequential reads); rebuilt by the first product after the vectors may have changed.
+  void refresh_rank_one_rows() const;
+  mutable std::vector<Vec3d> r1_row_vectors_;
+  mutable std::vector<int32_t> r1_row_term_;
+  mutable bool r1_by_row_stale_ = true;
 };
 
 }  // namespace zona

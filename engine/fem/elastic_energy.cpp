@@ -13,16 +13,27 @@ namespace zona {
 namespace {
 
 // Each vertex's star: its elements' corners, first seen first (offsets (vertex_count + 1)).
-void vertex_stars(const Model& m, std::vector<int64_t>& offsets, std::vector<int32_t>& star) {
+// With `slots`, also where each adjacency entry's corners sit in its vertex's star: corner c of
+// entry k at star position slots[4 k + c] (a star has at most 255 vertices).
+void vertex_stars(const Model& m, std::vector<int64_t>& offsets, std::vector<int32_t>& star,
+                  std::vector<uint8_t>* slots = nullptr) {
   offsets.assign(1, 0);
   star.clear();
+  if (slots) slots->assign(4 * m.adjacency.tets.size(), 0);
   for (size_t v = 0; v < m.vertex_count(); ++v) {
     const size_t begin = star.size();
     for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k)
-      for (int32_t w : m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])])
-        if (std::find(star.begin() + static_cast<std::ptrdiff_t>(begin), star.end(), w) ==
-            star.end())
-          star.push_back(w);
+      for (int c = 0; c < 4; ++c) {
+        const int32_t w =
+            m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])][c];
+        const auto at = std::find(star.begin() + static_cast<std::ptrdiff_t>(begin), star.end(), w);
+        const size_t i = static_cast<size_t>(at - star.begin()) - begin;
+        if (at == star.end()) star.push_back(w);
+        if (slots) {
+          ZONA_ASSERT(i < 256);
+          (*slots)[4 * static_cast<size_t>(k) + static_cast<size_t>(c)] = static_cast<uint8_t>(i);
+        }
+      }
     offsets.push_back(static_cast<int64_t>(star.size()));
   }
 }
@@ -42,7 +53,7 @@ ElasticEnergy::ElasticEnergy(const Model& model) : model_(&model) {
   if (!model.nodal_pressure) return;
   pressure_.assign(model.vertex_count(), 0.0);
   scratch_.assign(model.vertex_count(), 0.0);
-  vertex_stars(model, star_offsets_, star_);
+  vertex_stars(model, star_offsets_, star_, &star_slot_);
 }
 
 void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out) const {
@@ -54,11 +65,8 @@ void ElasticEnergy::star_gradient(size_t v, std::span<const Vec3d> u, Vec3d* out
     Vec3d ue[4], dj[4];
     corners(u, t, ue);
     tet_volume_gradient(m.tet_shape[t], ue, dj);
-    for (int c = 0; c < 4; ++c) {
-      size_t i = 0;
-      while (star_[static_cast<size_t>(s0) + i] != m.tets[t][c]) ++i;
-      out[i] += (0.25 * m.tet_shape[t].volume) * dj[c];
-    }
+    const uint8_t* slot = &star_slot_[4 * static_cast<size_t>(k)];
+    for (int c = 0; c < 4; ++c) out[slot[c]] += (0.25 * m.tet_shape[t].volume) * dj[c];
   }
 }
 
@@ -359,10 +367,24 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   index_blocks(hm);
   std::span<Mat3d> values = hm.values();
   if (m.nodal_pressure) vertex_pressures(u);
+  if (m.nodal_pressure) element_dj_.resize(4 * m.tet_count());
   auto element = [&](size_t t) {
+    const int64_t* slots = &element_slot_[16 * t];
+    // The 16 blocks are scattered over the matrix: fetch them while the tangent is computed.
+    for (int k = 0; k < 16; ++k) {
+      const char* block = reinterpret_cast<const char*>(&values[static_cast<size_t>(slots[k])]);
+      __builtin_prefetch(block, 1);
+      __builtin_prefetch(block + sizeof(Mat3d) - 1, 1);
+    }
     Vec3d ue[4];
     corners(u, t, ue);
     const TetShape<double>& s = m.tet_shape[t];
+    if (m.nodal_pressure) {
+      // V_e / 4 dJ_e/du at each corner, for the vertices' rank-one terms below.
+      Vec3d dj[4];
+      tet_volume_gradient(s, ue, dj);
+      for (int c = 0; c < 4; ++c) element_dj_[4 * t + static_cast<size_t>(c)] = (0.25 * s.volume) * dj[c];
+    }
     const Eigen::Matrix<double, 9, 9> q =
         stress_tangent(law(t), tet_displacement_gradient(s, ue), project);
     // dF = sum_a v_a grad_a^T: F's entry (r, c) moves by grad_a[c] per unit of u_a[r], so block
@@ -378,7 +400,7 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
         }
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b) {
-        Mat3d& block = values[static_cast<size_t>(element_slot_[16 * t + static_cast<size_t>(4 * a + b)])];
+        Mat3d& block = values[static_cast<size_t>(slots[4 * a + b])];
         for (int r = 0; r < 3; ++r)
           for (int c2 = 0; c2 < 3; ++c2) {
             double sum = 0;
@@ -400,10 +422,19 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
               hm.rank_one_vectors().size() == star_.size());
   std::span<double> coefficient = hm.rank_one_coefficients();
   std::span<Vec3d> vectors = hm.rank_one_vectors();
+  // g_v = sum over v's elements of their corners' V_e / 4 dJ_e/du, gathered from the element
+  // pass in adjacency order (star_gradient's sums).
   pooled_ranges(m.vertex_count(), 1024, [&](size_t, size_t begin, size_t end) {
     for (size_t v = begin; v < end; ++v) {
       coefficient[v] = m.vertex_lambda[v] * m.vertex_inverse_volume[v];  // this term's alone
-      star_gradient(v, u, vectors.data() + star_offsets_[v]);
+      Vec3d* out = vectors.data() + star_offsets_[v];
+      std::fill(out, out + (star_offsets_[v + 1] - star_offsets_[v]), Vec3d{0, 0, 0});
+      for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k) {
+        const Vec3d* dj =
+            &element_dj_[4 * static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])];
+        const uint8_t* slot = &star_slot_[4 * static_cast<size_t>(k)];
+        for (int c = 0; c < 4; ++c) out[slot[c]] += dj[c];
+      }
     }
   });
 }

@@ -89,6 +89,8 @@ class ElasticEnergy final : public EnergyTerm {
   std::vector<int64_t> element_slot_;
   std::vector<int64_t> star_offsets_;
   std::vector<int32_t> star_;
+  std::vector<uint8_t> star_slot_;  // corner c of adjacency entry k: its star position, at 4 k + c
+  std::vector<Vec3d> element_dj_;   // add_hessian's V_e / 4 dJ_e/du per corner, (4 tet_count)
   std::vector<Vec3d> star_part_;
   std::vector<int64_t> colour_offsets_;
   static constexpr size_t kRun = 64;

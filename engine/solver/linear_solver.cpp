@@ -42,6 +42,7 @@ class BlockJacobi final : public Preconditioner {
       for (size_t i = begin; i < end; ++i) z[i] = inverse_[i] * r[i];
     });
   }
+  const Mat3d* diagonal_blocks() const override { return inverse_.data(); }
 
  private:
   std::vector<Mat3d> inverse_;
@@ -264,14 +265,30 @@ class CgSolver final : public LinearSolver {
         return stats;
       }
       const double alpha = rz / pq;
-      pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
-        for (size_t i = begin; i < end; ++i) {
-          x[i] += alpha * p_[i];
-          r_[i] -= alpha * q_[i];
-        }
-      });
-      preconditioner_->apply(r_, z_);
-      residual_dots();
+      if (const Mat3d* blocks = preconditioner_->diagonal_blocks()) {
+        // The update, z = M^-1 r and the residual's dots in one pass (the same sums per chunk).
+        pooled_chunks(n, kVectorChunk, [&](size_t c, size_t begin, size_t end) {
+          double rz_c = 0, rr_c = 0;
+          for (size_t i = begin; i < end; ++i) {
+            x[i] += alpha * p_[i];
+            r_[i] -= alpha * q_[i];
+            z_[i] = blocks[i] * r_[i];
+            rz_c += dot(r_[i], z_[i]);
+            rr_c += dot(r_[i], r_[i]);
+          }
+          partial_[c] = rz_c;
+          rr_partial_[c] = rr_c;
+        });
+      } else {
+        pooled_chunks(n, kVectorChunk, [&](size_t, size_t begin, size_t end) {
+          for (size_t i = begin; i < end; ++i) {
+            x[i] += alpha * p_[i];
+            r_[i] -= alpha * q_[i];
+          }
+        });
+        preconditioner_->apply(r_, z_);
+        residual_dots();
+      }
       const double rz_next = sum(partial_);
       const double beta = rz_next / rz;
       rz = rz_next;

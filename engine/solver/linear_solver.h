@@ -26,6 +26,9 @@ class Preconditioner {
   /// setup, and M stays symmetric positive definite. By default the whole setup.
   virtual Status refresh(const BlockSparseMatrix& a) { return setup(a); }
   virtual void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const = 0;
+  /// Where M^-1 is block diagonal (z_i = B_i r_i): the blocks B_i, so that CG can fuse the
+  /// application into its vector passes; null otherwise.
+  virtual const Mat3d* diagonal_blocks() const { return nullptr; }
 };
 
 /// The inverse of each vertex's 3 x 3 diagonal block.

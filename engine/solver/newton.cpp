@@ -29,15 +29,16 @@ NewtonSolver::NewtonSolver(std::vector<EnergyTerm*> terms, BlockSparseMatrix pat
 
 double NewtonSolver::evaluate(std::span<const Vec3d> u, std::span<Vec3d> g) {
   double e = 0;
-  if (!g.empty()) std::fill(g.begin(), g.end(), Vec3d{0, 0, 0});
-  for (EnergyTerm* t : terms_) {
-    e += t->energy(u);
-    if (!g.empty()) t->add_gradient(u, g);
-  }
-  if (!g.empty())
-    for (size_t i = 0; i < g.size(); ++i)
-      if (fixed_[i]) g[i] = Vec3d{0, 0, 0};
+  for (EnergyTerm* t : terms_) e += t->energy(u);
+  if (!g.empty()) gradient(u, g);
   return e;
+}
+
+void NewtonSolver::gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
+  std::fill(g.begin(), g.end(), Vec3d{0, 0, 0});
+  for (EnergyTerm* t : terms_) t->add_gradient(u, g);
+  for (size_t i = 0; i < g.size(); ++i)
+    if (fixed_[i]) g[i] = Vec3d{0, 0, 0};
 }
 
 const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u, bool project) {
@@ -199,7 +200,8 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       clock_start = std::chrono::steady_clock::now();
     }
     u.swap(trial_);
-    e = evaluate(u, g_);
+    e = e_trial;  // the line search's energy at this state (the same sums)
+    gradient(u, g_);
     gnorm_prev = gnorm;
     gnorm = 0;
     for (const Vec3d& v : g_) gnorm += dot(v, v);

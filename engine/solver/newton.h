@@ -91,6 +91,8 @@ class NewtonSolver {
       on_hessian;
 
  private:
+  // The gradient alone (fixed vertices zeroed) [N].
+  void gradient(std::span<const Vec3d> u, std::span<Vec3d> g);
   double max_imbalance(std::span<const Vec3d> g) const;
   size_t largest_imbalance_vertex(std::span<const Vec3d> g) const;
 
