@@ -309,19 +309,16 @@ namespace {
 
 // The 9 x 9 matrix d^2 Psi / dF^2 of a law at h (row and column k = 3 r + c for F's entry
 // (r, c)), symmetrised; with `project`, its negative eigenvalues clamped to zero (in closed
-// form for the stable neo-Hookean law, by a 9 x 9 eigendecomposition for the others).
-Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const Mat3d& h,
-                                           bool project) {
-  Eigen::Matrix<double, 9, 9> q;
+// form for the stable neo-Hookean law, by a 9 x 9 eigendecomposition for the others), into out.
+void stress_tangent(const ElementLaw<double>& law, const Mat3d& h, bool project,
+                    double out[9][9]) {
   if (law.model == ConstitutiveModel::kStableNeoHookean) {
     // Closed form, and its projection too (snh_project_tangent): no eigendecomposition.
-    double closed[9][9];
-    snh_stress_tangent(law, h, closed);
-    if (project) snh_project_tangent(law, h, closed);
-    for (int r = 0; r < 9; ++r)
-      for (int c = 0; c < 9; ++c) q(r, c) = closed[r][c];
-    return q;
+    snh_stress_tangent(law, h, out);
+    if (project) snh_project_tangent(law, h, out);
+    return;
   }
+  Eigen::Matrix<double, 9, 9> q;
   for (int k = 0; k < 9; ++k) {
     Mat3d df = Mat3d::zero();
     df.m[k / 3][k % 3] = 1;
@@ -330,14 +327,44 @@ Eigen::Matrix<double, 9, 9> stress_tangent(const ElementLaw<double>& law, const 
       for (int c = 0; c < 3; ++c) q(3 * r + c, k) = dp.m[r][c];
   }
   q = 0.5 * (q + q.transpose()).eval();
-  if (!project) return q;
-  // Most elements are near rest, where the tangent is positive definite: a Cholesky factor
-  // says so for a fraction of an eigendecomposition's cost.
-  Eigen::LLT<Eigen::Matrix<double, 9, 9>> llt(q);
-  if (llt.info() == Eigen::Success) return q;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(q);
-  Eigen::Matrix<double, 9, 1> d = eig.eigenvalues().cwiseMax(0.0);
-  return eig.eigenvectors() * d.asDiagonal() * eig.eigenvectors().transpose();
+  if (project) {
+    // Most elements are near rest, where the tangent is positive definite: a Cholesky factor
+    // says so for a fraction of an eigendecomposition's cost.
+    Eigen::LLT<Eigen::Matrix<double, 9, 9>> llt(q);
+    if (llt.info() != Eigen::Success) {
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(q);
+      Eigen::Matrix<double, 9, 1> d = eig.eigenvalues().cwiseMax(0.0);
+      q = eig.eigenvectors() * d.asDiagonal() * eig.eigenvectors().transpose();
+    }
+  }
+  for (int r = 0; r < 9; ++r)
+    for (int c = 0; c < 9; ++c) out[r][c] = q(r, c);
+}
+
+// Adds an element's 16 blocks V sum_{c, d} grad_a[c] q(3 r + c, 3 s + d) grad_b[d] (rows r,
+// columns s) to the blocks at values[slots[4 a + b]]. dF = sum_a v_a grad_a^T: F's entry (r, c)
+// moves by grad_a[c] per unit of u_a[r]. qg(3 r + c, 3 s + b') = sum_d q(3 r + c, 3 s + d)
+// grad_b'[d] first, then grad_a.
+inline void add_element_blocks(const double (&q)[9][9], const Vec3d (&grad)[4],
+                                         double volume, const int64_t* slots, Mat3d* values) {
+  double qg[9][12];
+  for (int row = 0; row < 9; ++row)
+    for (int col = 0; col < 3; ++col)
+      for (int b = 0; b < 4; ++b) {
+        double sum = 0;
+        for (int d = 0; d < 3; ++d) sum += q[row][3 * col + d] * grad[b][d];
+        qg[row][3 * b + col] = sum;
+      }
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 4; ++b) {
+      Mat3d& block = values[slots[4 * a + b]];
+      for (int r = 0; r < 3; ++r)
+        for (int c2 = 0; c2 < 3; ++c2) {
+          double sum = 0;
+          for (int c = 0; c < 3; ++c) sum += grad[a][c] * qg[3 * r + c][3 * b + c2];
+          block.m[r][c2] += volume * sum;
+        }
+    }
 }
 
 }  // namespace
@@ -385,29 +412,9 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
       tet_volume_gradient(s, ue, dj);
       for (int c = 0; c < 4; ++c) element_dj_[4 * t + static_cast<size_t>(c)] = (0.25 * s.volume) * dj[c];
     }
-    const Eigen::Matrix<double, 9, 9> q =
-        stress_tangent(law(t), tet_displacement_gradient(s, ue), project);
-    // dF = sum_a v_a grad_a^T: F's entry (r, c) moves by grad_a[c] per unit of u_a[r], so block
-    // (a, b) is V sum_{c, d} grad_a[c] q(3 r + c, 3 s + d) grad_b[d] for rows r, columns s.
-    // qg(3 r + c, 3 s + b') = sum_d q(3 r + c, 3 s + d) grad_b'[d] first, then grad_a.
-    double qg[9][12];
-    for (int row = 0; row < 9; ++row)
-      for (int col = 0; col < 3; ++col)
-        for (int b = 0; b < 4; ++b) {
-          double sum = 0;
-          for (int d = 0; d < 3; ++d) sum += q(row, 3 * col + d) * s.grad[b][d];
-          qg[row][3 * b + col] = sum;
-        }
-    for (int a = 0; a < 4; ++a)
-      for (int b = 0; b < 4; ++b) {
-        Mat3d& block = values[static_cast<size_t>(slots[4 * a + b])];
-        for (int r = 0; r < 3; ++r)
-          for (int c2 = 0; c2 < 3; ++c2) {
-            double sum = 0;
-            for (int c = 0; c < 3; ++c) sum += s.grad[a][c] * qg[3 * r + c][3 * b + c2];
-            block.m[r][c2] += s.volume * sum;
-          }
-      }
+    double q[9][9];
+    stress_tangent(law(t), tet_displacement_gradient(s, ue), project, q);
+    add_element_blocks(q, s.grad, s.volume, slots, values.data());
   };
   // No two runs of a colour share a block: each colour's runs go side by side, and every
   // block sums its elements in colour order (the same bits for any thread count).
