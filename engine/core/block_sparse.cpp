@@ -49,11 +49,22 @@ BlockSparseMatrix::BlockSparseMatrix(const std::vector<std::vector<int32_t>>& ro
     offsets_[i + 1] = static_cast<int64_t>(cols_.size());
   }
   values_.assign(cols_.size(), Mat3d::zero());
+  index_diagonal();
 }
 
 BlockSparseMatrix::BlockSparseMatrix(std::vector<int64_t> offsets, std::vector<int32_t> cols)
     : offsets_(std::move(offsets)), cols_(std::move(cols)) {
   values_.assign(cols_.size(), Mat3d::zero());
+  index_diagonal();
+}
+
+void BlockSparseMatrix::index_diagonal() {
+  diagonal_at_.resize(rows());
+  for (size_t i = 0; i < rows(); ++i) {
+    const Mat3d* d = find(static_cast<int32_t>(i), static_cast<int32_t>(i));
+    ZONA_ASSERT(d != nullptr);
+    diagonal_at_[i] = d - values_.data();
+  }
 }
 
 void BlockSparseMatrix::set_zero() {
@@ -198,7 +209,7 @@ void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {
   // Row by row; a row's rank-one entries in row order, which is their terms' order.
   pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
-      Mat3d d = *find(static_cast<int32_t>(i), static_cast<int32_t>(i));
+      Mat3d d = diagonal_block(i);
       if (rank_one)
         for (int64_t q = r1_row_offsets_[i]; q < r1_row_offsets_[i + 1]; ++q) {
           const Vec3d& g = r1_row_vectors_[static_cast<size_t>(q)];
@@ -212,12 +223,14 @@ void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {
 
 void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
   ZONA_ASSERT(mask.size() == rows());
-  for (size_t i = 0; i < rows(); ++i)
-    for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k) {
-      const size_t j = static_cast<size_t>(cols_[static_cast<size_t>(k)]);
-      if (!mask[i] && !mask[j]) continue;
-      values_[static_cast<size_t>(k)] = i == j ? Mat3d::identity() : Mat3d::zero();
-    }
+  pooled_ranges(rows(), 2048, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i)
+      for (int64_t k = offsets_[i]; k < offsets_[i + 1]; ++k) {
+        const size_t j = static_cast<size_t>(cols_[static_cast<size_t>(k)]);
+        if (!mask[i] && !mask[j]) continue;
+        values_[static_cast<size_t>(k)] = i == j ? Mat3d::identity() : Mat3d::zero();
+      }
+  });
   for (size_t p = 0; p < r1_vertices_.size(); ++p)
     if (mask[static_cast<size_t>(r1_vertices_[p])]) r1_vectors_[p] = Vec3d{0, 0, 0};
   r1_by_row_stale_ = true;

@@ -46,6 +46,11 @@ class BlockSparseMatrix {
   /// The block (i, j), or nullptr where the pattern has none.
   Mat3d* find(int32_t i, int32_t j);
   const Mat3d* find(int32_t i, int32_t j) const;
+  /// Row i's diagonal block (every row holds one).
+  Mat3d& diagonal_block(size_t i) { return values_[static_cast<size_t>(diagonal_at_[i])]; }
+  const Mat3d& diagonal_block(size_t i) const {
+    return values_[static_cast<size_t>(diagonal_at_[i])];
+  }
   /// Adds b to block (i, j); the pattern must hold it.
   void add(int32_t i, int32_t j, const Mat3d& b) {
     Mat3d* p = find(i, j);
@@ -86,6 +91,8 @@ class BlockSparseMatrix {
   std::vector<int64_t> offsets_;
   std::vector<int32_t> cols_;
   std::vector<Mat3d> values_;
+  std::vector<int64_t> diagonal_at_;  // each row's diagonal block in values_
+  void index_diagonal();
   // The rank-one part, and per row the positions of its entries in r1_vectors_ (by row, from
   // r1_row_offsets_) with each position's term.
   std::vector<int64_t> r1_offsets_;

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "engine/core/energy_term.h"
+#include "engine/core/parallel.h"
 
 namespace zona {
 
@@ -40,7 +41,9 @@ class InertiaTerm final : public EnergyTerm {
     return e;
   }
   void add_gradient(std::span<const Vec3d> u, std::span<Vec3d> g) override {
-    for (size_t i = 0; i < u.size(); ++i) g[i] += weight_[i] * (u[i] - center_[i]);
+    pooled_ranges(u.size(), 4096, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) g[i] += weight_[i] * (u[i] - center_[i]);
+    });
   }
   void add_hessian_product(std::span<const Vec3d>, std::span<const Vec3d> v,
                            std::span<Vec3d> y) override {
@@ -50,10 +53,12 @@ class InertiaTerm final : public EnergyTerm {
     for (size_t i = 0; i < d.size(); ++i) d[i] = d[i] + weight_[i] * Mat3d::identity();
   }
   void add_hessian(std::span<const Vec3d>, BlockSparseMatrix& h, bool) override {
-    for (size_t i = 0; i < weight_.size(); ++i) {
-      const int32_t v = static_cast<int32_t>(i);
-      h.add(v, v, weight_[i] * Mat3d::identity());
-    }
+    pooled_ranges(weight_.size(), 4096, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) {
+        Mat3d& d = h.diagonal_block(i);
+        d = d + weight_[i] * Mat3d::identity();
+      }
+    });
   }
 
  private:

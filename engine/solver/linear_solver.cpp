@@ -25,16 +25,21 @@ class BlockJacobi final : public Preconditioner {
   const char* name() const override { return "block Jacobi"; }
   Status setup(const BlockSparseMatrix& a) override {
     a.diagonal(inverse_);
-    for (size_t i = 0; i < inverse_.size(); ++i) {
-      // (An indefinite block is kept: the exact Hessian's may be, and CG then reports the
-      // direction of non-positive curvature it meets.)
-      bool positive = false;
-      inverse_[i] = inverse3(inverse_[i], &positive);
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c)
-          if (!std::isfinite(inverse_[i].m[r][c]))
-            return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
-    }
+    finite_.resize(inverse_.size());
+    pooled_ranges(inverse_.size(), 2048, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) {
+        // (An indefinite block is kept: the exact Hessian's may be, and CG then reports the
+        // direction of non-positive curvature it meets.)
+        bool positive = false;
+        inverse_[i] = inverse3(inverse_[i], &positive);
+        bool finite = true;
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) finite = finite && std::isfinite(inverse_[i].m[r][c]);
+        finite_[i] = finite ? 1 : 0;
+      }
+    });
+    for (size_t i = 0; i < inverse_.size(); ++i)
+      if (!finite_[i]) return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
     return {};
   }
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {
@@ -46,6 +51,7 @@ class BlockJacobi final : public Preconditioner {
 
  private:
   std::vector<Mat3d> inverse_;
+  std::vector<uint8_t> finite_;  // per block: its inverse is finite
 };
 
 // The factorisation of the exact oracle, as a preconditioner: CHOLMOD's supernodal Cholesky

@@ -14,6 +14,10 @@
 namespace zona {
 namespace {
 
+// Vertices per range of the cycle's vector passes on the shared pool (short levels stay on the
+// caller's thread).
+constexpr size_t kVectorRange = 2048;
+
 // Interpolation to the nodes of a level from the next coarser lattice: per fine node, up to 8
 // (coarse node, trilinear weight) pairs; a fixed vertex has none.
 struct Interpolation {
@@ -21,6 +25,25 @@ struct Interpolation {
   std::vector<int32_t> nodes;    // coarse node per pair
   std::vector<double> weights;   // its weight [-]
   size_t coarse_count = 0;
+  // The pairs by coarse node (P^T's rows, for gathers by coarse node): node I's pairs are
+  // by_node[by_node_offsets[I] .. by_node_offsets[I + 1]), ascending, each with its fine node
+  // in row (per pair).
+  std::vector<int64_t> by_node_offsets, by_node;
+  std::vector<int32_t> row;
+  void transpose() {
+    const size_t pairs = nodes.size(), fine = offsets.size() - 1;
+    row.resize(pairs);
+    for (size_t i = 0; i < fine; ++i)
+      for (int64_t q = offsets[i]; q < offsets[i + 1]; ++q)
+        row[static_cast<size_t>(q)] = static_cast<int32_t>(i);
+    by_node_offsets.assign(coarse_count + 1, 0);
+    for (int32_t n : nodes) ++by_node_offsets[static_cast<size_t>(n) + 1];
+    for (size_t n = 0; n < coarse_count; ++n) by_node_offsets[n + 1] += by_node_offsets[n];
+    by_node.resize(pairs);
+    std::vector<int64_t> fill(by_node_offsets.begin(), by_node_offsets.end() - 1);
+    for (size_t q = 0; q < pairs; ++q)
+      by_node[static_cast<size_t>(fill[static_cast<size_t>(nodes[q])]++)] = static_cast<int64_t>(q);
+  }
 };
 
 // Embeds `points` (those with skip[i] == 0) in the lattice of spacing h whose first node lies
@@ -100,18 +123,23 @@ struct Level {
   std::vector<Mat3d> t_values;
   std::vector<int32_t> t_target;  // per (block k of A, pair of P's row cols[k])
   std::vector<int32_t> c_target;  // per (row i, pair of P's row i, block of T's row i)
+  // Where each row's t_target entries start (rows + 1) and each pair's c_target entries
+  // (pairs + 1): the passes run by row (T) and by coarse row (A_c) in parallel.
+  std::vector<int64_t> t_row_start, c_pair_start;
   // The rank-one part's restriction c_k = P^T g_k, added into the coarser operator's blocks as
   // c_k c_k^T (no level below the finest keeps a rank-one part: there every term spans some 30
   // lattice nodes, so as vectors a coarse product would cost more than the fine one). Per
   // (position p of A's rank-one vectors, pair of P's row at p's vertex) the position in c;
   // c's terms by node (offsets, nodes, values); per coarse row, the positions of c on it.
   std::vector<int32_t> r1_target;
+  std::vector<int64_t> r1_term_start;  // where each term's r1_target entries start (terms + 1)
   std::vector<int64_t> c1_offsets;
   std::vector<int32_t> c1_nodes, c1_term;
   std::vector<Vec3d> c1_values;
   std::vector<int64_t> c1_row_offsets, c1_row_positions;
   // Chebyshev smoothing on D^-1 A.
   std::vector<Mat3d> dinv;
+  std::vector<uint8_t> inverted;  // the smoother's setup: whether each block inverted
   double lambda_max = 0;
   std::vector<Vec3d> power;
   // Scratch of one cycle.
@@ -215,6 +243,7 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
     if (p.coarse_count == 0 || p.coarse_count >= points.size()) break;
     Level& fine = levels_.back();
     fine.p = std::move(p);
+    fine.p.transpose();
     const Interpolation& ip = fine.p;
     const size_t n = pattern->rows();
     // T = A P: row i's columns are the coarse nodes of its neighbours' pairs.
@@ -235,6 +264,7 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
     }
     fine.t_values.assign(fine.t_cols.size(), Mat3d::zero());
     fine.t_target.clear();
+    fine.t_row_start.assign(1, 0);
     for (size_t i = 0; i < n; ++i) {
       const auto t_begin = fine.t_cols.begin() + fine.t_offsets[i];
       const auto t_end = fine.t_cols.begin() + fine.t_offsets[i + 1];
@@ -245,10 +275,12 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
               std::lower_bound(t_begin, t_end, ip.nodes[static_cast<size_t>(q)]) -
               fine.t_cols.begin()));
       }
+      fine.t_row_start.push_back(static_cast<int64_t>(fine.t_target.size()));
     }
     // The rank-one part's restriction: each term's coarse nodes, and where each fine entry's
     // pairs land among them.
     fine.r1_target.clear();
+    fine.r1_term_start.assign(1, 0);
     fine.c1_offsets.assign(1, 0);
     fine.c1_nodes.clear();
     fine.c1_term.clear();
@@ -273,6 +305,7 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
                                                            ip.nodes[static_cast<size_t>(q)]) -
                                           nodes.begin())));
         }
+        fine.r1_term_start.push_back(static_cast<int64_t>(fine.r1_target.size()));
         fine.c1_nodes.insert(fine.c1_nodes.end(), nodes.begin(), nodes.end());
         fine.c1_term.insert(fine.c1_term.end(), nodes.size(), static_cast<int32_t>(k));
         fine.c1_offsets.push_back(static_cast<int64_t>(fine.c1_nodes.size()));
@@ -312,14 +345,17 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
     coarse.galerkin = BlockSparseMatrix(rows);
     rows.clear();
     fine.c_target.clear();
+    fine.c_pair_start.assign(1, 0);
     const Mat3d* base = coarse.galerkin.values().data();
     for (size_t i = 0; i < n; ++i)
       for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
         const int32_t ci = ip.nodes[static_cast<size_t>(q)];
+        if (q > 0) fine.c_pair_start.push_back(static_cast<int64_t>(fine.c_target.size()));
         for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t)
           fine.c_target.push_back(static_cast<int32_t>(
               coarse.galerkin.find(ci, fine.t_cols[static_cast<size_t>(t)]) - base));
       }
+    fine.c_pair_start.push_back(static_cast<int64_t>(fine.c_target.size()));
     levels_.push_back(std::move(coarse));
     levels_.back().a = &levels_.back().galerkin;
     // levels_ may have moved: the pattern of the next round is the new coarse operator.
@@ -346,41 +382,60 @@ void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
   const BlockSparseMatrix& a = *fine.a;
   const Interpolation& ip = fine.p;
   std::span<const Mat3d> av = a.values();
-  std::fill(fine.t_values.begin(), fine.t_values.end(), Mat3d::zero());
-  size_t pos = 0;
-  for (size_t i = 0; i < a.rows(); ++i)
-    for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
-      const size_t j = static_cast<size_t>(a.cols()[static_cast<size_t>(k)]);
-      for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q) {
-        Mat3d& t = fine.t_values[static_cast<size_t>(fine.t_target[pos++])];
-        t = t + ip.weights[static_cast<size_t>(q)] * av[static_cast<size_t>(k)];
+  // T = A P, row by row (a row's blocks take only its own sums, in a fixed order).
+  pooled_ranges(a.rows(), 256, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      std::fill(fine.t_values.begin() + fine.t_offsets[i],
+                fine.t_values.begin() + fine.t_offsets[i + 1], Mat3d::zero());
+      size_t pos = static_cast<size_t>(fine.t_row_start[i]);
+      for (int64_t k = a.offsets()[i]; k < a.offsets()[i + 1]; ++k) {
+        const size_t j = static_cast<size_t>(a.cols()[static_cast<size_t>(k)]);
+        for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q) {
+          Mat3d& t = fine.t_values[static_cast<size_t>(fine.t_target[pos++])];
+          t = t + ip.weights[static_cast<size_t>(q)] * av[static_cast<size_t>(k)];
+        }
       }
     }
+  });
+  // A_c = P^T T by coarse row: row I takes its pairs (i, I) in ascending i, each pair's T row
+  // into I's blocks (the order of a pass over i: the same sums).
   coarse.set_zero();
   std::span<Mat3d> cv = coarse.values();
-  pos = 0;
-  for (size_t i = 0; i < a.rows(); ++i)
-    for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
-      const double w = ip.weights[static_cast<size_t>(q)];
-      for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t) {
-        Mat3d& c = cv[static_cast<size_t>(fine.c_target[pos++])];
-        c = c + w * fine.t_values[static_cast<size_t>(t)];
+  pooled_ranges(ip.coarse_count, 64, [&](size_t, size_t begin, size_t end) {
+    for (size_t row = begin; row < end; ++row)
+      for (int64_t e = ip.by_node_offsets[row]; e < ip.by_node_offsets[row + 1]; ++e) {
+        const size_t q = static_cast<size_t>(ip.by_node[static_cast<size_t>(e)]);
+        const size_t i = static_cast<size_t>(ip.row[q]);
+        const double w = ip.weights[q];
+        size_t pos = static_cast<size_t>(fine.c_pair_start[q]);
+        for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t) {
+          Mat3d& c = cv[static_cast<size_t>(fine.c_target[pos++])];
+          c = c + w * fine.t_values[static_cast<size_t>(t)];
+        }
       }
-    }
+  });
   if (a.rank_one_terms() == 0) return;
   // c_k = P^T g_k, then c_k c_k^T into the coarse blocks, row by row (each row written by one
   // thread, in a fixed order: the same bits on any thread count).
   std::span<const int32_t> vert = a.rank_one_vertices();
   std::span<const Vec3d> g = a.rank_one_vectors();
   std::span<const double> coef = a.rank_one_coefficients();
-  std::fill(fine.c1_values.begin(), fine.c1_values.end(), Vec3d{0, 0, 0});
-  pos = 0;
-  for (size_t p = 0; p < vert.size(); ++p) {
-    const size_t j = static_cast<size_t>(vert[p]);
-    for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
-      fine.c1_values[static_cast<size_t>(fine.r1_target[pos++])] +=
-          ip.weights[static_cast<size_t>(q)] * g[p];
-  }
+  std::span<const int64_t> off = a.rank_one_offsets();
+  // c_k term by term (a term's entries land in its own c_k).
+  pooled_ranges(a.rank_one_terms(), 256, [&](size_t, size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      std::fill(fine.c1_values.begin() + fine.c1_offsets[k],
+                fine.c1_values.begin() + fine.c1_offsets[k + 1], Vec3d{0, 0, 0});
+      size_t pos = static_cast<size_t>(fine.r1_term_start[k]);
+      for (int64_t pp = off[k]; pp < off[k + 1]; ++pp) {
+        const size_t p = static_cast<size_t>(pp);
+        const size_t j = static_cast<size_t>(vert[p]);
+        for (int64_t q = ip.offsets[j]; q < ip.offsets[j + 1]; ++q)
+          fine.c1_values[static_cast<size_t>(fine.r1_target[pos++])] +=
+              ip.weights[static_cast<size_t>(q)] * g[p];
+      }
+    }
+  });
   pooled_ranges(coarse.rows(), 64, [&](size_t, size_t begin, size_t end) {
     for (size_t row = begin; row < end; ++row)
       for (int64_t r = fine.c1_row_offsets[row]; r < fine.c1_row_offsets[row + 1]; ++r) {
@@ -399,14 +454,19 @@ void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
 Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   const BlockSparseMatrix& a = *lv.a;
   a.diagonal(lv.dinv);
-  for (size_t i = 0; i < lv.dinv.size(); ++i) {
-    bool ok = false;
-    lv.dinv[i] = inverse3(lv.dinv[i], &ok);
-    if (!ok)
+  lv.inverted.resize(lv.dinv.size());
+  pooled_ranges(lv.dinv.size(), kVectorRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      bool ok = false;
+      lv.dinv[i] = inverse3(lv.dinv[i], &ok);
+      lv.inverted[i] = ok ? 1 : 0;
+    }
+  });
+  for (size_t i = 0; i < lv.dinv.size(); ++i)
+    if (!lv.inverted[i])
       return make_error("multigrid: the diagonal block of node %zu on level %zu is not positive "
                         "definite",
                         i, l);
-  }
   // lambda_max(D^-1 A) by power iteration; the vector is kept for the next setup, whose matrix
   // is close to this one.
   std::vector<Vec3d>& v = lv.power;
@@ -416,12 +476,16 @@ Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   const bool warm = lv.lambda_max > 0;
   for (int it = 0; it < options_.power_iterations; ++it) {
     a.multiply(v, lv.q);
-    for (size_t i = 0; i < v.size(); ++i) lv.q[i] = lv.dinv[i] * lv.q[i];
+    pooled_ranges(v.size(), kVectorRange, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) lv.q[i] = lv.dinv[i] * lv.q[i];
+    });
     const double vn = std::sqrt(dot_all(v, v)), qn = std::sqrt(dot_all(lv.q, lv.q));
     if (!(qn > 0)) break;
     const double previous = lambda;
     lambda = qn / vn;
-    for (size_t i = 0; i < v.size(); ++i) v[i] = lv.q[i] / qn;
+    pooled_ranges(v.size(), kVectorRange, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) v[i] = lv.q[i] / qn;
+    });
     if (warm && it + 1 >= options_.power_iterations_warm &&
         std::fabs(lambda - previous) <= 1e-2 * lambda)
       break;
@@ -479,26 +543,32 @@ void LatticeMultigrid::chebyshev(Level& lv, std::span<const Vec3d> b, std::span<
   double rho = 1.0 / sigma;
   std::vector<Vec3d>& z = lv.r;
   std::vector<Vec3d>& d = lv.d;
-  if (zero) {
-    for (size_t i = 0; i < n; ++i) {
-      x[i] = Vec3d{0, 0, 0};
-      z[i] = lv.dinv[i] * b[i];
+  ZONA_ASSERT(options_.chebyshev_degree >= 1);
+  // (The vector passes elementwise on the shared pool.)
+  if (!zero) a.multiply(x, lv.q);
+  pooled_ranges(n, kVectorRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      if (zero) {
+        x[i] = Vec3d{0, 0, 0};
+        z[i] = lv.dinv[i] * b[i];
+      } else {
+        z[i] = lv.dinv[i] * (b[i] - lv.q[i]);
+      }
+      d[i] = z[i] / theta;
+      x[i] += d[i];
     }
-  } else {
-    a.multiply(x, lv.q);
-    for (size_t i = 0; i < n; ++i) z[i] = lv.dinv[i] * (b[i] - lv.q[i]);
-  }
-  for (size_t i = 0; i < n; ++i) d[i] = z[i] / theta;
-  for (int it = 0; it < options_.chebyshev_degree; ++it) {
-    for (size_t i = 0; i < n; ++i) x[i] += d[i];
-    if (it + 1 == options_.chebyshev_degree) break;
+  });
+  for (int it = 1; it < options_.chebyshev_degree; ++it) {
     a.multiply(d, lv.q);
     const double rho_next = 1.0 / (2.0 * sigma - rho);
     const double c1 = rho_next * rho, c2 = 2.0 * rho_next / delta;
-    for (size_t i = 0; i < n; ++i) {
-      z[i] -= lv.dinv[i] * lv.q[i];
-      d[i] = c1 * d[i] + c2 * z[i];
-    }
+    pooled_ranges(n, kVectorRange, [&](size_t, size_t begin, size_t end) {
+      for (size_t i = begin; i < end; ++i) {
+        z[i] -= lv.dinv[i] * lv.q[i];
+        d[i] = c1 * d[i] + c2 * z[i];
+        x[i] += d[i];
+      }
+    });
     rho = rho_next;
   }
 }
@@ -514,21 +584,32 @@ void LatticeMultigrid::cycle(size_t l, std::span<const Vec3d> b, std::span<Vec3d
   Level& coarse = levels_[l + 1];
   const size_t n = b.size();
   chebyshev(lv, b, x, true);
-  // Restrict the residual: b_c = P^T (b - A x).
+  // Restrict the residual: b_c = P^T (b - A x), gathered by coarse node (each node's pairs in
+  // ascending fine node: the sums of a scatter over the fine nodes).
   lv.a->multiply(x, lv.q);
-  std::fill(coarse.b.begin(), coarse.b.end(), Vec3d{0, 0, 0});
-  for (size_t i = 0; i < n; ++i) {
-    const Vec3d r = b[i] - lv.q[i];
-    for (int64_t q = lv.p.offsets[i]; q < lv.p.offsets[i + 1]; ++q)
-      coarse.b[static_cast<size_t>(lv.p.nodes[static_cast<size_t>(q)])] +=
-          lv.p.weights[static_cast<size_t>(q)] * r;
-  }
+  std::vector<Vec3d>& r = lv.r;
+  pooled_ranges(n, kVectorRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) r[i] = b[i] - lv.q[i];
+  });
+  const Interpolation& ip = lv.p;
+  pooled_ranges(ip.coarse_count, kVectorRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t node = begin; node < end; ++node) {
+      Vec3d sum{0, 0, 0};
+      for (int64_t e = ip.by_node_offsets[node]; e < ip.by_node_offsets[node + 1]; ++e) {
+        const size_t q = static_cast<size_t>(ip.by_node[static_cast<size_t>(e)]);
+        sum += ip.weights[q] * r[static_cast<size_t>(ip.row[q])];
+      }
+      coarse.b[node] = sum;
+    }
+  });
   cycle(l + 1, coarse.b, coarse.x);
   // Prolong the correction: x += P x_c.
-  for (size_t i = 0; i < n; ++i)
-    for (int64_t q = lv.p.offsets[i]; q < lv.p.offsets[i + 1]; ++q)
-      x[i] += lv.p.weights[static_cast<size_t>(q)] *
-              coarse.x[static_cast<size_t>(lv.p.nodes[static_cast<size_t>(q)])];
+  pooled_ranges(n, kVectorRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i)
+      for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q)
+        x[i] += ip.weights[static_cast<size_t>(q)] *
+                coarse.x[static_cast<size_t>(ip.nodes[static_cast<size_t>(q)])];
+  });
   chebyshev(lv, b, x, false);
 }
 

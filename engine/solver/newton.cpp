@@ -7,9 +7,16 @@
 #include <cstdio>
 #include <string>
 
+#include "engine/core/parallel.h"
+
 namespace zona {
 
 static_assert(sizeof(Vec3d) == 3 * sizeof(double), "Vec3d arrays are read as double arrays");
+
+namespace {
+// Vertices per range of the elementwise passes on the shared pool.
+constexpr size_t kVertexRange = 4096;
+}  // namespace
 
 NewtonSolver::NewtonSolver(std::vector<EnergyTerm*> terms, BlockSparseMatrix pattern,
                            std::vector<uint8_t> fixed, std::unique_ptr<LinearSolver> linear,
@@ -35,10 +42,15 @@ double NewtonSolver::evaluate(std::span<const Vec3d> u, std::span<Vec3d> g) {
 }
 
 void NewtonSolver::gradient(std::span<const Vec3d> u, std::span<Vec3d> g) {
-  std::fill(g.begin(), g.end(), Vec3d{0, 0, 0});
+  pooled_ranges(g.size(), kVertexRange, [&](size_t, size_t begin, size_t end) {
+    std::fill(g.begin() + static_cast<std::ptrdiff_t>(begin),
+              g.begin() + static_cast<std::ptrdiff_t>(end), Vec3d{0, 0, 0});
+  });
   for (EnergyTerm* t : terms_) t->add_gradient(u, g);
-  for (size_t i = 0; i < g.size(); ++i)
-    if (fixed_[i]) g[i] = Vec3d{0, 0, 0};
+  pooled_ranges(g.size(), kVertexRange, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i)
+      if (fixed_[i]) g[i] = Vec3d{0, 0, 0};
+  });
 }
 
 const BlockSparseMatrix& NewtonSolver::hessian(std::span<const Vec3d> u, bool project) {
@@ -122,10 +134,12 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
         why = st.error().message;
         continue;
       }
-      for (size_t i = 0; i < n; ++i) {
-        rhs_[i] = -1.0 * g_[i];
-        d_[i] = Vec3d{0, 0, 0};
-      }
+      pooled_ranges(n, kVertexRange, [&](size_t, size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) {
+          rhs_[i] = -1.0 * g_[i];
+          d_[i] = Vec3d{0, 0, 0};
+        }
+      });
       Result<LinearSolveStats> ls = linear_->solve(rhs_, d_, eta);
       if (!ls.ok()) {
         why = ls.error().message;
@@ -168,7 +182,9 @@ NewtonStats NewtonSolver::solve(std::vector<Vec3d>& u, double tolerance) {
       alpha = options_.max_displacement / longest;
     const double alpha_start = alpha;
     for (;;) {
-      for (size_t i = 0; i < n; ++i) trial_[i] = u[i] + alpha * d_[i];
+      pooled_ranges(n, kVertexRange, [&](size_t, size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) trial_[i] = u[i] + alpha * d_[i];
+      });
       e_trial = evaluate(trial_, {});
       if (std::isfinite(e_trial) && e_trial <= e + options_.armijo * alpha * slope) break;
       // At round-off the energy cannot tell; a full step that does not raise it is taken.

@@ -159,14 +159,33 @@ void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix
       if (point_on_[i]) point_hess_[i] = point_hessian(u, i, project);
     }
   });
+  if (slotted_cols_ != hm.cols().data() || slotted_blocks_ != hm.block_count()) {
+    point_slot_.assign(9 * points_.size(), -1);
+    for (size_t i = 0; i < points_.size(); ++i) {
+      const ContactPoint& p = points_[i];
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) {
+          if (p.weight[a] == 0 || p.weight[b] == 0) continue;
+          const Mat3d* block = hm.find(p.vertex[a], p.vertex[b]);
+          ZONA_ASSERT(block != nullptr);
+          point_slot_[9 * i + static_cast<size_t>(3 * a + b)] = block - hm.values().data();
+        }
+    }
+    slotted_cols_ = hm.cols().data();
+    slotted_blocks_ = hm.block_count();
+  }
+  // Into the blocks in point order (points share blocks).
+  std::span<Mat3d> values = hm.values();
   for (size_t i = 0; i < points_.size(); ++i) {
     const ContactPoint& p = points_[i];
     if (!point_on_[i]) continue;
     const Mat3d& h = point_hess_[i];
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b)
-        if (p.weight[a] != 0 && p.weight[b] != 0)
-          hm.add(p.vertex[a], p.vertex[b], (p.weight[a] * p.weight[b]) * h);
+        if (p.weight[a] != 0 && p.weight[b] != 0) {
+          Mat3d& block = values[static_cast<size_t>(point_slot_[9 * i + static_cast<size_t>(3 * a + b)])];
+          block = block + (p.weight[a] * p.weight[b]) * h;
+        }
   }
 }
 

@@ -132,6 +132,11 @@ class PenaltyContactTerm final : public EnergyTerm {
   std::vector<Mat3d> point_hess_;
   std::vector<uint8_t> point_on_;
   std::vector<double> chunk_sum_;
+  // Where each point's 3 x 3 corner pairs (a, b) live in the matrix add_hessian was last given
+  // (-1: a zero weight), found once per pattern: 9 per point, (a, b) at 9 i + 3 a + b.
+  std::vector<int64_t> point_slot_;
+  const int32_t* slotted_cols_ = nullptr;
+  size_t slotted_blocks_ = 0;
 };
 
 /// A dead load: E = -ramp sum_v f_v . u_v, f the full load [N] per vertex, ramp >= 0. The
