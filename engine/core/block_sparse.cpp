@@ -197,8 +197,8 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
     block_rows(begin, end, offsets_.data(), cols_.data(), values_.data(), x.data(), y.data());
     if (terms > 0)
-      rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_term_.data(),
-                    r1_row_vectors_.data(), r1_scratch_.data(), y.data());
+      rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_term_.data(), r1_row_vectors_.data(),
+                    r1_scratch_.data(), y.data());
   });
 }
 

@@ -24,8 +24,7 @@ void vertex_stars(const Model& m, std::vector<int64_t>& offsets, std::vector<int
     const size_t begin = star.size();
     for (int32_t k = m.adjacency.offsets[v]; k < m.adjacency.offsets[v + 1]; ++k)
       for (int c = 0; c < 4; ++c) {
-        const int32_t w =
-            m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])][c];
+        const int32_t w = m.tets[static_cast<size_t>(m.adjacency.tets[static_cast<size_t>(k)])][c];
         const auto at = std::find(star.begin() + static_cast<std::ptrdiff_t>(begin), star.end(), w);
         const size_t i = static_cast<size_t>(at - star.begin()) - begin;
         if (at == star.end()) star.push_back(w);
@@ -310,8 +309,7 @@ namespace {
 // The 9 x 9 matrix d^2 Psi / dF^2 of a law at h (row and column k = 3 r + c for F's entry
 // (r, c)), symmetrised; with `project`, its negative eigenvalues clamped to zero (in closed
 // form for the stable neo-Hookean law, by a 9 x 9 eigendecomposition for the others), into out.
-void stress_tangent(const ElementLaw<double>& law, const Mat3d& h, bool project,
-                    double out[9][9]) {
+void stress_tangent(const ElementLaw<double>& law, const Mat3d& h, bool project, double out[9][9]) {
   if (law.model == ConstitutiveModel::kStableNeoHookean) {
     // Closed form, and its projection too (snh_project_tangent): no eigendecomposition.
     snh_stress_tangent(law, h, out);
@@ -345,8 +343,8 @@ void stress_tangent(const ElementLaw<double>& law, const Mat3d& h, bool project,
 // columns s) to the blocks at values[slots[4 a + b]]. dF = sum_a v_a grad_a^T: F's entry (r, c)
 // moves by grad_a[c] per unit of u_a[r]. qg(3 r + c, 3 s + b') = sum_d q(3 r + c, 3 s + d)
 // grad_b'[d] first, then grad_a.
-inline void add_element_blocks(const double (&q)[9][9], const Vec3d (&grad)[4],
-                                         double volume, const int64_t* slots, Mat3d* values) {
+inline void add_element_blocks(const double (&q)[9][9], const Vec3d (&grad)[4], double volume,
+                               const int64_t* slots, Mat3d* values) {
   double qg[9][12];
   for (int row = 0; row < 9; ++row)
     for (int col = 0; col < 3; ++col)
@@ -410,7 +408,8 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
       // V_e / 4 dJ_e/du at each corner, for the vertices' rank-one terms below.
       Vec3d dj[4];
       tet_volume_gradient(s, ue, dj);
-      for (int c = 0; c < 4; ++c) element_dj_[4 * t + static_cast<size_t>(c)] = (0.25 * s.volume) * dj[c];
+      for (int c = 0; c < 4; ++c)
+        element_dj_[4 * t + static_cast<size_t>(c)] = (0.25 * s.volume) * dj[c];
     }
     double q[9][9];
     stress_tangent(law(t), tet_displacement_gradient(s, ue), project, q);

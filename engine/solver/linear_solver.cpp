@@ -39,7 +39,8 @@ class BlockJacobi final : public Preconditioner {
       }
     });
     for (size_t i = 0; i < inverse_.size(); ++i)
-      if (!finite_[i]) return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
+      if (!finite_[i])
+        return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
     return {};
   }
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {

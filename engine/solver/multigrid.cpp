@@ -464,9 +464,10 @@ Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   });
   for (size_t i = 0; i < lv.dinv.size(); ++i)
     if (!lv.inverted[i])
-      return make_error("multigrid: the diagonal block of node %zu on level %zu is not positive "
-                        "definite",
-                        i, l);
+      return make_error(
+          "multigrid: the diagonal block of node %zu on level %zu is not positive "
+          "definite",
+          i, l);
   // lambda_max(D^-1 A) by power iteration; the vector is kept for the next setup, whose matrix
   // is close to this one.
   std::vector<Vec3d>& v = lv.power;

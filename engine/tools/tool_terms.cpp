@@ -183,7 +183,8 @@ void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b)
         if (p.weight[a] != 0 && p.weight[b] != 0) {
-          Mat3d& block = values[static_cast<size_t>(point_slot_[9 * i + static_cast<size_t>(3 * a + b)])];
+          Mat3d& block =
+              values[static_cast<size_t>(point_slot_[9 * i + static_cast<size_t>(3 * a + b)])];
           block = block + (p.weight[a] * p.weight[b]) * h;
         }
   }
