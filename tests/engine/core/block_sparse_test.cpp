@@ -98,5 +98,52 @@ TEST(BlockSparseMatrix, MaskRemovesTheRankOnePartsOfFixedVertices) {
   EXPECT_LE((Eigen::MatrixXd(f.a.to_eigen()) - expect).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// The products read the rank-one vectors through a row-ordered copy made by the first product
+// after they may have changed: a product after the mask, or after new vectors written through
+// rank_one_vectors(), uses the new ones.
+TEST(BlockSparseMatrix, AProductAfterTheRankOneVectorsChangeUsesTheNewOnes) {
+  Fixture f;
+  std::vector<Vec3d> x(5), y(5);
+  Eigen::VectorXd xd(15);
+  for (size_t i = 0; i < 5; ++i) {
+    x[i] = Vec3d{0.5 - static_cast<double>(i), 1.0 + 0.25 * static_cast<double>(i), -0.75};
+    xd.segment<3>(static_cast<Eigen::Index>(3 * i)) = Eigen::Vector3d(x[i].x, x[i].y, x[i].z);
+  }
+  auto expect_product = [&](const Eigen::MatrixXd& dense) {
+    f.a.multiply(x, y);
+    const Eigen::VectorXd yd = dense * xd;
+    for (size_t i = 0; i < 5; ++i)
+      for (int r = 0; r < 3; ++r)
+        EXPECT_NEAR(y[i][r], yd(static_cast<Eigen::Index>(3 * i) + r), 1e-12 * yd.norm());
+    std::vector<Mat3d> d;
+    f.a.diagonal(d);
+    for (size_t i = 0; i < 5; ++i)
+      for (int r = 0; r < 3; ++r)
+        EXPECT_NEAR(d[i].m[r][2], dense(static_cast<Eigen::Index>(3 * i) + r,
+                                        static_cast<Eigen::Index>(3 * i) + 2),
+                    1e-12);
+  };
+  expect_product(f.dense);
+  // New vectors: every entry doubled, so each term's c g g^T four times over.
+  Eigen::MatrixXd blocks = f.dense;
+  for (size_t k = 0; k < f.a.rank_one_terms(); ++k) {
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(15);
+    for (int64_t p = f.a.rank_one_offsets()[k]; p < f.a.rank_one_offsets()[k + 1]; ++p) {
+      const Vec3d v = f.a.rank_one_vectors()[static_cast<size_t>(p)];
+      g.segment<3>(3 * f.a.rank_one_vertices()[static_cast<size_t>(p)]) +=
+          Eigen::Vector3d(v.x, v.y, v.z);
+    }
+    blocks -= f.a.rank_one_coefficients()[k] * g * g.transpose();
+  }
+  const Eigen::MatrixXd rank_one = f.dense - blocks;
+  for (Vec3d& v : f.a.rank_one_vectors()) v = 2.0 * v;
+  expect_product(blocks + 4.0 * rank_one);
+  // The mask: the fixed vertex's rows and columns become the identity's.
+  f.a.apply_mask(std::vector<uint8_t>{0, 0, 1, 0, 0});
+  const Eigen::MatrixXd scalar = Eigen::MatrixXd(f.a.to_eigen());
+  EXPECT_EQ(scalar(6, 6), 1.0);
+  expect_product(scalar);
+}
+
 }  // namespace
 }  // namespace zona
