@@ -14,6 +14,7 @@
 #include "bench/micro/micro_meshes.h"
 #include "engine/core/parallel.h"
 #include "engine/fem/elastic_energy.h"
+#include "engine/solver/multigrid.h"
 
 namespace zona::micro {
 namespace {
@@ -106,6 +107,58 @@ void BM_ReadBandwidth(benchmark::State& s) {
       static_cast<double>(n * sizeof(double)), benchmark::Counter::kIsIterationInvariantRate);
 }
 
+// The multigrid preconditioner (multigrid.h) on the assembled Hessian: one V-cycle (CG's
+// application per iteration), to set against BM_HessianProduct, and a whole setup (Galerkin
+// products, smoothers' spectral bounds, the coarsest factor: a load step's first Newton
+// iteration). A free cell's Hessian has the rigid motions in its null space (a run's inertia term
+// and mask remove them), so each diagonal block is shifted by 1e-6 of the mean diagonal here.
+struct Shifted {
+  BlockSparseMatrix h;
+  std::unique_ptr<Preconditioner> mg;
+};
+
+Shifted& shifted(int64_t vertices) {
+  static std::map<int64_t, std::unique_ptr<Shifted>> cache;
+  std::unique_ptr<Shifted>& slot = cache[vertices];
+  if (slot) return *slot;
+  Assembled& a = assembled(vertices);
+  slot = std::make_unique<Shifted>();
+  slot->h = *a.h;
+  double mean = 0;
+  for (size_t i = 0; i < slot->h.rows(); ++i)
+    mean += trace(slot->h.diagonal_block(i)) / 3.0;
+  mean /= static_cast<double>(slot->h.rows());
+  for (size_t i = 0; i < slot->h.rows(); ++i) {
+    Mat3d& d = slot->h.diagonal_block(i);
+    d = d + (1e-6 * mean) * Mat3d::identity();
+  }
+  slot->mg = make_multigrid(a.loaded.model->rest_positions, {});
+  if (Status st = slot->mg->setup(slot->h); !st) die(st.error().message);
+  return *slot;
+}
+
+void BM_MultigridCycle(benchmark::State& s) {
+  Shifted& m = shifted(s.range(0));
+  const size_t n = m.h.rows();
+  std::vector<Vec3d> r(n), z(n);
+  for (size_t i = 0; i < n; ++i)
+    r[i] = Vec3d{1.0 + 1e-3 * static_cast<double>(i % 7), -0.5, 0.25};
+  for (auto _ : s) {
+    m.mg->apply(r, z);
+    benchmark::DoNotOptimize(z.data());
+  }
+  s.SetLabel(m.mg->structure());
+}
+
+void BM_MultigridSetup(benchmark::State& s) {
+  Shifted& m = shifted(s.range(0));
+  for (auto _ : s) {
+    if (Status st = m.mg->setup(m.h); !st) die(st.error().message);
+  }
+}
+
+BENCHMARK(BM_MultigridCycle)->Arg(6000)->Arg(64000)->Unit(benchmark::kMicrosecond)->UseRealTime();
+BENCHMARK(BM_MultigridSetup)->Arg(6000)->Arg(64000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_ReadBandwidth)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_HessianProduct)->Arg(6000)->Arg(64000)->Unit(benchmark::kMicrosecond)->UseRealTime();
 BENCHMARK(BM_HessianAssembly)

@@ -189,12 +189,17 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   // for any count); short matrices stay on the caller's thread.
   const size_t terms = rank_one_terms();
   if (terms > 0) refresh_rank_one_rows();
+  // Ranges of about kBlocksPerRange blocks: a coarse multigrid level's rows hold some hundred
+  // blocks each, a fine mesh's some fifteen.
+  constexpr size_t kBlocksPerRange = 16384;
+  const size_t per_row = rows() > 0 ? std::max<size_t>(1, block_count() / rows()) : 1;
+  const size_t min_rows = std::max<size_t>(16, kBlocksPerRange / per_row);
   if (terms > 0)
     pooled_ranges(terms, 1024, [&](size_t, size_t begin, size_t end) {
       rank_one_dots(begin, end, r1_offsets_.data(), r1_vertices_.data(), r1_vectors_.data(),
                     coefficients_.data(), x.data(), r1_scratch_.data());
     });
-  pooled_ranges(rows(), 1024, [&](size_t, size_t begin, size_t end) {
+  pooled_ranges(rows(), min_rows, [&](size_t, size_t begin, size_t end) {
     block_rows(begin, end, offsets_.data(), cols_.data(), values_.data(), x.data(), y.data());
     if (terms > 0)
       rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_term_.data(), r1_row_vectors_.data(),

@@ -29,6 +29,9 @@ class Preconditioner {
   /// Where M^-1 is block diagonal (z_i = B_i r_i): the blocks B_i, so that CG can fuse the
   /// application into its vector passes; null otherwise.
   virtual const Mat3d* diagonal_blocks() const { return nullptr; }
+  /// Its structure after a setup, for benchmarks and traces ("" by default); the multigrid's:
+  /// each level's block rows and blocks.
+  virtual std::string structure() const { return {}; }
 };
 
 /// The inverse of each vertex's 3 x 3 diagonal block.

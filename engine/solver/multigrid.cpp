@@ -182,6 +182,18 @@ class LatticeMultigrid final : public Preconditioner {
 
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override { cycle(0, r, z); }
 
+  std::string structure() const override {
+    std::string out;
+    for (size_t l = 0; l < levels_.size(); ++l) {
+      const BlockSparseMatrix& a = *levels_[l].a;
+      out += (l ? "; " : "") + std::string("level ") + std::to_string(l) + ": " +
+             std::to_string(a.rows()) + " rows, " + std::to_string(a.block_count()) + " blocks";
+      if (a.rank_one_terms() > 0)
+        out += " + " + std::to_string(a.rank_one_vertices().size()) + " rank-one entries";
+    }
+    return out;
+  }
+
  private:
   void build(const BlockSparseMatrix& a);
   void galerkin(Level& fine, BlockSparseMatrix& coarse) const;
