@@ -53,27 +53,35 @@ struct Fixture {
   }
 };
 
-TEST(BlockSparseMatrix, RankOnePartIsInTheProductDiagonalAndScalarForm) {
-  Fixture f;
-  std::vector<Vec3d> x(5), y(5);
-  Eigen::VectorXd xd(15);
-  for (size_t i = 0; i < 5; ++i) {
-    x[i] = Vec3d{1.0 + static_cast<double>(i), -0.5 * static_cast<double>(i), 0.25};
+// a x and the diagonal blocks of a against the dense matrix `dense`.
+void expect_product_and_diagonal(const BlockSparseMatrix& a, const Eigen::MatrixXd& dense,
+                                 const std::vector<Vec3d>& x) {
+  const size_t n = x.size();
+  Eigen::VectorXd xd(static_cast<Eigen::Index>(3 * n));
+  for (size_t i = 0; i < n; ++i)
     xd.segment<3>(static_cast<Eigen::Index>(3 * i)) = Eigen::Vector3d(x[i].x, x[i].y, x[i].z);
-  }
-  f.a.multiply(x, y);
-  const Eigen::VectorXd yd = f.dense * xd;
-  for (size_t i = 0; i < 5; ++i)
+  std::vector<Vec3d> y(n);
+  a.multiply(x, y);
+  const Eigen::VectorXd yd = dense * xd;
+  for (size_t i = 0; i < n; ++i)
     for (int r = 0; r < 3; ++r)
       EXPECT_NEAR(y[i][r], yd(static_cast<Eigen::Index>(3 * i) + r), 1e-12 * yd.norm());
   std::vector<Mat3d> d;
-  f.a.diagonal(d);
-  for (size_t i = 0; i < 5; ++i)
+  a.diagonal(d);
+  for (size_t i = 0; i < n; ++i)
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
         EXPECT_NEAR(d[i].m[r][c],
-                    f.dense(static_cast<Eigen::Index>(3 * i) + r, static_cast<Eigen::Index>(3 * i) + c),
+                    dense(static_cast<Eigen::Index>(3 * i) + r, static_cast<Eigen::Index>(3 * i) + c),
                     1e-12);
+}
+
+TEST(BlockSparseMatrix, RankOnePartIsInTheProductDiagonalAndScalarForm) {
+  Fixture f;
+  std::vector<Vec3d> x(5);
+  for (size_t i = 0; i < 5; ++i)
+    x[i] = Vec3d{1.0 + static_cast<double>(i), -0.5 * static_cast<double>(i), 0.25};
+  expect_product_and_diagonal(f.a, f.dense, x);
   const Eigen::MatrixXd assembled = Eigen::MatrixXd(f.a.to_eigen());
   EXPECT_LE((assembled - f.dense).cwiseAbs().maxCoeff(), 1e-12);
 }
@@ -103,25 +111,11 @@ TEST(BlockSparseMatrix, MaskRemovesTheRankOnePartsOfFixedVertices) {
 // rank_one_vectors(), uses the new ones.
 TEST(BlockSparseMatrix, AProductAfterTheRankOneVectorsChangeUsesTheNewOnes) {
   Fixture f;
-  std::vector<Vec3d> x(5), y(5);
-  Eigen::VectorXd xd(15);
-  for (size_t i = 0; i < 5; ++i) {
+  std::vector<Vec3d> x(5);
+  for (size_t i = 0; i < 5; ++i)
     x[i] = Vec3d{0.5 - static_cast<double>(i), 1.0 + 0.25 * static_cast<double>(i), -0.75};
-    xd.segment<3>(static_cast<Eigen::Index>(3 * i)) = Eigen::Vector3d(x[i].x, x[i].y, x[i].z);
-  }
   auto expect_product = [&](const Eigen::MatrixXd& dense) {
-    f.a.multiply(x, y);
-    const Eigen::VectorXd yd = dense * xd;
-    for (size_t i = 0; i < 5; ++i)
-      for (int r = 0; r < 3; ++r)
-        EXPECT_NEAR(y[i][r], yd(static_cast<Eigen::Index>(3 * i) + r), 1e-12 * yd.norm());
-    std::vector<Mat3d> d;
-    f.a.diagonal(d);
-    for (size_t i = 0; i < 5; ++i)
-      for (int r = 0; r < 3; ++r)
-        EXPECT_NEAR(d[i].m[r][2], dense(static_cast<Eigen::Index>(3 * i) + r,
-                                        static_cast<Eigen::Index>(3 * i) + 2),
-                    1e-12);
+    expect_product_and_diagonal(f.a, dense, x);
   };
   expect_product(f.dense);
   // New vectors: every entry doubled, so each term's c g g^T four times over.
