@@ -125,8 +125,7 @@ Shifted& shifted(int64_t vertices) {
   slot = std::make_unique<Shifted>();
   slot->h = *a.h;
   double mean = 0;
-  for (size_t i = 0; i < slot->h.rows(); ++i)
-    mean += trace(slot->h.diagonal_block(i)) / 3.0;
+  for (size_t i = 0; i < slot->h.rows(); ++i) mean += trace(slot->h.diagonal_block(i)) / 3.0;
   mean /= static_cast<double>(slot->h.rows());
   for (size_t i = 0; i < slot->h.rows(); ++i) {
     Mat3d& d = slot->h.diagonal_block(i);
@@ -141,8 +140,7 @@ void BM_MultigridCycle(benchmark::State& s) {
   Shifted& m = shifted(s.range(0));
   const size_t n = m.h.rows();
   std::vector<Vec3d> r(n), z(n);
-  for (size_t i = 0; i < n; ++i)
-    r[i] = Vec3d{1.0 + 1e-3 * static_cast<double>(i % 7), -0.5, 0.25};
+  for (size_t i = 0; i < n; ++i) r[i] = Vec3d{1.0 + 1e-3 * static_cast<double>(i % 7), -0.5, 0.25};
   for (auto _ : s) {
     m.mg->apply(r, z);
     benchmark::DoNotOptimize(z.data());

@@ -71,9 +71,10 @@ void expect_product_and_diagonal(const BlockSparseMatrix& a, const Eigen::Matrix
   for (size_t i = 0; i < n; ++i)
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
-        EXPECT_NEAR(d[i].m[r][c],
-                    dense(static_cast<Eigen::Index>(3 * i) + r, static_cast<Eigen::Index>(3 * i) + c),
-                    1e-12);
+        EXPECT_NEAR(
+            d[i].m[r][c],
+            dense(static_cast<Eigen::Index>(3 * i) + r, static_cast<Eigen::Index>(3 * i) + c),
+            1e-12);
 }
 
 TEST(BlockSparseMatrix, RankOnePartIsInTheProductDiagonalAndScalarForm) {
