@@ -60,11 +60,14 @@ BlockSparseMatrix::BlockSparseMatrix(std::vector<int64_t> offsets, std::vector<i
 
 void BlockSparseMatrix::index_diagonal() {
   diagonal_at_.resize(rows());
-  for (size_t i = 0; i < rows(); ++i) {
-    const Mat3d* d = find(static_cast<int32_t>(i), static_cast<int32_t>(i));
-    ZONA_ASSERT(d != nullptr);
-    diagonal_at_[i] = d - values_.data();
-  }
+  for (size_t i = 0; i < rows(); ++i)
+    diagonal_at_[i] = block_index(static_cast<int32_t>(i), static_cast<int32_t>(i));
+}
+
+int64_t BlockSparseMatrix::block_index(int32_t i, int32_t j) const {
+  const Mat3d* p = find(i, j);
+  ZONA_ASSERT(p != nullptr);
+  return p - values_.data();
 }
 
 void BlockSparseMatrix::set_zero() {
@@ -81,13 +84,9 @@ void BlockSparseMatrix::set_zero() {
 void BlockSparseMatrix::refresh_rank_one_rows() const {
   if (!r1_by_row_stale_) return;
   r1_row_vectors_.resize(r1_row_positions_.size());
-  r1_row_term_.resize(r1_row_positions_.size());
   pooled_ranges(r1_row_positions_.size(), 1 << 14, [&](size_t, size_t begin, size_t end) {
-    for (size_t q = begin; q < end; ++q) {
-      const size_t p = static_cast<size_t>(r1_row_positions_[q]);
-      r1_row_vectors_[q] = r1_vectors_[p];
-      r1_row_term_[q] = r1_term_[p];
-    }
+    for (size_t q = begin; q < end; ++q)
+      r1_row_vectors_[q] = r1_vectors_[static_cast<size_t>(r1_row_positions_[q])];
   });
   r1_by_row_stale_ = false;
 }
@@ -114,10 +113,10 @@ void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
   r1_vectors_.assign(r1_vertices_.size(), Vec3d{0, 0, 0});
   r1_by_row_stale_ = true;
   r1_scratch_.assign(terms, 0.0);
-  r1_term_.resize(r1_vertices_.size());
+  std::vector<int32_t> term(r1_vertices_.size());
   for (size_t k = 0; k < terms; ++k)
     for (int64_t p = r1_offsets_[k]; p < r1_offsets_[k + 1]; ++p)
-      r1_term_[static_cast<size_t>(p)] = static_cast<int32_t>(k);
+      term[static_cast<size_t>(p)] = static_cast<int32_t>(k);
   // By row: counting sort of the positions by their vertex.
   r1_row_offsets_.assign(rows() + 1, 0);
   for (int32_t v : r1_vertices_) {
@@ -130,6 +129,9 @@ void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
   for (size_t p = 0; p < r1_vertices_.size(); ++p)
     r1_row_positions_[static_cast<size_t>(next[static_cast<size_t>(r1_vertices_[p])]++)] =
         static_cast<int64_t>(p);
+  r1_row_term_.resize(r1_row_positions_.size());
+  for (size_t q = 0; q < r1_row_positions_.size(); ++q)
+    r1_row_term_[q] = term[static_cast<size_t>(r1_row_positions_[q])];
 }
 
 namespace {

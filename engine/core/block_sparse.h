@@ -46,6 +46,8 @@ class BlockSparseMatrix {
   /// The block (i, j), or nullptr where the pattern has none.
   Mat3d* find(int32_t i, int32_t j);
   const Mat3d* find(int32_t i, int32_t j) const;
+  /// Where block (i, j) sits in values(); the pattern must hold it.
+  int64_t block_index(int32_t i, int32_t j) const;
   /// Row i's diagonal block (every row holds one).
   Mat3d& diagonal_block(size_t i) { return values_[static_cast<size_t>(diagonal_at_[i])]; }
   const Mat3d& diagonal_block(size_t i) const {
@@ -94,20 +96,19 @@ class BlockSparseMatrix {
   std::vector<int64_t> diagonal_at_;  // each row's diagonal block in values_
   void index_diagonal();
   // The rank-one part, and per row the positions of its entries in r1_vectors_ (by row, from
-  // r1_row_offsets_) with each position's term.
+  // r1_row_offsets_) with each position's term (fixed with the pattern).
   std::vector<int64_t> r1_offsets_;
   std::vector<int32_t> r1_vertices_;
   std::vector<double> coefficients_;
   std::vector<Vec3d> r1_vectors_;
   std::vector<int64_t> r1_row_offsets_;
   std::vector<int64_t> r1_row_positions_;
-  std::vector<int32_t> r1_term_;
+  std::vector<int32_t> r1_row_term_;
   mutable std::vector<double> r1_scratch_;  // c_k (g_k . x) of the product in progress
-  // r1_vectors_ and r1_term_ in row order (r1_row_positions_'s), for the products' row pass
-  // (sequential reads); rebuilt by the first product after the vectors may have changed.
+  // r1_vectors_ in row order (r1_row_positions_'s), for the products' row pass (sequential
+  // reads); rebuilt by the first product after the vectors may have changed.
   void refresh_rank_one_rows() const;
   mutable std::vector<Vec3d> r1_row_vectors_;
-  mutable std::vector<int32_t> r1_row_term_;
   mutable bool r1_by_row_stale_ = true;
 };
 

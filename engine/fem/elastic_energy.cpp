@@ -372,16 +372,12 @@ void ElasticEnergy::index_blocks(const BlockSparseMatrix& h) {
   if (indexed_cols_ == h.cols().data() && indexed_blocks_ == h.block_count() &&
       !element_slot_.empty())
     return;
-  auto slot = [&](int32_t i, int32_t j) {
-    const Mat3d* p = h.find(i, j);
-    ZONA_ASSERT(p != nullptr);
-    return static_cast<int64_t>(p - h.values().data());
-  };
   element_slot_.resize(16 * m.tet_count());
   for (size_t t = 0; t < m.tet_count(); ++t)
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b)
-        element_slot_[16 * t + static_cast<size_t>(4 * a + b)] = slot(m.tets[t][a], m.tets[t][b]);
+        element_slot_[16 * t + static_cast<size_t>(4 * a + b)] =
+            h.block_index(m.tets[t][a], m.tets[t][b]);
   indexed_cols_ = h.cols().data();
   indexed_blocks_ = h.block_count();
 }
@@ -391,8 +387,10 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
   ZONA_ASSERT(u.size() == m.vertex_count() && hm.rows() == u.size());
   index_blocks(hm);
   std::span<Mat3d> values = hm.values();
-  if (m.nodal_pressure) vertex_pressures(u);
-  if (m.nodal_pressure) element_dj_.resize(4 * m.tet_count());
+  if (m.nodal_pressure) {
+    vertex_pressures(u);
+    element_dj_.resize(4 * m.tet_count());
+  }
   auto element = [&](size_t t) {
     const int64_t* slots = &element_slot_[16 * t];
     // The 16 blocks are scattered over the matrix: fetch them while the tangent is computed.

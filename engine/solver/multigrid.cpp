@@ -357,15 +357,14 @@ void LatticeMultigrid::build(const BlockSparseMatrix& a) {
     coarse.galerkin = BlockSparseMatrix(rows);
     rows.clear();
     fine.c_target.clear();
-    fine.c_pair_start.assign(1, 0);
-    const Mat3d* base = coarse.galerkin.values().data();
+    fine.c_pair_start.clear();
     for (size_t i = 0; i < n; ++i)
       for (int64_t q = ip.offsets[i]; q < ip.offsets[i + 1]; ++q) {
         const int32_t ci = ip.nodes[static_cast<size_t>(q)];
-        if (q > 0) fine.c_pair_start.push_back(static_cast<int64_t>(fine.c_target.size()));
+        fine.c_pair_start.push_back(static_cast<int64_t>(fine.c_target.size()));
         for (int64_t t = fine.t_offsets[i]; t < fine.t_offsets[i + 1]; ++t)
           fine.c_target.push_back(static_cast<int32_t>(
-              coarse.galerkin.find(ci, fine.t_cols[static_cast<size_t>(t)]) - base));
+              coarse.galerkin.block_index(ci, fine.t_cols[static_cast<size_t>(t)])));
       }
     fine.c_pair_start.push_back(static_cast<int64_t>(fine.c_target.size()));
     levels_.push_back(std::move(coarse));

@@ -166,9 +166,8 @@ void PenaltyContactTerm::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix
       for (int a = 0; a < 3; ++a)
         for (int b = 0; b < 3; ++b) {
           if (p.weight[a] == 0 || p.weight[b] == 0) continue;
-          const Mat3d* block = hm.find(p.vertex[a], p.vertex[b]);
-          ZONA_ASSERT(block != nullptr);
-          point_slot_[9 * i + static_cast<size_t>(3 * a + b)] = block - hm.values().data();
+          point_slot_[9 * i + static_cast<size_t>(3 * a + b)] =
+              hm.block_index(p.vertex[a], p.vertex[b]);
         }
     }
     slotted_cols_ = hm.cols().data();
