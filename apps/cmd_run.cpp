@@ -1,14 +1,11 @@
 // `zona run [SCENE]`: runs a scene's injection experiment and writes force.csv (streamed as the
-// run goes), summary.json, VTU frames and the force-deformation plot (PNG and SVG); SIGINT / SIGTERM end the
-// run at the next step with its outputs written. Frames go to VTU files or an XDMF + HDF5 series
-// (output.format, --output-format).
-#include <signal.h>
+// run goes), summary.json, VTU frames and the force-deformation plot (PNG and SVG); SIGINT /
+// SIGTERM end the run at the next step with its outputs written (apps/stop_signals.h). Frames go
+// to VTU files or an XDMF + HDF5 series (output.format, --output-format).
 #include <unistd.h>
 
-#include <atomic>
 #include <chrono>
 #include <cmath>
-#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -20,6 +17,7 @@
 
 #include "apps/commands.h"
 #include "apps/plot_script.h"
+#include "apps/stop_signals.h"
 #include "engine/analysis/plot.h"
 #include "engine/sim/recorder.h"
 #include "engine/scene/scene.h"
@@ -77,46 +75,6 @@ class Progress {
   bool quiet_;
   bool tty_;
   double next_line_ = 0;
-};
-
-// SIGINT and SIGTERM end the run at the next step instead of killing the process: the handler
-// only stores (async-signal-safe), the run loop reads the flag once per step, and the command
-// writes what it has and exits 128 + the signal. SA_RESETHAND makes a second signal kill at
-// once, for a run stuck outside the step loop. A signal the parent ignores stays ignored (a
-// shell script's background job ignores SIGINT so that Ctrl-C reaches only the foreground).
-// The previous handlers return with the object.
-std::atomic<bool> g_stop_requested{false};
-volatile std::sig_atomic_t g_stop_signal = 0;
-static_assert(std::atomic<bool>::is_always_lock_free, "the signal handler needs a lock-free flag");
-
-extern "C" void on_stop_signal(int sig) {
-  g_stop_signal = sig;
-  g_stop_requested.store(true, std::memory_order_relaxed);
-}
-
-class StopOnSignals {
- public:
-  StopOnSignals() {
-    struct sigaction action {};
-    action.sa_handler = on_stop_signal;
-    sigemptyset(&action.sa_mask);
-    action.sa_flags = SA_RESETHAND;
-    for (auto [sig, previous] :
-         {std::pair{SIGINT, &previous_int_}, std::pair{SIGTERM, &previous_term_}}) {
-      sigaction(sig, nullptr, previous);
-      if (previous->sa_handler != SIG_IGN) sigaction(sig, &action, nullptr);
-    }
-  }
-  ~StopOnSignals() {
-    sigaction(SIGINT, &previous_int_, nullptr);
-    sigaction(SIGTERM, &previous_term_, nullptr);
-  }
-  StopOnSignals(const StopOnSignals&) = delete;
-  StopOnSignals& operator=(const StopOnSignals&) = delete;
-
- private:
-  struct sigaction previous_int_ {};
-  struct sigaction previous_term_ {};
 };
 
 // Splits "text[:label]" at the last ':' that is not part of a Windows drive or a path.
@@ -386,7 +344,7 @@ void run_command(const RunArgs& args) {
     if (csv_error.empty())
       if (Status s = csv->append(sample); !s) csv_error = s.error().message;
   };
-  options.stop = &g_stop_requested;
+  options.stop = &stop_requested();
   // The quasi-static check's warning, when it happens (on its own line past the progress line).
   options.warning = [&](const std::string& line) {
     if (!args.quiet && isatty(STDERR_FILENO) == 1) std::fprintf(stderr, "\n");
@@ -474,8 +432,8 @@ void run_command(const RunArgs& args) {
   }
   // A signal: the run ended at the step it arrived (or, arriving after the last step's check,
   // at its end); the exit status is the shell's 128 + signal either way.
-  if (const int sig = g_stop_signal; sig != 0) {
-    const char* name = sig == SIGINT ? "SIGINT" : "SIGTERM";
+  if (const int sig = stop_signal(); sig != 0) {
+    const char* name = stop_signal_name(sig);
     if (run.interrupted)
       std::fprintf(stderr,
                    "zona run: interrupted by %s at t %.6g s (%lld steps); force.csv and "

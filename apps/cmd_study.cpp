@@ -1,6 +1,7 @@
 // `zona study convergence SCENE`: the injection experiment at a list of mesh sizes, its curves
 // compared at fixed deformations (engine/analysis/convergence_study.h); writes convergence.csv,
-// convergence_summary.csv and convergence.png.
+// convergence_summary.csv and convergence.png, after every size. SIGINT / SIGTERM end the
+// running size at its next step (a row marked interrupted) and the study with it.
 #include <unistd.h>
 
 #include <algorithm>
@@ -15,6 +16,7 @@
 #include <vector>
 
 #include "apps/commands.h"
+#include "apps/stop_signals.h"
 #include "engine/analysis/convergence_study.h"
 #include "apps/plot_script.h"
 #include "engine/analysis/plot.h"
@@ -317,13 +319,28 @@ void convergence_command(const ConvergenceArgs& given) {
     }
   };
 
-  const ConvergenceStudy study = run_convergence_study(*scenes, *deformations, options);
+  // SIGINT / SIGTERM (a cluster's time limit) end the running size at its next step: its row
+  // is marked interrupted, no further size starts, and the CSVs hold the sizes run.
+  options.stop = &stop_requested();
+  ConvergenceStudy study;
+  {
+    const StopOnSignals stop_on_signals;
+    study = run_convergence_study(*scenes, *deformations, options);
+  }
   if (Status s = write_outputs(out, study, comments); !s) return fail(s.error().message);
   std::string plot_names;
   for (const std::string& p : write_plot(out, study, &plot_noted))
     plot_names += ", " + fs::path(p).filename().string();
   std::printf("wrote %s/{convergence.csv, convergence_summary.csv%s}\n", out.c_str(),
               plot_names.c_str());
+  if (const int sig = stop_signal(); sig != 0) {
+    const bool cut = !study.runs.empty() && study.runs.back().interrupted;
+    std::fprintf(stderr,
+                 "zona study: interrupted by %s: %zu of %zu sizes run%s; the CSVs hold them\n",
+                 stop_signal_name(sig), study.runs.size(), count,
+                 cut ? ", the last one up to where the signal stopped it" : "");
+    exit_code() = 128 + sig;
+  }
 }
 
 }  // namespace

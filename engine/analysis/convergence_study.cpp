@@ -213,8 +213,18 @@ ConvergenceRun summarize_convergence_run(int64_t target_vertices, const RunResul
     if (!out.step_flags.empty()) out.step_flags += '|';
     out.step_flags += name;
   }
-  out.stopped_early = run.stopped_early;
+  out.stopped_early = run.stopped_early || run.interrupted;
   out.stop_reason = run.stop_reason;
+  out.interrupted = run.interrupted;
+  if (run.interrupted && out.stop_reason.empty()) {
+    const double deformation = run.samples.empty() ? 0.0 : run.samples.back().deformation;
+    char line[160];
+    std::snprintf(line, sizeof line,
+                  "interrupted at t %.6g s (%.4g um of deformation): the curve is a result up to "
+                  "there",
+                  run.simulated_time, deformation * 1e6);
+    out.stop_reason = line;
+  }
   out.samples = run.samples;
   return out;
 }
@@ -281,6 +291,7 @@ ConvergenceStudy run_convergence_study(std::span<const Scene> scenes,
       ro.simulation = options.simulation;
       ro.stop_after_puncture = 0;
       ro.progress = options.progress;
+      ro.stop = options.stop;
       const RunResult result = run_simulation(sim, ro);
       run = summarize_convergence_run(target, result, deformations);
       run.vertices = static_cast<int64_t>(sim.mesh().vertex_count());
@@ -293,6 +304,7 @@ ConvergenceStudy run_convergence_study(std::span<const Scene> scenes,
     }
     study.runs.push_back(std::move(run));
     if (options.finished) options.finished(study.runs.back());
+    if (options.stop && options.stop->load(std::memory_order_relaxed)) break;
   }
   fill_relative_differences(study);
   return study;

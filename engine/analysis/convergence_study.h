@@ -8,6 +8,7 @@
 // feed them hand-made curves; run_convergence_study strings them together with the simulation.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -95,8 +96,10 @@ struct ConvergenceRun {
   /// none on the loading branch.
   std::optional<double> inverted_from;
   std::string step_flags;            ///< step_flag_names of the run, joined by '|'
-  bool stopped_early = false;        ///< a step was not advanced, or setup failed
+  bool stopped_early = false;        ///< a step was not advanced, setup failed, or interrupted
   std::string stop_reason;           ///< why (empty when the run reached its end)
+  /// ConvergenceOptions::stop ended the run before its end: its curve is a result up to there.
+  bool interrupted = false;
   std::vector<std::string> notes;    ///< Simulation::notes() (backend fallback, ...)
   std::vector<ForceSample> samples;  ///< the recorded curve, (sample count)
 };
@@ -132,11 +135,15 @@ struct ConvergenceOptions {
   /// Called before each size and with each finished run (may be empty).
   std::function<void(const Scene&)> started;
   std::function<void(const ConvergenceRun&)> finished;
+  /// Read once per step (RunOptions::stop); when set, the running size ends there (a row marked
+  /// interrupted) and no further size starts. May be null.
+  const std::atomic<bool>* stop = nullptr;
 };
 
 /// Runs every scene (from convergence_scenes) to puncture (stop_after_puncture = 0) or its
 /// end. A size that fails to set up or stops early becomes a run with its reason; the study
-/// itself does not fail. Relative differences are filled at the end.
+/// itself does not fail. With options.stop set, the study ends after the size it interrupted.
+/// Relative differences are filled at the end.
 ConvergenceStudy run_convergence_study(std::span<const Scene> scenes,
                                        std::span<const double> deformations,
                                        const ConvergenceOptions& options);

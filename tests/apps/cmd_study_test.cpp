@@ -7,11 +7,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <set>
 #include <string>
+#include <thread>
+#include <tuple>
 #include <vector>
 
 #include "engine/analysis/plot.h"
@@ -132,6 +136,49 @@ TEST(CmdStudy, ConvergenceWritesBothCsvsAndThePlot) {
   }
   if (zona::plot_png_available() || zona::test::plot_python_available()) {
     EXPECT_TRUE(fs::exists(out / "convergence.png"));
+  }
+}
+
+// SIGTERM / SIGINT (a cluster's time limit, Ctrl-C) end the running size at its next step: the
+// CSVs keep the finished sizes and the interrupted one's row, one line on stderr says so, and
+// the exit status is 128 + the signal. The signal is sent once the second size (4000 vertices,
+// several times longer than the first) has started.
+TEST(CmdStudy, ASignalEndsTheStudyAndKeepsItsRows) {
+  TempDir dir;
+  for (const auto& [sig, code, name] :
+       {std::tuple{SIGTERM, 143, "SIGTERM"}, std::tuple{SIGINT, 130, "SIGINT"}}) {
+    const fs::path out = dir.path / name;
+    zona::test::CliProcess p = zona::test::start_zona(
+        "study convergence mouse_oocyte --vertices 600,4000,600 --set needle.max_travel=20um "
+        "--set puncture.criterion=none --out " +
+            out.string(),
+        dir.path);
+    ASSERT_GT(p.pid, 0);
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (std::chrono::steady_clock::now() < deadline && !zona::test::has_exited(p) &&
+           zona::test::read_text(p.err_path).find("size 2/3") == std::string::npos)
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    ASSERT_FALSE(zona::test::has_exited(p)) << name << ": the study ended before the signal";
+    ASSERT_EQ(::kill(p.pid, sig), 0);
+    const CliRun r = zona::test::wait_zona(p, 120);
+    EXPECT_EQ(r.exit_code, code) << r.err;
+    EXPECT_NE(r.err.find(std::string("zona study: interrupted by ") + name + ": 2 of 3 sizes run"),
+              std::string::npos)
+        << r.err;
+    EXPECT_EQ(r.err.find("zona: error"), std::string::npos) << r.err;
+    const Csv summary = read_csv(out / "convergence_summary.csv");
+    EXPECT_FALSE(summary.ragged);
+    ASSERT_EQ(summary.rows.size(), 2u);
+    EXPECT_EQ(summary.rows[0].at("stopped_early"), "0") << summary.rows[0].at("stop_reason");
+    EXPECT_NE(summary.rows[0].at("force_at_10um_un"), "");
+    EXPECT_EQ(summary.rows[1].at("target_vertices"), "4000");
+    EXPECT_EQ(summary.rows[1].at("stopped_early"), "1");
+    EXPECT_EQ(summary.rows[1].at("stop_reason").rfind("interrupted at t ", 0), 0u)
+        << summary.rows[1].at("stop_reason");
+    // The interrupted size's curve up to the signal is in convergence.csv.
+    const Csv curves = read_csv(out / "convergence.csv");
+    EXPECT_TRUE(std::any_of(curves.rows.begin(), curves.rows.end(),
+                            [](const auto& row) { return row.at("target_vertices") == "4000"; }));
   }
 }
 

@@ -1,10 +1,12 @@
 // Tests for engine/convergence_study: the loading branch, forces at fixed deformations on
 // hand-made curves, the force-drop metric, relative differences, the argument lists, the CSV
-// text, and a two-size study of a small cell (a failing size is a row, not an error).
+// text, and a two-size study of a small cell (a failing size is a row, not an error; a stop
+// ends the running size and the study).
 #include "engine/analysis/convergence_study.h"
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -288,6 +290,45 @@ TEST(ConvergenceStudy, ASizeThatCannotBeBuiltIsARow) {
   const auto rows = csv_rows(convergence_summary_csv(study, {}));
   ASSERT_EQ(rows.size(), 2u);
   EXPECT_EQ(rows[1].size(), rows[0].size());
+}
+
+// options.stop (what `zona study` sets on SIGINT / SIGTERM): the running size ends at its next
+// step as a row marked interrupted, and no later size starts. Set here as the second of three
+// sizes starts, so that it stops at its first step.
+TEST(ConvergenceStudy, AStopEndsTheRunningSizeAndTheStudy) {
+  SceneFile file;
+  const std::vector<int64_t> sizes = {120, 250, 120};
+  Result<std::vector<Scene>> scenes = convergence_scenes(file.path.string(), {}, sizes);
+  ASSERT_TRUE(scenes.ok()) << scenes.error().message;
+  const std::vector<double> deformations = {0.5e-6};
+  std::atomic<bool> stop{false};
+  ConvergenceOptions options;
+  options.simulation.threads = 1;
+  options.stop = &stop;
+  int started = 0, finished = 0;
+  options.started = [&](const Scene&) {
+    if (++started == 2) stop.store(true);
+  };
+  options.finished = [&](const ConvergenceRun&) { ++finished; };
+  const ConvergenceStudy study = run_convergence_study(*scenes, deformations, options);
+  EXPECT_EQ(started, 2);
+  EXPECT_EQ(finished, 2);
+  ASSERT_EQ(study.runs.size(), 2u);
+  const ConvergenceRun& whole = study.runs[0];
+  EXPECT_FALSE(whole.interrupted);
+  EXPECT_FALSE(whole.stopped_early) << whole.stop_reason;
+  EXPECT_TRUE(whole.force_at[0].has_value());
+  const ConvergenceRun& cut = study.runs[1];
+  EXPECT_TRUE(cut.interrupted);
+  EXPECT_TRUE(cut.stopped_early);
+  EXPECT_EQ(cut.stop_reason.rfind("interrupted at t ", 0), 0u) << cut.stop_reason;
+  EXPECT_GT(cut.vertices, 0);
+  EXPECT_LT(cut.steps, whole.steps);
+  EXPECT_FALSE(cut.force_at[0].has_value());  // stopped before 0.5 um
+  // Its row is whole in the summary, with the reason.
+  const auto rows = csv_rows(convergence_summary_csv(study, {}));
+  ASSERT_EQ(rows.size(), 3u);
+  EXPECT_EQ(rows[2].size(), rows[0].size());
 }
 
 TEST(ConvergenceStudy, BadScenesAreErrors) {
