@@ -20,27 +20,36 @@ namespace {
 // Vertices per chunk of CG's vector passes (pooled_chunks: the same bits on any thread count).
 constexpr size_t kVectorChunk = 4096;
 
+}  // namespace
+
+size_t invert_blocks(std::vector<Mat3d>& blocks, bool positive) {
+  std::vector<uint8_t> failed(blocks.size(), 0);
+  pooled_ranges(blocks.size(), 2048, [&](size_t, size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      bool definite = false;
+      blocks[i] = inverse3(blocks[i], &definite);
+      bool finite = true;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) finite = finite && std::isfinite(blocks[i].m[r][c]);
+      failed[i] = !finite || (positive && !definite) ? 1 : 0;
+    }
+  });
+  for (size_t i = 0; i < blocks.size(); ++i)
+    if (failed[i]) return i;
+  return blocks.size();
+}
+
+namespace {
+
 class BlockJacobi final : public Preconditioner {
  public:
   const char* name() const override { return "block Jacobi"; }
   Status setup(const BlockSparseMatrix& a) override {
     a.diagonal(inverse_);
-    finite_.resize(inverse_.size());
-    pooled_ranges(inverse_.size(), 2048, [&](size_t, size_t begin, size_t end) {
-      for (size_t i = begin; i < end; ++i) {
-        // (An indefinite block is kept: the exact Hessian's may be, and CG then reports the
-        // direction of non-positive curvature it meets.)
-        bool positive = false;
-        inverse_[i] = inverse3(inverse_[i], &positive);
-        bool finite = true;
-        for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c) finite = finite && std::isfinite(inverse_[i].m[r][c]);
-        finite_[i] = finite ? 1 : 0;
-      }
-    });
-    for (size_t i = 0; i < inverse_.size(); ++i)
-      if (!finite_[i])
-        return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
+    // (An indefinite block is kept: the exact Hessian's may be, and CG then reports the
+    // direction of non-positive curvature it meets.)
+    if (const size_t i = invert_blocks(inverse_, false); i < inverse_.size())
+      return make_error("the Hessian's diagonal block of vertex %zu is singular", i);
     return {};
   }
   void apply(std::span<const Vec3d> r, std::span<Vec3d> z) const override {
@@ -52,7 +61,6 @@ class BlockJacobi final : public Preconditioner {
 
  private:
   std::vector<Mat3d> inverse_;
-  std::vector<uint8_t> finite_;  // per block: its inverse is finite
 };
 
 // The factorisation of the exact oracle, as a preconditioner: CHOLMOD's supernodal Cholesky

@@ -37,6 +37,11 @@ class Preconditioner {
 /// The inverse of each vertex's 3 x 3 diagonal block.
 std::unique_ptr<Preconditioner> make_block_jacobi();
 
+/// Inverts each 3 x 3 block in place, on the shared pool (the preconditioners' diagonal
+/// blocks). Returns the first block whose inverse fails (not finite; with `positive`, not
+/// positive definite), or blocks.size() when none does.
+size_t invert_blocks(std::vector<Mat3d>& blocks, bool positive);
+
 /// How a solve ended.
 struct LinearSolveStats {
   int64_t iterations = 0;      ///< CG iterations (the direct solver's: CG on its factor)

@@ -139,7 +139,6 @@ struct Level {
   std::vector<int64_t> c1_row_offsets, c1_row_positions;
   // Chebyshev smoothing on D^-1 A.
   std::vector<Mat3d> dinv;
-  std::vector<uint8_t> inverted;  // the smoother's setup: whether each block inverted
   double lambda_max = 0;
   std::vector<Vec3d> power;
   // Scratch of one cycle.
@@ -465,20 +464,10 @@ void LatticeMultigrid::galerkin(Level& fine, BlockSparseMatrix& coarse) const {
 Status LatticeMultigrid::smoother(Level& lv, size_t l) const {
   const BlockSparseMatrix& a = *lv.a;
   a.diagonal(lv.dinv);
-  lv.inverted.resize(lv.dinv.size());
-  pooled_ranges(lv.dinv.size(), kVectorRange, [&](size_t, size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) {
-      bool ok = false;
-      lv.dinv[i] = inverse3(lv.dinv[i], &ok);
-      lv.inverted[i] = ok ? 1 : 0;
-    }
-  });
-  for (size_t i = 0; i < lv.dinv.size(); ++i)
-    if (!lv.inverted[i])
-      return make_error(
-          "multigrid: the diagonal block of node %zu on level %zu is not positive "
-          "definite",
-          i, l);
+  if (const size_t i = invert_blocks(lv.dinv, true); i < lv.dinv.size())
+    return make_error("multigrid: the diagonal block of node %zu on level %zu is not positive "
+                      "definite",
+                      i, l);
   // lambda_max(D^-1 A) by power iteration; the vector is kept for the next setup, whose matrix
   // is close to this one.
   std::vector<Vec3d>& v = lv.power;
