@@ -51,10 +51,6 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     return make_error(
         "cuda backend: \"volumetric_stabilisation\" is not in the CUDA element kernels yet; run "
         "it on the CPU (--backend cpu)");
-  if (model.nodal_mode_stabilisation > 0)
-    return make_error(
-        "cuda backend: \"volumetric_mode_stabilisation\" is not in the CUDA element kernels "
-        "yet; run it on the CPU (--backend cpu)");
   kind_ = choose_kind(model, form);
 
   Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder, 0});

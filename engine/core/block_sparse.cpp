@@ -79,8 +79,6 @@ void BlockSparseMatrix::set_zero() {
   std::fill(coefficients_.begin(), coefficients_.end(), 0.0);
   std::fill(r1_vectors_.begin(), r1_vectors_.end(), Vec3d{0, 0, 0});
   r1_by_row_stale_ = true;
-  std::fill(d_coefficients_.begin(), d_coefficients_.end(), 0.0);
-  std::fill(d_vectors_.begin(), d_vectors_.end(), Vec3d{0, 0, 0});
 }
 
 void BlockSparseMatrix::refresh_rank_one_rows() const {
@@ -134,55 +132,6 @@ void BlockSparseMatrix::set_rank_one_pattern(std::vector<int64_t> offsets,
   r1_row_term_.resize(r1_row_positions_.size());
   for (size_t q = 0; q < r1_row_positions_.size(); ++q)
     r1_row_term_[q] = term[static_cast<size_t>(r1_row_positions_[q])];
-}
-
-void BlockSparseMatrix::group_positions(std::span<const int32_t> key, size_t keys,
-                                        std::vector<int64_t>& offsets,
-                                        std::vector<int64_t>& positions) {
-  offsets.assign(keys + 1, 0);
-  for (int32_t k : key) {
-    ZONA_ASSERT(k >= 0 && static_cast<size_t>(k) < keys);
-    ++offsets[static_cast<size_t>(k) + 1];
-  }
-  for (size_t i = 0; i < keys; ++i) offsets[i + 1] += offsets[i];
-  positions.resize(key.size());
-  std::vector<int64_t> next(offsets.begin(), offsets.end() - 1);
-  for (size_t p = 0; p < key.size(); ++p)
-    positions[static_cast<size_t>(next[static_cast<size_t>(key[p])]++)] = static_cast<int64_t>(p);
-}
-
-void BlockSparseMatrix::set_difference_pattern(std::vector<std::array<int32_t, 4>> vertices,
-                                               std::vector<int64_t> mix_offsets,
-                                               std::vector<int32_t> mix_terms,
-                                               std::vector<double> mix_weights) {
-  const size_t n = vertices.size();
-  ZONA_ASSERT(mix_offsets.size() == n + 1 && mix_terms.size() == mix_weights.size() &&
-              mix_offsets.back() == static_cast<int64_t>(mix_terms.size()));
-  d_vertices_.resize(4 * n);
-  for (size_t e = 0; e < n; ++e)
-    for (size_t j = 0; j < 4; ++j) d_vertices_[4 * e + j] = vertices[e][j];
-  d_coefficients_.assign(n, 0.0);
-  d_vectors_.assign(4 * n, Vec3d{0, 0, 0});
-  d_mix_offsets_ = std::move(mix_offsets);
-  d_mix_terms_ = std::move(mix_terms);
-  d_mix_weights_ = std::move(mix_weights);
-  // The transpose: for each f, the terms e that mix it, with alpha_ef.
-  group_positions(d_mix_terms_, n, d_mixt_offsets_, d_row_positions_);
-  std::vector<int32_t> owner(d_mix_terms_.size());
-  for (size_t e = 0; e < n; ++e)
-    for (int64_t k = d_mix_offsets_[e]; k < d_mix_offsets_[e + 1]; ++k)
-      owner[static_cast<size_t>(k)] = static_cast<int32_t>(e);
-  d_mixt_terms_.resize(d_row_positions_.size());
-  d_mixt_weights_.resize(d_row_positions_.size());
-  for (size_t q = 0; q < d_row_positions_.size(); ++q) {
-    const size_t k = static_cast<size_t>(d_row_positions_[q]);
-    d_mixt_terms_[q] = owner[k];
-    d_mixt_weights_[q] = d_mix_weights_[k];
-  }
-  group_positions(d_vertices_, rows(), d_row_offsets_, d_row_positions_);
-  d_dot_.assign(n, 0.0);
-  d_scratch_.assign(n, 0.0);
-  d_back_.assign(n, 0.0);
 }
 
 namespace {
@@ -247,53 +196,16 @@ void BlockSparseMatrix::multiply(std::span<const Vec3d> x, std::span<Vec3d> y) c
   constexpr size_t kBlocksPerRange = 16384;
   const size_t per_row = rows() > 0 ? std::max<size_t>(1, block_count() / rows()) : 1;
   const size_t min_rows = std::max<size_t>(16, kBlocksPerRange / per_row);
-  const size_t differences = difference_terms();
   if (terms > 0)
     pooled_ranges(terms, 1024, [&](size_t, size_t begin, size_t end) {
       rank_one_dots(begin, end, r1_offsets_.data(), r1_vertices_.data(), r1_vectors_.data(),
                     coefficients_.data(), x.data(), r1_scratch_.data());
     });
-  if (differences > 0) {
-    // sum_e c_e w_e (w_e . x): a_e . x per term, c_e (w_e . x) by the mixing, that less the
-    // mixing's transpose of it, and each row its terms' a_e times that (the rows' pass below).
-    pooled_ranges(differences, 2048, [&](size_t, size_t begin, size_t end) {
-      for (size_t e = begin; e < end; ++e) {
-        double s = 0;
-        for (size_t j = 4 * e; j < 4 * e + 4; ++j)
-          s += dot(d_vectors_[j], x[static_cast<size_t>(d_vertices_[j])]);
-        d_dot_[e] = s;
-      }
-    });
-    pooled_ranges(differences, 2048, [&](size_t, size_t begin, size_t end) {
-      for (size_t e = begin; e < end; ++e) {
-        double s = d_dot_[e];
-        for (int64_t k = d_mix_offsets_[e]; k < d_mix_offsets_[e + 1]; ++k)
-          s -= d_mix_weights_[static_cast<size_t>(k)] *
-               d_dot_[static_cast<size_t>(d_mix_terms_[static_cast<size_t>(k)])];
-        d_scratch_[e] = d_coefficients_[e] * s;
-      }
-    });
-    pooled_ranges(differences, 2048, [&](size_t, size_t begin, size_t end) {
-      for (size_t f = begin; f < end; ++f) {
-        double s = d_scratch_[f];
-        for (int64_t k = d_mixt_offsets_[f]; k < d_mixt_offsets_[f + 1]; ++k)
-          s -= d_mixt_weights_[static_cast<size_t>(k)] *
-               d_scratch_[static_cast<size_t>(d_mixt_terms_[static_cast<size_t>(k)])];
-        d_back_[f] = s;
-      }
-    });
-  }
   pooled_ranges(rows(), min_rows, [&](size_t, size_t begin, size_t end) {
     block_rows(begin, end, offsets_.data(), cols_.data(), values_.data(), x.data(), y.data());
     if (terms > 0)
       rank_one_rows(begin, end, r1_row_offsets_.data(), r1_row_term_.data(), r1_row_vectors_.data(),
                     r1_scratch_.data(), y.data());
-    if (differences > 0)
-      for (size_t i = begin; i < end; ++i)
-        for (int64_t q = d_row_offsets_[i]; q < d_row_offsets_[i + 1]; ++q) {
-          const size_t p = static_cast<size_t>(d_row_positions_[static_cast<size_t>(q)]);
-          y[i] += d_back_[p / 4] * d_vectors_[p];
-        }
   });
 }
 
@@ -310,11 +222,6 @@ void BlockSparseMatrix::diagonal(std::vector<Mat3d>& out) const {
           const Vec3d& g = r1_row_vectors_[static_cast<size_t>(q)];
           d = d + coefficients_[static_cast<size_t>(r1_row_term_[static_cast<size_t>(q)])] *
                       outer(g, g);
-        }
-      if (!d_row_offsets_.empty())
-        for (int64_t r = d_row_offsets_[i]; r < d_row_offsets_[i + 1]; ++r) {
-          const size_t p = static_cast<size_t>(d_row_positions_[static_cast<size_t>(r)]);
-          d = d + d_coefficients_[p / 4] * outer(d_vectors_[p], d_vectors_[p]);
         }
       out[i] = d;
     }
@@ -334,8 +241,6 @@ void BlockSparseMatrix::apply_mask(std::span<const uint8_t> mask) {
   for (size_t p = 0; p < r1_vertices_.size(); ++p)
     if (mask[static_cast<size_t>(r1_vertices_[p])]) r1_vectors_[p] = Vec3d{0, 0, 0};
   r1_by_row_stale_ = true;
-  for (size_t p = 0; p < d_vertices_.size(); ++p)
-    if (mask[static_cast<size_t>(d_vertices_[p])]) d_vectors_[p] = Vec3d{0, 0, 0};
 }
 
 Eigen::SparseMatrix<double> BlockSparseMatrix::to_eigen() const {
@@ -361,36 +266,6 @@ Eigen::SparseMatrix<double> BlockSparseMatrix::to_eigen() const {
         for (int r = 0; r < 3; ++r)
           for (int c = 0; c < 3; ++c) entries.emplace_back(i + r, j + c, a[r] * b[c]);
       }
-  // The difference part: each w_e gathered on its vertices, then c_e w_e w_e^T.
-  std::vector<int32_t> at;
-  std::vector<Vec3d> w;
-  auto add_to_w = [&](int32_t v, const Vec3d& x) {
-    const auto it = std::find(at.begin(), at.end(), v);
-    if (it == at.end()) {
-      at.push_back(v);
-      w.push_back(x);
-    } else {
-      w[static_cast<size_t>(it - at.begin())] += x;
-    }
-  };
-  for (size_t e = 0; e < difference_terms(); ++e) {
-    at.clear();
-    w.clear();
-    for (size_t j = 4 * e; j < 4 * e + 4; ++j) add_to_w(d_vertices_[j], d_vectors_[j]);
-    for (int64_t k = d_mix_offsets_[e]; k < d_mix_offsets_[e + 1]; ++k) {
-      const size_t f = static_cast<size_t>(d_mix_terms_[static_cast<size_t>(k)]);
-      for (size_t j = 4 * f; j < 4 * f + 4; ++j)
-        add_to_w(d_vertices_[j], -d_mix_weights_[static_cast<size_t>(k)] * d_vectors_[j]);
-    }
-    for (size_t p = 0; p < at.size(); ++p)
-      for (size_t q = 0; q < at.size(); ++q) {
-        const Vec3d a = d_coefficients_[e] * w[p];
-        for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c)
-            entries.emplace_back(3 * static_cast<Eigen::Index>(at[p]) + r,
-                                 3 * static_cast<Eigen::Index>(at[q]) + c, a[r] * w[q][c]);
-      }
-  }
   Eigen::SparseMatrix<double> a(n, n);
   a.setFromTriplets(entries.begin(), entries.end());
   return a;

@@ -9,7 +9,6 @@
 // block by binary search in its row, which is a few dozen columns long).
 #pragma once
 
-#include <array>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -76,25 +75,6 @@ class BlockSparseMatrix {
   }
   std::span<const Vec3d> rank_one_vectors() const { return r1_vectors_; }
 
-  /// The difference part: terms e, each c_e w_e w_e^T with
-  ///   w_e = a_e - sum_f alpha_ef a_f,
-  /// a_e on four vertices (vertices[e], distinct) and the mixing over other terms f (CSR:
-  /// mix_offsets (terms + 1), mix_terms, mix_weights; fixed with the pattern): the Gauss-Newton
-  /// part of an energy on each element's quantity less a fit of its neighbours' (nodal
-  /// pressure's mode stabilisation, elastic_energy.h). w_e reaches the neighbours' vertices, so
-  /// it stays vectors: the product applies it exactly; diagonal() adds only c_e a_e a_e^T (the
-  /// preconditioners' approximation); a multigrid's coarse levels leave it out (it acts on
-  /// element-to-element oscillation, the smoother's job); to_eigen() assembles it exactly.
-  /// Coefficients and vectors start at zero.
-  void set_difference_pattern(std::vector<std::array<int32_t, 4>> vertices,
-                              std::vector<int64_t> mix_offsets, std::vector<int32_t> mix_terms,
-                              std::vector<double> mix_weights);
-  size_t difference_terms() const { return d_coefficients_.size(); }
-  /// c_e [matrix units / vector units^2], (terms).
-  std::span<double> difference_coefficients() { return d_coefficients_; }
-  /// a_e's four entries at 4 e + j, on vertices[e][j].
-  std::span<Vec3d> difference_vectors() { return d_vectors_; }
-
   /// y = A x, (rows).
   void multiply(std::span<const Vec3d> x, std::span<Vec3d> y) const;
   /// The diagonal blocks, (rows).
@@ -130,21 +110,6 @@ class BlockSparseMatrix {
   void refresh_rank_one_rows() const;
   mutable std::vector<Vec3d> r1_row_vectors_;
   mutable bool r1_by_row_stale_ = true;
-  // The difference part (a_e flattened, 4 per term), the mixing and its transpose, and the
-  // positions of a_e's entries by row, fixed with the pattern.
-  std::vector<int32_t> d_vertices_;
-  std::vector<double> d_coefficients_;
-  std::vector<Vec3d> d_vectors_;
-  std::vector<int64_t> d_mix_offsets_, d_mixt_offsets_;
-  std::vector<int32_t> d_mix_terms_, d_mixt_terms_;
-  std::vector<double> d_mix_weights_, d_mixt_weights_;
-  std::vector<int64_t> d_row_offsets_, d_row_positions_;
-  mutable std::vector<double> d_dot_;      // a_e . x of the product in progress
-  mutable std::vector<double> d_scratch_;  // c_e (w_e . x)
-  mutable std::vector<double> d_back_;     // d_scratch_ less its mixing's transpose
-  // Positions p grouped by key[p] (counting sort): offsets (keys + 1), positions.
-  static void group_positions(std::span<const int32_t> key, size_t keys,
-                              std::vector<int64_t>& offsets, std::vector<int64_t>& positions);
 };
 
 }  // namespace zona

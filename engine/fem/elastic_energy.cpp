@@ -2,7 +2,6 @@
 #include "engine/fem/elastic_energy.h"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <limits>
 
@@ -53,12 +52,6 @@ ElasticEnergy::ElasticEnergy(const Model& model) : model_(&model) {
   if (!model.nodal_pressure) return;
   pressure_.assign(model.vertex_count(), 0.0);
   scratch_.assign(model.vertex_count(), 0.0);
-  mode_ = model.nodal_mode_stabilisation > 0;
-  if (mode_) {
-    element_jm1_.assign(model.tet_count(), 0.0);
-    mode_r_.assign(model.tet_count(), 0.0);
-    mode_pressure_.assign(model.tet_count(), 0.0);
-  }
   vertex_stars(model, star_offsets_, star_, &star_slot_);
 }
 
@@ -90,7 +83,7 @@ ElementLaw<double> ElasticEnergy::law(size_t t) const {
   if (law.nodal) {
     double p = 0;
     for (int c = 0; c < 4; ++c) p += pressure_[static_cast<size_t>(model_->tets[t][c])];
-    law.pressure = 0.25 * p + (mode_ ? mode_pressure_[t] : 0.0);
+    law.pressure = 0.25 * p;
     law.element_lambda = model_->nodal_stabilisation * lame.lambda;
   }
   if (barrier_volume_ > 0 && law.model == ConstitutiveModel::kStableNeoHookean) {
@@ -165,53 +158,23 @@ double ElasticEnergy::vertex_pressures(std::span<const Vec3d> u) {
   coloured_sum([&](size_t t) {
     Vec3d ue[4];
     corners(u, t, ue);
-    const double jm1 = snh_volume_change(tet_displacement_gradient(m.tet_shape[t], ue));
-    const double q = 0.25 * m.tet_shape[t].volume * jm1;
+    const double q = 0.25 * m.tet_shape[t].volume *
+                     snh_volume_change(tet_displacement_gradient(m.tet_shape[t], ue));
     for (int c = 0; c < 4; ++c) scratch_[static_cast<size_t>(m.tets[t][c])] += q;
-    if (mode_) element_jm1_[t] = jm1;
     return 0.0;
   });
   // Pass 2: Jbar_v - 1, the pressure lambda_v (Jbar_v - 1) and the energy V_v lambda_v / 2
   // (Jbar_v - 1)^2, per fixed chunk of vertices, the chunks summed in order.
-  const double nodal =
-      pooled_chunk_sum(m.vertex_count(), 4096, chunk_sum_, [&](size_t begin, size_t end) {
-        double energy = 0;
-        for (size_t v = begin; v < end; ++v) {
-          const double inv_volume = m.vertex_inverse_volume[v];
-          const double jm1 = scratch_[v] * inv_volume;
-          pressure_[v] = m.vertex_lambda[v] * jm1;
-          if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
-        }
-        return energy;
-      });
-  if (!mode_) return nodal;
-  // Pass 3: each element's r_e, and the energy V_e c_e / 2 r_e^2.
-  const double mode =
-      pooled_chunk_sum(m.tet_count(), 4096, mode_chunk_sum_, [&](size_t begin, size_t end) {
-        double energy = 0;
-        for (size_t t = begin; t < end; ++t) {
-          double r = element_jm1_[t];
-          for (int64_t k = m.mode_offsets[t]; k < m.mode_offsets[t + 1]; ++k)
-            r -= m.mode_weights[static_cast<size_t>(k)] *
-                 element_jm1_[static_cast<size_t>(m.mode_elements[static_cast<size_t>(k)])];
-          mode_r_[t] = r;
-          energy += 0.5 * m.tet_shape[t].volume * mode_coefficient(t) * r * r;
-        }
-        return energy;
-      });
-  // Pass 4: q_e = c_e r_e less the transpose's share (the elements that mix e).
-  pooled_ranges(m.tet_count(), 2048, [&](size_t, size_t begin, size_t end) {
-    for (size_t t = begin; t < end; ++t) {
-      double s = 0;
-      for (int64_t k = m.mode_t_offsets[t]; k < m.mode_t_offsets[t + 1]; ++k) {
-        const size_t e = static_cast<size_t>(m.mode_t_elements[static_cast<size_t>(k)]);
-        s += m.mode_t_weights[static_cast<size_t>(k)] * m.tet_shape[e].volume *
-             mode_coefficient(e) * mode_r_[e];
-      }
-      mode_pressure_[t] = mode_coefficient(t) * mode_r_[t] - s / m.tet_shape[t].volume;
+  return pooled_chunk_sum(m.vertex_count(), 4096, chunk_sum_, [&](size_t begin, size_t end) {
+    double energy = 0;
+    for (size_t v = begin; v < end; ++v) {
+      const double inv_volume = m.vertex_inverse_volume[v];
+      const double jm1 = scratch_[v] * inv_volume;
+      pressure_[v] = m.vertex_lambda[v] * jm1;
+      if (inv_volume > 0) energy += 0.5 * m.vertex_lambda[v] * jm1 * jm1 / inv_volume;
     }
+    return energy;
   });
-  return nodal + mode;
 }
 
 double ElasticEnergy::energy(std::span<const Vec3d> u) {
@@ -272,37 +235,6 @@ void ElasticEnergy::add_hessian_product(std::span<const Vec3d> u, std::span<cons
   }
   for (size_t k = 0; k < m.vertex_count(); ++k)
     scratch_[k] *= m.vertex_lambda[k] * m.vertex_inverse_volume[k];
-  if (mode_) {
-    // The mode stabilisation's Gauss-Newton part sum_e V_e c_e w_e (w_e . v), w_e = dJ_e -
-    // sum_f alpha_ef dJ_f: dJ_e . v per element, V_e c_e (w_e . v), less the mixing's
-    // transpose, times dJ_e at the corners.
-    mode_dot_.assign(m.tet_count(), 0.0);
-    mode_back_.assign(m.tet_count(), 0.0);
-    for (size_t t = 0; t < m.tet_count(); ++t) {
-      Vec3d ue[4], ve[4], dj[4];
-      corners(u, t, ue);
-      corners(v, t, ve);
-      tet_volume_gradient(m.tet_shape[t], ue, dj);
-      for (int c = 0; c < 4; ++c) mode_dot_[t] += dot(dj[c], ve[c]);
-    }
-    for (size_t t = 0; t < m.tet_count(); ++t) {
-      double w = mode_dot_[t];
-      for (int64_t k = m.mode_offsets[t]; k < m.mode_offsets[t + 1]; ++k)
-        w -= m.mode_weights[static_cast<size_t>(k)] *
-             mode_dot_[static_cast<size_t>(m.mode_elements[static_cast<size_t>(k)])];
-      const double d = m.tet_shape[t].volume * mode_coefficient(t) * w;
-      mode_back_[t] += d;
-      for (int64_t k = m.mode_offsets[t]; k < m.mode_offsets[t + 1]; ++k)
-        mode_back_[static_cast<size_t>(m.mode_elements[static_cast<size_t>(k)])] -=
-            m.mode_weights[static_cast<size_t>(k)] * d;
-    }
-    for (size_t t = 0; t < m.tet_count(); ++t) {
-      Vec3d ue[4], dj[4];
-      corners(u, t, ue);
-      tet_volume_gradient(m.tet_shape[t], ue, dj);
-      for (int c = 0; c < 4; ++c) y[static_cast<size_t>(m.tets[t][c])] += mode_back_[t] * dj[c];
-    }
-  }
   for (size_t t = 0; t < m.tet_count(); ++t) {
     Vec3d ue[4], dj[4];
     corners(u, t, ue);
@@ -341,39 +273,6 @@ void ElasticEnergy::add_hessian_diagonal(std::span<const Vec3d> u, std::span<Mat
       block = block + c * outer(star_part_[i], star_part_[i]);
     }
   }
-  if (!mode_) return;
-  // The mode stabilisation's Gauss-Newton part: V_e c_e w_e[i] w_e[i]^T over w_e's vertices i
-  // (its and its neighbours' corners), w_e = dJ_e - sum_f alpha_ef dJ_f.
-  std::vector<int32_t> at;
-  std::vector<Vec3d> w;
-  auto add_to_w = [&](int32_t i, const Vec3d& x) {
-    const auto it = std::find(at.begin(), at.end(), i);
-    if (it == at.end()) {
-      at.push_back(i);
-      w.push_back(x);
-    } else {
-      w[static_cast<size_t>(it - at.begin())] += x;
-    }
-  };
-  auto add_element = [&](size_t t, double scale) {
-    Vec3d ue[4], dj[4];
-    corners(u, t, ue);
-    tet_volume_gradient(m.tet_shape[t], ue, dj);
-    for (int c = 0; c < 4; ++c) add_to_w(m.tets[t][c], scale * dj[c]);
-  };
-  for (size_t t = 0; t < m.tet_count(); ++t) {
-    at.clear();
-    w.clear();
-    add_element(t, 1.0);
-    for (int64_t k = m.mode_offsets[t]; k < m.mode_offsets[t + 1]; ++k)
-      add_element(static_cast<size_t>(m.mode_elements[static_cast<size_t>(k)]),
-                  -m.mode_weights[static_cast<size_t>(k)]);
-    const double c = m.tet_shape[t].volume * mode_coefficient(t);
-    for (size_t i = 0; i < at.size(); ++i) {
-      Mat3d& block = d[static_cast<size_t>(at[i])];
-      block = block + c * outer(w[i], w[i]);
-    }
-  }
 }
 
 double ElasticEnergy::min_volume_ratio(std::span<const Vec3d> u) const {
@@ -401,15 +300,6 @@ BlockSparseMatrix ElasticEnergy::hessian_pattern(const Model& m) {
     std::vector<int32_t> star;
     vertex_stars(m, offsets, star);
     h.set_rank_one_pattern(std::move(offsets), std::move(star));
-    if (m.nodal_mode_stabilisation > 0) {
-      // One difference term per element: a_e = dJ_e on its corners, mixed with its
-      // neighbours' by the fit's weights.
-      std::vector<std::array<int32_t, 4>> corners(m.tet_count());
-      for (size_t t = 0; t < m.tet_count(); ++t)
-        for (int c = 0; c < 4; ++c) corners[t][static_cast<size_t>(c)] = m.tets[t][c];
-      h.set_difference_pattern(std::move(corners), m.mode_offsets, m.mode_elements,
-                               m.mode_weights);
-    }
   }
   return h;
 }
@@ -501,9 +391,6 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
     vertex_pressures(u);
     element_dj_.resize(4 * m.tet_count());
   }
-  ZONA_ASSERT(hm.difference_terms() == (mode_ ? m.tet_count() : 0));
-  std::span<double> mode_coefficients = hm.difference_coefficients();
-  std::span<Vec3d> mode_vectors = hm.difference_vectors();
   auto element = [&](size_t t) {
     const int64_t* slots = &element_slot_[16 * t];
     // The 16 blocks are scattered over the matrix: fetch them while the tangent is computed.
@@ -521,11 +408,6 @@ void ElasticEnergy::add_hessian(std::span<const Vec3d> u, BlockSparseMatrix& hm,
       tet_volume_gradient(s, ue, dj);
       for (int c = 0; c < 4; ++c)
         element_dj_[4 * t + static_cast<size_t>(c)] = (0.25 * s.volume) * dj[c];
-      if (mode_) {
-        // The mode stabilisation's term: V_e c_e, a_e = dJ_e.
-        mode_coefficients[t] = s.volume * mode_coefficient(t);
-        for (int c = 0; c < 4; ++c) mode_vectors[4 * t + static_cast<size_t>(c)] = dj[c];
-      }
     }
     double q[9][9];
     stress_tangent(law(t), tet_displacement_gradient(s, ue), project, q);

@@ -57,25 +57,13 @@ class ElasticEnergy final : public EnergyTerm {
  private:
   explicit ElasticEnergy(const Model& model);
   // Nodal pressure: each vertex's lambda_v (Jbar_v - 1) [Pa] into pressure_, and returns the
-  // vertices' volumetric energy sum_v V_v lambda_v / 2 (Jbar_v - 1)^2 [J]; with the mode
-  // stabilisation also its energy sum_e V_e c_e / 2 r_e^2 and its parts (mode_ below).
+  // vertices' volumetric energy sum_v V_v lambda_v / 2 (Jbar_v - 1)^2 [J].
   double vertex_pressures(std::span<const Vec3d> u);
   // The law of element t, with the corner mean of pressure_ under nodal pressure.
   ElementLaw<double> law(size_t t) const;
   void corners(std::span<const Vec3d> x, size_t t, Vec3d out[4]) const;
 
   const Model* model_;
-  // Nodal pressure's mode stabilisation (Model::nodal_mode_stabilisation, gamma > 0): each
-  // element's J_e - 1, r_e = (J_e - 1) - sum_f alpha_ef (J_f - 1) (Model::mode_offsets), and
-  // q_e = c_e r_e - sum_{e'} alpha_e'e V_e' c_e' r_e' / V_e [Pa] (c_e = gamma lambda_e), filled
-  // by vertex_pressures: the term's gradient is sum_e V_e q_e dJ_e, so q_e joins the element's
-  // pressure.
-  bool mode_ = false;
-  std::vector<double> element_jm1_, mode_r_, mode_pressure_;
-  std::vector<double> mode_chunk_sum_, mode_dot_, mode_back_;
-  double mode_coefficient(size_t t) const {
-    return model_->nodal_mode_stabilisation * model_->tet_lame(t).lambda;
-  }
   std::vector<double> pressure_;  // [Pa], (vertex_count)
   std::vector<double> scratch_;   // nodal sums [m^3] / [Pa], (vertex_count)
   double barrier_volume_ = 0;

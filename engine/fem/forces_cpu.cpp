@@ -752,7 +752,6 @@ template <class L, bool kNodal>
   const typename L::Row* rows = L::rows(m);
   const int32_t* offsets = m.cpu_tet_corner_offsets.data();
   const double beta = m.nodal_stabilisation;
-  const double* mode = s.tet_mode.empty() ? nullptr : s.tet_mode.data();
   for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
     TetChunkResult r;
     double energy = 0;
@@ -779,11 +778,6 @@ template <class L, bool kNodal>
         if constexpr (kNodal) {
           P pressure, density;
           nodal_means<L>(s.vertex_pressure.data(), o8 + half, &pressure, &density);
-          if (mode) [[unlikely]]
-            for (int l = 0; l < lanes; ++l) {
-              pressure.v[l] += mode[3 * (t0 + l)];
-              density.v[l] += mode[3 * (t0 + l) + 1];
-            }
           // lambda_s = mu + beta lambda (Model::nodal_stabilisation; beta 0: mu exactly).
           const P psi = snh_first_piola_with(h, mu, snh_lambda(P(beta) * lambda, mu), pressure,
                                              &p, &jm1);
@@ -867,45 +861,6 @@ void nodal_pressure_chunks(void* context, int64_t chunk_begin, int64_t chunk_end
     double* out = s.vertex_pressure.data() + 3 * v;
     out[0] = lambda * jm1;
     out[1] = 0.5 * lambda * jm1 * jm1;
-  }
-}
-
-// Nodal pressure's mode stabilisation (Model::nodal_mode_stabilisation), stage 3 over
-// tetrahedron chunks: r_e = (J_e - 1) - sum_f alpha_ef (J_f - 1) into State::tet_mode.
-void nodal_mode_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  const Model& m = *static_cast<PassContext*>(context)->model;
-  State& s = *static_cast<PassContext*>(context)->state;
-  const int64_t end = std::min(static_cast<int64_t>(m.tet_count()), chunk_end * kTetChunk);
-  auto jm1 = [&](size_t t) { return s.tet_volume_change[t] / (0.25 * m.tet_shape[t].volume); };
-  for (int64_t t = chunk_begin * kTetChunk; t < end; ++t) {
-    const size_t e = static_cast<size_t>(t);
-    double r = jm1(e);
-    for (int64_t k = m.mode_offsets[e]; k < m.mode_offsets[e + 1]; ++k)
-      r -= m.mode_weights[static_cast<size_t>(k)] *
-           jm1(static_cast<size_t>(m.mode_elements[static_cast<size_t>(k)]));
-    s.tet_mode[3 * e + 2] = r;
-  }
-}
-
-// Stage 4 over tetrahedron chunks: q_e = c_e r_e - sum_{e'} alpha_e'e V_e' c_e' r_e' / V_e
-// (the gradient's pressure of the element) and c_e / 2 r_e^2.
-void nodal_mode_pressure_chunks(void* context, int64_t chunk_begin, int64_t chunk_end) {
-  const Model& m = *static_cast<PassContext*>(context)->model;
-  State& s = *static_cast<PassContext*>(context)->state;
-  const int64_t end = std::min(static_cast<int64_t>(m.tet_count()), chunk_end * kTetChunk);
-  const double gamma = m.nodal_mode_stabilisation;
-  for (int64_t t = chunk_begin * kTetChunk; t < end; ++t) {
-    const size_t e = static_cast<size_t>(t);
-    double sum = 0;
-    for (int64_t k = m.mode_t_offsets[e]; k < m.mode_t_offsets[e + 1]; ++k) {
-      const size_t f = static_cast<size_t>(m.mode_t_elements[static_cast<size_t>(k)]);
-      sum += m.mode_t_weights[static_cast<size_t>(k)] * m.tet_shape[f].volume * gamma *
-             m.tet_lame(f).lambda * s.tet_mode[3 * f + 2];
-    }
-    const double r = s.tet_mode[3 * e + 2];
-    const double c = gamma * m.tet_lame(e).lambda;
-    s.tet_mode[3 * e] = c * r - sum / m.tet_shape[e].volume;
-    s.tet_mode[3 * e + 1] = 0.5 * c * r * r;
   }
 }
 
@@ -1299,12 +1254,6 @@ void compute_tet_forces(const Model& model, State& state) {
                     &context);
     state.pool->run(static_cast<int64_t>(state.vertex_chunks.size()), &nodal_pressure_chunks,
                     &context);
-    if (!state.tet_mode.empty()) {
-      state.pool->run(static_cast<int64_t>(state.tet_chunks.size()), &nodal_mode_chunks,
-                      &context);
-      state.pool->run(static_cast<int64_t>(state.tet_chunks.size()), &nodal_mode_pressure_chunks,
-                      &context);
-    }
   }
   if (state.assembly.dirty) reset_assembly_blocks(state);
   SegmentContext context{{&model, &state}, select_tet_pass(model)};

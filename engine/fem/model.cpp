@@ -66,9 +66,6 @@ Status validate_desc(const Mesh& mesh, const ModelDesc& d) {
     return make_error("model: nodal pressure is implemented for the neohookean model only");
   if (!(d.nodal_stabilisation >= 0 && d.nodal_stabilisation < 1))
     return make_error("model: nodal_stabilisation %g outside [0, 1)", d.nodal_stabilisation);
-  if (!(d.nodal_mode_stabilisation >= 0 && d.nodal_mode_stabilisation <= 1))
-    return make_error("model: nodal_mode_stabilisation %g outside [0, 1]",
-                      d.nodal_mode_stabilisation);
   if (d.inversion == InversionHandling::kClampStretch &&
       (d.constitutive != ConstitutiveModel::kSvk || d.formulation != Formulation::kGradient))
     return make_error(
@@ -105,87 +102,6 @@ double max_face_area(const Vec3d p[4]) {
 
 }  // namespace
 
-namespace {
-
-// Model::mode_offsets: for each element, the weights alpha_ef of the affine least-squares fit
-// of its neighbours' values at their rest centroids (weights V_f), evaluated at its centroid.
-void build_mode_fit(const Mesh& mesh, Model& model) {
-  const size_t nt = model.tet_count();
-  std::vector<Vec3d> centroid(nt);
-  for (size_t t = 0; t < nt; ++t) {
-    Vec3d c{0, 0, 0};
-    for (int32_t v : mesh.tets[t]) c += mesh.rest_positions[static_cast<size_t>(v)];
-    centroid[t] = 0.25 * c;
-  }
-  model.mode_offsets.assign(1, 0);
-  model.mode_elements.clear();
-  model.mode_weights.clear();
-  std::vector<int32_t> near;
-  for (size_t t = 0; t < nt; ++t) {
-    near.clear();
-    for (int32_t v : mesh.tets[t])
-      for (int32_t k = model.adjacency.offsets[static_cast<size_t>(v)];
-           k < model.adjacency.offsets[static_cast<size_t>(v) + 1]; ++k) {
-        const int32_t f = model.adjacency.tets[static_cast<size_t>(k)];
-        if (static_cast<size_t>(f) != t) near.push_back(f);
-      }
-    std::sort(near.begin(), near.end());
-    near.erase(std::unique(near.begin(), near.end()), near.end());
-    // Normal equations of the fit a + b . (x_f - x_e) in units of the element's size.
-    const double h = std::cbrt(model.tet_shape[t].volume);
-    double m[4][4] = {};
-    for (int32_t f : near) {
-      const Vec3d d = (1.0 / h) * (centroid[static_cast<size_t>(f)] - centroid[t]);
-      const double row[4] = {1.0, d.x, d.y, d.z};
-      const double w = model.tet_shape[static_cast<size_t>(f)].volume;
-      for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j) m[i][j] += w * row[i] * row[j];
-    }
-    // The first row of m^-1 by Gauss-Jordan with partial pivoting (m is symmetric positive
-    // definite where the neighbours' centroids span space: always for a vertex's star).
-    double a[4][8];
-    for (int i = 0; i < 4; ++i)
-      for (int j = 0; j < 8; ++j) a[i][j] = j < 4 ? m[i][j] : (j - 4 == i ? 1.0 : 0.0);
-    for (int c = 0; c < 4; ++c) {
-      int p = c;
-      for (int r = c + 1; r < 4; ++r)
-        if (std::abs(a[r][c]) > std::abs(a[p][c])) p = r;
-      for (int j = 0; j < 8; ++j) std::swap(a[c][j], a[p][j]);
-      const double inv = 1.0 / a[c][c];
-      for (int j = 0; j < 8; ++j) a[c][j] *= inv;
-      for (int r = 0; r < 4; ++r)
-        if (r != c) {
-          const double q = a[r][c];
-          for (int j = 0; j < 8; ++j) a[r][j] -= q * a[c][j];
-        }
-    }
-    for (int32_t f : near) {
-      const Vec3d d = (1.0 / h) * (centroid[static_cast<size_t>(f)] - centroid[t]);
-      const double alpha = model.tet_shape[static_cast<size_t>(f)].volume *
-                           (a[0][4] + a[0][5] * d.x + a[0][6] * d.y + a[0][7] * d.z);
-      model.mode_elements.push_back(f);
-      model.mode_weights.push_back(alpha);
-    }
-    model.mode_offsets.push_back(static_cast<int64_t>(model.mode_elements.size()));
-  }
-  // The transpose, by counting sort.
-  model.mode_t_offsets.assign(nt + 1, 0);
-  for (int32_t f : model.mode_elements) ++model.mode_t_offsets[static_cast<size_t>(f) + 1];
-  for (size_t t = 0; t < nt; ++t) model.mode_t_offsets[t + 1] += model.mode_t_offsets[t];
-  model.mode_t_elements.resize(model.mode_elements.size());
-  model.mode_t_weights.resize(model.mode_elements.size());
-  std::vector<int64_t> next(model.mode_t_offsets.begin(), model.mode_t_offsets.end() - 1);
-  for (size_t e = 0; e < nt; ++e)
-    for (int64_t k = model.mode_offsets[e]; k < model.mode_offsets[e + 1]; ++k) {
-      const size_t f = static_cast<size_t>(model.mode_elements[static_cast<size_t>(k)]);
-      const size_t at = static_cast<size_t>(next[f]++);
-      model.mode_t_elements[at] = static_cast<int32_t>(e);
-      model.mode_t_weights[at] = model.mode_weights[static_cast<size_t>(k)];
-    }
-}
-
-}  // namespace
-
 Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   const auto start = std::chrono::steady_clock::now();
   if (Status s = validate_desc(mesh, desc); !s) return s.error();
@@ -203,7 +119,6 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   model.clamp_stretch = desc.clamp_stretch;
   model.nodal_pressure = desc.nodal_pressure;
   model.nodal_stabilisation = desc.nodal_pressure ? desc.nodal_stabilisation : 0.0;
-  model.nodal_mode_stabilisation = desc.nodal_pressure ? desc.nodal_mode_stabilisation : 0.0;
   model.energy_blowup_factor = desc.energy_blowup_factor;
   model.unsafe_allow_dt_above_critical = desc.unsafe_allow_dt_above_critical;
 
@@ -259,7 +174,6 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
         model.vertex_lambda[v] *= 1.0 - model.nodal_stabilisation;  // exact where it is 0
       }
   }
-  if (model.nodal_mode_stabilisation > 0) build_mode_fit(mesh, model);
   std::vector<double> alpha(nv, 0.0);
   for (size_t v = 0; v < nv; ++v) {
     alpha[v] = mass[v] > 0 ? alpha_weight[v] / mass[v] : 0.0;
@@ -278,21 +192,6 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   // step (by ~1 % at nu = 0.49): a small margin for deformed elements, whose tangent is no
   // longer the rest one (dt_safety covers the rest, as for SVK's stiffening).
   const bool snh = desc.constitutive == ConstitutiveModel::kStableNeoHookean;
-  // Nodal pressure's mode stabilisation adds gamma lambda (dJ_e - sum_f alpha_ef dJ_f)^2 per
-  // element: at most gamma lambda (1 + A)^2 times the largest dJ^2 around, A the largest
-  // sum_f |alpha_ef|; the nodal term is at most the element's (Jensen). So the element bound is
-  // taken with lambda (1 + gamma (1 + A)^2) (a local estimate, as the element bound is).
-  double mode_factor = 1.0;
-  if (model.nodal_mode_stabilisation > 0) {
-    double largest = 0;
-    for (size_t t = 0; t < nt; ++t) {
-      double sum = 0;
-      for (int64_t k = model.mode_offsets[t]; k < model.mode_offsets[t + 1]; ++k)
-        sum += std::abs(model.mode_weights[static_cast<size_t>(k)]);
-      largest = std::max(largest, sum);
-    }
-    mode_factor = 1.0 + model.nodal_mode_stabilisation * (1.0 + largest) * (1.0 + largest);
-  }
   // Per range of tetrahedra (parallel_ranges), combined in range order: min and max do not
   // depend on the split.
   struct StepBounds {
@@ -309,8 +208,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
       const TetShape<double>& shape = model.tet_shape[t];
       const Lame& material_lame = model.tet_lame(t);
       const Lame lame =
-          snh ? Lame{snh_lambda(mode_factor * material_lame.lambda, material_lame.mu),
-                     material_lame.mu}
+          snh ? Lame{snh_lambda(material_lame.lambda, material_lame.mu), material_lame.mu}
               : material_lame;
       Vec3d p[4];
       double rho = std::numeric_limits<double>::infinity();

@@ -98,14 +98,6 @@ struct ModelDesc {
   /// "Nodal pressure"). 0: none. The CPU's element passes (explicit and static) take it; the
   /// CUDA backend does not yet and refuses a model with it.
   double nodal_stabilisation = 0;
-  /// With nodal_pressure: gamma in [0, 1], the stiffness gamma x lambda on each element's
-  /// difference r_e = J_e - L_e(J) from the affine least-squares fit of its neighbours' volume
-  /// ratios (Model::mode_offsets), energy sum_e V_e gamma lambda_e / 2 r_e^2: zero under any
-  /// uniform or affinely varying volume change, so it holds nodal pressure's alternating
-  /// element mode with less of the per-element share's locking (docs/physics.md, "Nodal
-  /// pressure"). 0: none. The CPU takes it (explicit and static); the CUDA backend refuses a
-  /// model with it.
-  double nodal_mode_stabilisation = 0;
   /// CPU element math precision; kFloat32 needs the gradient form without the stretch clamp.
   /// The CUDA backend always evaluates elements in float32 and ignores this.
   ElementPrecision element_precision = ElementPrecision::kFloat64;
@@ -147,15 +139,6 @@ struct Model {
   /// materials' lambda [Pa], (vertex_count); empty otherwise.
   bool nodal_pressure = false;
   double nodal_stabilisation = 0;  ///< ModelDesc::nodal_stabilisation; lambda_v carries 1 - it
-  double nodal_mode_stabilisation = 0;  ///< ModelDesc::nodal_mode_stabilisation (gamma)
-  /// With it: L_e(J) = sum_f alpha_ef J_f over element e's neighbours f (elements sharing a
-  /// vertex with it), the affine least-squares fit (volume-weighted) of their J at their rest
-  /// centroids evaluated at e's (sum_f alpha_ef = 1, exact for affine fields): f and alpha at
-  /// mode_offsets[e] .. mode_offsets[e + 1] of mode_elements, mode_weights; and the transpose
-  /// (for f, each e that mixes it, with alpha_ef) in mode_t_*. Empty otherwise.
-  std::vector<int64_t> mode_offsets, mode_t_offsets;
-  std::vector<int32_t> mode_elements, mode_t_elements;
-  std::vector<double> mode_weights, mode_t_weights;
   std::vector<double> vertex_inverse_volume;
   std::vector<double> vertex_lambda;
 

@@ -31,7 +31,6 @@ State make_state(const Model& model, int thread_count) {
   if (model.nodal_pressure) {
     s.tet_volume_change.assign(nt, 0.0);
     s.vertex_pressure.assign(3 * nv, 0.0);
-    if (model.nodal_mode_stabilisation > 0) s.tet_mode.assign(3 * nt, 0.0);
   }
   if (thread_count <= 0) {
     // One thread per ~2000 tetrahedra (~40 us of element work), up to the hardware's count:

@@ -164,10 +164,6 @@ struct State {
   /// at its displacement offset 3 v.
   std::vector<double> tet_volume_change;
   std::vector<double> vertex_pressure;
-  /// Model::nodal_mode_stabilisation > 0 only, else empty: per tetrahedron the pressure q_e
-  /// [Pa] its mode stabilisation adds, its energy density c_e / 2 r_e^2 [J/m^3] and r_e [-]
-  /// (ModelDesc::nodal_mode_stabilisation), (3 tet_count).
-  std::vector<double> tet_mode;
   std::unique_ptr<ThreadPool> pool;              ///< the CPU backend's threads
 };
 

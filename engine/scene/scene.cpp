@@ -899,7 +899,7 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
   scene.name = fs::path(source_name).stem().string();
   Reader root(ctx, &doc, "",
               {"version", "name", "description", "mesh", "model", "volumetric",
-               "volumetric_stabilisation", "volumetric_mode_stabilisation", "materials",
+               "volumetric_stabilisation", "materials",
                "integrator",
                "boundary", "needle", "puncture", "holding_pipette", "contact", "haptics",
                "output", "particles", "experiment", "quasi_static", "solver"});
@@ -919,21 +919,10 @@ Result<Scene> parse_scene(const json& input, const std::string& source_name,
                   Range{0.0, 1.0, false, true, "the fraction of lambda kept per element"}) &&
       !scene.nodal_pressure && scene.volumetric_stabilisation > 0)
     root.fail("volumetric_stabilisation", "needs \"volumetric\": \"nodal\"");
-  if (root.number("volumetric_mode_stabilisation", &scene.volumetric_mode_stabilisation,
-                  Range{0.0, 1.0, false, false,
-                        "the stiffness on each element's difference from its corners' mean, "
-                        "as a fraction of lambda"}) &&
-      !scene.nodal_pressure && scene.volumetric_mode_stabilisation > 0)
-    root.fail("volumetric_mode_stabilisation", "needs \"volumetric\": \"nodal\"");
   read_needle(root, scene);
   read_materials(root, scene);
   read_integrator(root, scene);
   read_solver(root, scene);
-  if (scene.volumetric_mode_stabilisation > 0 &&
-      (scene.solver.linear == LinearSolverKind::kDirect || scene.solver.oracle))
-    root.fail("volumetric_mode_stabilisation",
-              "the direct solver (solver.linear \"direct\", solver.oracle) does not assemble its "
-              "Hessian part; use \"cg\"");
   read_particles(root, scene);
   read_boundary(root, scene);
   read_puncture(root, scene);

@@ -441,11 +441,6 @@ struct Scene {
   /// lambda kept per element (ModelDesc::nodal_stabilisation); 0 (the default): none. Static
   /// solver only, for now.
   double volumetric_stabilisation = 0;
-  /// "volumetric_mode_stabilisation": with nodal pressure, gamma in [0, 1]: the stiffness
-  /// gamma x lambda on each element's volume change less the mean of its corners' nodal ones
-  /// (ModelDesc::nodal_mode_stabilisation); 0 (the default): none. CPU backend (explicit and
-  /// static).
-  double volumetric_mode_stabilisation = 0;
   ParticlesDef particles;  ///< used when model is kParticles
   std::vector<RegionMaterialDef> materials;  ///< per region, sorted by region name
   IntegratorDef integrator;

@@ -77,8 +77,6 @@ json scene_to_json(const Scene& scene) {
   j["volumetric"] = scene.nodal_pressure ? "nodal" : "element";
   if (scene.volumetric_stabilisation > 0)
     j["volumetric_stabilisation"] = scene.volumetric_stabilisation;
-  if (scene.volumetric_mode_stabilisation > 0)
-    j["volumetric_mode_stabilisation"] = scene.volumetric_mode_stabilisation;
 
   json materials = json::object();
   for (const RegionMaterialDef& entry : scene.materials) {

@@ -83,7 +83,6 @@ Result<ModelDesc> model_desc_from_scene(const Scene& scene, const Mesh& mesh,
   }
   desc.nodal_pressure = scene.nodal_pressure;
   desc.nodal_stabilisation = scene.volumetric_stabilisation;
-  desc.nodal_mode_stabilisation = scene.volumetric_mode_stabilisation;
   desc.precompute_threads = setup_thread_count(options.threads);
   desc.inversion = desc.constitutive == ConstitutiveModel::kSvk ? options.inversion
                                                                  : InversionHandling::kReport;

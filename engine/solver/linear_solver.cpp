@@ -120,8 +120,6 @@ class Factorisation final : public Preconditioner {
   // once with a map from each 3 x 3 block, and each pair of a rank-one term's vertices, to the
   // block's place in its columns: the same pattern again costs one pass over the values.
   void copy_values(const BlockSparseMatrix& a) {
-    // The difference part (nodal pressure's mode stabilisation) is refused by the scene.
-    ZONA_ASSERT(a.difference_terms() == 0);
     current_ = false;
     if (matrix_.rows() == 0) {
       matrix_ = a.to_eigen();

@@ -26,7 +26,6 @@ struct LawCase {
   ConstitutiveModel law;
   bool nodal;
   double stabilisation = 0;  ///< ModelDesc::nodal_stabilisation
-  double mode = 0;           ///< ModelDesc::nodal_mode_stabilisation
 };
 
 const LawCase kLaws[] = {{"linear", ConstitutiveModel::kLinear, false},
@@ -34,11 +33,7 @@ const LawCase kLaws[] = {{"linear", ConstitutiveModel::kLinear, false},
                          {"neohookean", ConstitutiveModel::kStableNeoHookean, false},
                          {"neohookean_nodal", ConstitutiveModel::kStableNeoHookean, true},
                          {"neohookean_nodal_stabilised", ConstitutiveModel::kStableNeoHookean, true,
-                          0.3},
-                         {"neohookean_nodal_mode", ConstitutiveModel::kStableNeoHookean, true, 0,
-                          0.5},
-                         {"neohookean_nodal_both", ConstitutiveModel::kStableNeoHookean, true, 0.2,
-                          0.7}};
+                          0.3}};
 
 Model build(const Mesh& mesh, const LawCase& c) {
   ModelDesc d;
@@ -47,7 +42,6 @@ Model build(const Mesh& mesh, const LawCase& c) {
   d.material.poisson = 0.45;
   d.nodal_pressure = c.nodal;
   d.nodal_stabilisation = c.stabilisation;
-  d.nodal_mode_stabilisation = c.mode;
   Result<Model> m = build_model(mesh, d);
   EXPECT_TRUE(m.ok()) << (m.ok() ? "" : m.error().message);
   return std::move(m).value();

@@ -22,9 +22,8 @@ constexpr double kL = 10e-6;  // box edge [m]
 // 4 x 3 x 3 cubes, nu 0.49: several chunks of vertices, interior vertices with full stars.
 Mesh test_box() { return box_mesh({0, 0, 0}, {kL, 0.75 * kL, 0.75 * kL}, 4, 3, 3); }
 
-Model build(const Mesh& mesh, bool nodal, double stabilisation = 0, double mode = 0) {
+Model build(const Mesh& mesh, bool nodal, double stabilisation = 0) {
   ModelDesc d;
-  d.nodal_mode_stabilisation = mode;
   d.constitutive = ConstitutiveModel::kStableNeoHookean;
   d.material.young = 13.4e3;
   d.material.poisson = 0.49;
@@ -115,70 +114,6 @@ TEST(NodalPressure, TheStabilisationKeepsBetaOfLambdaPerElement) {
   bad.nodal_pressure = true;
   bad.nodal_stabilisation = 1.0;
   EXPECT_FALSE(build_model(mesh, bad).ok());
-}
-
-// A displacement that alternates from vertex to vertex (a pseudo-random pattern of size
-// `size`): the volume change alternates from element to element.
-std::vector<Vec3d> rough(const Mesh& mesh, double size) {
-  std::vector<Vec3d> u(mesh.vertex_count());
-  for (size_t v = 0; v < u.size(); ++v) {
-    const double a = std::sin(12.9898 * static_cast<double>(v) + 1.0) * 43758.5453;
-    const double b = std::sin(78.233 * static_cast<double>(v) + 2.0) * 12345.678;
-    const double c = std::sin(39.425 * static_cast<double>(v) + 3.0) * 24680.135;
-    u[v] = size * kL * Vec3d{a - std::floor(a) - 0.5, b - std::floor(b) - 0.5, c - std::floor(c) - 0.5};
-  }
-  return u;
-}
-
-// The mode stabilisation (ModelDesc::nodal_mode_stabilisation) costs nothing under a uniform
-// volume change (forces and energy those of nodal pressure alone), little where the volume
-// change varies smoothly, and about what the per-element share of the same size costs where it
-// alternates from element to element: it holds the alternating mode and not the smooth field
-// (the per-element share holds both, which is its locking).
-TEST(NodalPressure, TheModeStabilisationHoldsTheAlternatingModeMoreThanASmoothField) {
-  const Mesh mesh = test_box();
-  const Model nodal = build(mesh, true), element = build(mesh, false);
-  const Model mode = build(mesh, true, 0, 0.5);
-  const std::vector<Vec3d> u = affine_compression(mesh);
-  double w_nodal = 0, w_mode = 0;
-  const std::vector<Vec3d> fn = forces_at(nodal, u, &w_nodal);
-  const std::vector<Vec3d> fm = forces_at(mode, u, &w_mode);
-  for (size_t v = 0; v < u.size(); ++v)
-    EXPECT_LE(norm(fm[v] - fn[v]), 1e-11 * largest(fn)) << "vertex " << v;
-  EXPECT_NEAR(w_mode, w_nodal, 1e-11 * w_nodal);
-  // The share of the energy that each stabilisation of size 0.5 adds: the per-element share
-  // adds 0.5 (e_element - e_nodal).
-  auto shares = [&](const std::vector<Vec3d>& x, double* per_element, double* by_mode) {
-    double e_element = 0, e_nodal = 0, e_mode = 0;
-    (void)forces_at(element, x, &e_element);
-    (void)forces_at(nodal, x, &e_nodal);
-    (void)forces_at(mode, x, &e_mode);
-    *per_element = 0.5 * (e_element - e_nodal);
-    *by_mode = e_mode - e_nodal;
-  };
-  double smooth_element = 0, smooth_mode = 0, rough_element = 0, rough_mode = 0;
-  shares(wavy(mesh, 0.01), &smooth_element, &smooth_mode);
-  shares(rough(mesh, 0.002), &rough_element, &rough_mode);
-  ASSERT_GT(smooth_element, 0);
-  ASSERT_GT(rough_element, 0);
-  EXPECT_GT(smooth_mode, 0);
-  EXPECT_GT(rough_mode, 0);
-  // Measured: about 0.6 of the share's energy on the smooth field, 1.25 on the rough one (a
-  // linear tetrahedron's volume change alternates by O(h) under a smooth field too).
-  EXPECT_LT(smooth_mode, 0.75 * smooth_element);
-  EXPECT_GT(rough_mode, 1.0 * rough_element);
-}
-
-TEST(NodalPressure, TheModeStabilisationsForcesAreTheSameOnAnyThreadCount) {
-  const Mesh mesh = test_box();
-  const Model model = build(mesh, true, 0.1, 0.5);
-  const std::vector<Vec3d> u = wavy(mesh, 0.2);
-  double w1 = 0, w3 = 0;
-  const std::vector<Vec3d> f1 = forces_at(model, u, &w1, 1);
-  const std::vector<Vec3d> f3 = forces_at(model, u, &w3, 3);
-  EXPECT_EQ(w1, w3);
-  for (size_t v = 0; v < u.size(); ++v)
-    for (int i = 0; i < 3; ++i) EXPECT_EQ(f1[v][i], f3[v][i]) << "vertex " << v << " axis " << i;
 }
 
 TEST(NodalPressure, ForcesAreTheNegativeEnergyGradient) {
