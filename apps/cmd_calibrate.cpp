@@ -14,7 +14,6 @@
 #include <memory>
 #include <sstream>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -22,6 +21,7 @@
 #include "apps/commands.h"
 #include "engine/analysis/calibrate.h"
 #include "engine/analysis/worker_pool.h"
+#include "engine/core/thread_pool.h"
 #include "engine/scene/scene.h"
 #include "kernels/backend_info.h"
 
@@ -177,7 +177,7 @@ Status run_calibrate(const CalibrateArgs& a) {
     for (const DeviceInfo& d : cuda_devices(nullptr)) devices.push_back(std::to_string(d.ordinal));
     if (devices.empty()) return make_error("--backend cuda: no CUDA device (zona info lists them)");
   }
-  const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  const int cores = available_cores();
   const int threads = a.threads >= 0 ? a.threads : std::max(1, cores / a.jobs);
 
   CalibrateOptions options;

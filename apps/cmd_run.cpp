@@ -19,6 +19,7 @@
 #include "apps/plot_script.h"
 #include "apps/stop_signals.h"
 #include "engine/analysis/plot.h"
+#include "engine/core/thread_pool.h"
 #include "engine/sim/recorder.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/simulation.h"
@@ -292,8 +293,8 @@ void run_command(const RunArgs& args) {
                                                         : describe_model(sim.model());
     std::fprintf(stderr, "zona run: %s\n", model_line.c_str());
     if (scene->solver.method == SolverMethod::kStatic)
-      std::fprintf(stderr, "zona run: static solver on the CPU (docs/static.md); setup %.2f s\n",
-                   setup_seconds);
+      std::fprintf(stderr, "zona run: static solver on the CPU, %d thread(s) (docs/static.md); setup %.2f s\n",
+                   args.threads > 0 ? args.threads : available_cores(), setup_seconds);
     else
       std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
                    sim.backend_description().c_str(),
@@ -459,7 +460,7 @@ void add_run_command(CLI::App& app) {
   add_solver_option(cmd, &args->solver);
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "CPU threads (0: all)")->capture_default_str();
+  cmd->add_option("--threads", args->threads, "CPU threads of the explicit CPU backend and of the static solver (0: every core this process may run on)")->capture_default_str();
   cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
                   "Stop this many simulated seconds after puncture (default: run to the end)");
   cmd->add_flag("--no-frames", args->no_frames, "Write no frames (VTU or XDMF)");

@@ -16,7 +16,6 @@
 #include <memory>
 #include <sstream>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -24,6 +23,7 @@
 #include "apps/commands.h"
 #include "engine/analysis/convergence_study.h"
 #include "engine/analysis/sweep.h"
+#include "engine/core/thread_pool.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/backend.h"
 #include "engine/sim/recorder.h"
@@ -245,8 +245,10 @@ void sweep_command(const SweepArgs& a) {
     config.deformations = *d;
     config.backend = a.backend;
     config.solver = a.solver;
-    const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-    config.threads = a.threads >= 0 ? a.threads : std::max(1, cores / a.jobs);
+    // A SLURM task runs on the node the scheduler picks, with --slurm-cpus cores: it takes
+    // those (--threads 0: the cores it may run on), not a share of this machine's.
+    const int cores = available_cores();
+    config.threads = a.threads >= 0 ? a.threads : a.slurm ? 0 : std::max(1, cores / a.jobs);
     config.point_count = points.values.size();
     // Every point's scene must load: a typo in a key fails here, not in 100 logs.
     for (size_t i = 0; i < points.values.size(); ++i) {
@@ -338,7 +340,7 @@ void add_sweep_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--backend", args->backend, "Compute backend of every point: auto, cpu or cuda")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "CPU threads per point (default: the cores over --jobs)");
+  cmd->add_option("--threads", args->threads, "CPU threads per point (default: the cores over --jobs; with --slurm, each task's --slurm-cpus)");
   cmd->add_option("--solver", args->solver, "Solver of every point: sets solver.method (explicit, static)");
   cmd->add_option("--deformations", args->deformations,
                   "Deformations [um] at which the table gives the force: comma list")

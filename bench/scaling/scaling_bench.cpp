@@ -19,6 +19,7 @@
 
 #include "engine/fem/forces_cpu.h"
 #include "engine/sim/integrator.h"
+#include "engine/core/thread_pool.h"
 #include "engine/mesh/mesh_generate.h"
 #include "engine/fem/model.h"
 #include "engine/fem/state.h"
@@ -95,9 +96,7 @@ constexpr double kCpuBlockBytes = 2e9;
 constexpr double kGpuBlockBytes = 64e9;
 
 int resolve_threads(int threads) {
-  if (threads > 0) return threads;
-  const unsigned hw = std::thread::hardware_concurrency();
-  return hw > 0 ? static_cast<int>(hw) : 1;
+  return threads > 0 ? threads : available_cores();
 }
 
 // Threads the CPU backend runs: its description starts "cpu: N thread(s)" (backend_cpu.cpp);

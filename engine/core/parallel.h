@@ -15,10 +15,10 @@
 
 namespace zona {
 
-/// Threads for setup work: `requested` when positive, else the hardware's count.
+/// Threads for setup work: `requested` when positive, else available_cores().
 inline int setup_thread_count(int requested) {
   if (requested > 0) return requested;
-  return std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  return available_cores();
 }
 
 /// The number of ranges parallel_ranges makes for these arguments.

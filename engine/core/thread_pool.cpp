@@ -5,6 +5,10 @@
 #include <algorithm>
 #include <mutex>
 
+#if defined(__linux__)
+#include <sched.h>
+#endif
+
 #include "engine/core/base.h"
 
 #if defined(__x86_64__) || defined(__i386__)
@@ -30,9 +34,20 @@ constexpr uint64_t pack_claim(uint64_t job, uint64_t end, uint64_t next) {
 
 }  // namespace
 
+int available_cores() {
+#if defined(__linux__)
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) {
+    const int n = CPU_COUNT(&set);
+    if (n > 0) return n;
+  }
+#endif
+  return std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+}
+
 ThreadPool::ThreadPool(int thread_count) {
-  if (thread_count <= 0) thread_count = static_cast<int>(std::thread::hardware_concurrency());
-  if (thread_count <= 0) thread_count = 1;
+  if (thread_count <= 0) thread_count = available_cores();
   thread_count_ = thread_count;
   slices_ = std::make_unique<Slice[]>(static_cast<size_t>(thread_count_));
   workers_.reserve(static_cast<size_t>(thread_count_ - 1));
@@ -153,13 +168,28 @@ void ThreadPool::worker_main(int index) {
 
 namespace {
 std::mutex shared_pool_mutex;
+std::atomic<int> shared_pool_requested{0};  // 0: available_cores()
 }  // namespace
 
 ThreadPool* try_acquire_shared_pool() {
   if (!shared_pool_mutex.try_lock()) return nullptr;
   static std::unique_ptr<ThreadPool> pool;  // started under the lock, on first use
-  if (!pool) pool = std::make_unique<ThreadPool>(0);
+  const int threads = shared_pool_threads();
+  if (!pool || pool->thread_count() != threads) {
+    pool.reset();
+    pool = std::make_unique<ThreadPool>(threads);
+  }
   return pool.get();
+}
+
+void set_shared_pool_threads(int threads) {
+  shared_pool_requested.store(std::max(threads, 0), std::memory_order_relaxed);
+}
+
+int shared_pool_threads() {
+  static const int cores = available_cores();  // read once: acquisitions run many times a second
+  const int requested = shared_pool_requested.load(std::memory_order_relaxed);
+  return requested > 0 ? requested : cores;
 }
 
 void release_shared_pool() { shared_pool_mutex.unlock(); }

@@ -13,6 +13,11 @@
 
 namespace zona {
 
+/// The cores this process may run on: its CPU affinity mask (what `taskset`, a SLURM job's
+/// `--cpus-per-task` and a container's cpuset leave it), where std::thread::hardware_concurrency
+/// counts every core of the machine; at least 1.
+int available_cores();
+
 /// Runs `fn(context, begin, end)` over claimed ranges covering every chunk of [0, chunk_count)
 /// exactly once, on the caller's thread and the workers. Each thread has a home slice (slice i
 /// of thread_count equal slices; the caller is thread 0), claims it in shrinking pieces from the
@@ -25,7 +30,7 @@ class ThreadPool {
  public:
   using ChunkFn = void (*)(void* context, int64_t chunk_begin, int64_t chunk_end);
 
-  /// Starts `thread_count - 1` workers (thread_count >= 1; 0 means the hardware's count).
+  /// Starts `thread_count - 1` workers (thread_count >= 1; 0 means available_cores()).
   explicit ThreadPool(int thread_count);
   ~ThreadPool();
   ThreadPool(const ThreadPool&) = delete;
@@ -85,11 +90,17 @@ class ThreadPool {
   uint32_t job_ = 0;
 };
 
-/// The process's shared pool of the hardware's threads, for passes that run many times a
-/// second outside a backend's step (the static solver's matrix products and Hessian assembly:
-/// parallel.h's pooled_ranges), started on first use; null while another caller holds it (two
-/// static runs on threads of one process). Give it back with release_shared_pool.
+/// The process's shared pool, for passes that run many times a second outside a backend's step
+/// (the static solver's: parallel.h's pooled_ranges), started on first use with
+/// shared_pool_threads() threads; null while another caller holds it (two static runs on threads
+/// of one process). Give it back with release_shared_pool.
 ThreadPool* try_acquire_shared_pool();
 void release_shared_pool();
+
+/// Sets the shared pool's thread count (0: available_cores(), the default). A pool already
+/// started with another count is replaced at its next acquisition.
+void set_shared_pool_threads(int threads);
+/// The thread count the shared pool has or will start with.
+int shared_pool_threads();
 
 }  // namespace zona

@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cstdlib>
 #include <numeric>
-#include <thread>
 #include <vector>
 
 #include <unistd.h>
@@ -35,7 +34,7 @@ State make_state(const Model& model, int thread_count) {
   if (thread_count <= 0) {
     // One thread per ~2000 tetrahedra (~40 us of element work), up to the hardware's count:
     // below that the hand-off between threads costs more than it saves.
-    const int hardware = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+    const int hardware = available_cores();
     thread_count = std::clamp(static_cast<int>(nt / 2048), 1, hardware);
   }
   s.pool = std::make_unique<ThreadPool>(thread_count);

@@ -18,6 +18,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "engine/core/thread_pool.h"
 #include "engine/fem/fem_element.h"
 
 namespace zona {
@@ -249,7 +250,10 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
   j["source"] = scene.source;
   j["model"] = model_name(scene.model);
   j["interrupted"] = run.interrupted;
-  j["backend"] = sim.backend_description();
+  j["backend"] = scene.solver.method == SolverMethod::kStatic
+                     ? "cpu static solver: " + std::to_string(shared_pool_threads()) +
+                           " thread(s), float64"
+                     : sim.backend_description();
   // The simulation runs on a Backend object only off the CPU (the CPU reference works in place).
   j["backend_kind"] = sim.backend() ? sim.backend()->name() : "cpu";
   if (scene.solver.method == SolverMethod::kStatic) {
@@ -260,7 +264,8 @@ nlohmann::json run_summary_json(const Simulation& sim, const RunResult& run,
                           {"tolerance", d.tolerance},
                           {"travel_step_m", d.travel_step},
                           {"barrier_volume", d.barrier_volume},
-                          {"load_steps", run.steps}};
+                          {"load_steps", run.steps},
+                          {"threads", shared_pool_threads()}};
   } else {
     j["solver"] = "explicit";
   }

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "engine/core/thread_pool.h"
 #include "engine/fem/elastic_energy.h"
 #include "engine/solver/inertia_term.h"
 #include "engine/solver/multigrid.h"
@@ -779,6 +780,9 @@ RunResult run_static(Simulation& sim, const RunOptions& options) {
   if (sim.backend())
     return refused("solver.method \"static\" runs on the CPU (its GPU path is not built yet)");
   if (!sim.job_mode()) return refused("solver.method \"static\" needs the penalty contact");
+  // Every pass of a Newton iteration runs on the shared pool: as many threads as the run asks
+  // for (--threads), else every core this process may run on.
+  set_shared_pool_threads(options.simulation.threads);
   Result<ElasticEnergy> elastic = ElasticEnergy::create(sim.model());
   if (!elastic.ok()) return refused(elastic.error().message);
   StaticRun run(sim, options, std::move(*elastic));

@@ -82,7 +82,7 @@ TEST(CmdRun, WritesCurveSummaryFramesAndPlot) {
   EXPECT_TRUE(fs::exists(out / "scene.json"));
   EXPECT_TRUE(fs::exists(out / "force_deformation.png"));
   // Provenance: what ran, where, when, from which build.
-  EXPECT_EQ(j["schema_version"], 5);
+  EXPECT_EQ(j["schema_version"], 6);
   EXPECT_EQ(j["solver"], "explicit");
   EXPECT_EQ(j["backend_kind"], "cpu");
   const nlohmann::json& p = j["provenance"];

@@ -165,6 +165,33 @@ TEST(CmdRunStatic, TheRegulariserDoesNotMoveTheCurve) {
     EXPECT_NEAR(ca["force_N"][i], cb["force_N"][i], 1e-3 * peak) << "row " << i;
 }
 
+// --threads sets the static solver's threads (a sweep's local workers and a SLURM task give each
+// run its share of the cores), and the thread count does not change a bit of the answer: every
+// sum of the solver is taken over fixed chunks in a fixed order.
+TEST(CmdRunStatic, ThreadsSetTheSolversThreadsAndLeaveItsAnswer) {
+  TempDir dir;
+  const fs::path scene = write_tiny_scene(dir);
+  auto run = [&](int threads) {
+    const std::string n = std::to_string(threads);
+    const fs::path out = dir.path / ("threads" + n);
+    std::string command = "run " + scene.string();
+    command += " --headless --no-frames --no-plot --set needle.max_travel=5um --threads " + n;
+    command += " --out " + out.string();
+    const CliRun r = run_zona(command, dir.path);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    nlohmann::json s = nlohmann::json::parse(std::ifstream(out / "summary.json"));
+    EXPECT_EQ(s["static_solver"]["threads"], threads) << s["static_solver"].dump();
+    EXPECT_NE(s["backend"].get<std::string>().find(n + " thread(s)"), std::string::npos)
+        << s["backend"];
+    return read_csv(out / "force.csv");
+  };
+  auto one = run(1), three = run(3);
+  ASSERT_GT(one["force_N"].size(), 3u);
+  for (const char* column : {"force_N", "deformation_m", "holding_force_N", "residual_N",
+                             "newton_iterations", "krylov_iterations"})
+    EXPECT_EQ(one[column], three[column]) << column;
+}
+
 // solver.oracle: every load step solved again from its start by Newton on the direct solver.
 // The two solutions differ by what the tolerance leaves (tighter tolerance, smaller difference),
 // and at 1e-8 by less than 1e-6 of the largest displacement.

@@ -124,6 +124,13 @@ TEST(CmdSweep, HundredPointsLocallyAndAsSlurmArrayGiveTheSameTable) {
   r = run_zona("sweep --task 7 --out " + (d / "array").string());
   EXPECT_EQ(r.exit_code, 0);
   EXPECT_NE(r.out.find("point 7: already done (ok)"), std::string::npos) << r.out;
+  // Without --threads each task takes the cores SLURM gives it (--threads 0 to its runs), not a
+  // share of the machine that wrote the script.
+  r = run_zona("sweep " + scene + " --set materials.default.young=5kPa,6kPa --slurm --out " +
+               (d / "array0").string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(read_text(d / "array0/sweep.json").find("\"threads\": 0\n"), std::string::npos)
+      << read_text(d / "array0/sweep.json");
   fs::remove_all(d);
 }
 
