@@ -290,7 +290,7 @@ void run_command(const RunArgs& args) {
     std::fprintf(stderr, "zona run: %s (%s)\n", scene->name.c_str(), path->c_str());
     // The particle model's body Model carries a placeholder FEM material: describe the particles.
     const std::string model_line = sim.particle_model() ? describe_particle_model(*sim.particle_model())
-                                                        : describe_model(sim.model());
+                                                        : describe_model(sim.model(), scene->solver.method != SolverMethod::kStatic);
     std::fprintf(stderr, "zona run: %s\n", model_line.c_str());
     if (scene->solver.method == SolverMethod::kStatic)
       std::fprintf(stderr, "zona run: static solver on the CPU, %d thread(s) (docs/static.md); setup %.2f s\n",

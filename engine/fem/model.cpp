@@ -330,7 +330,7 @@ Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc) {
   return model;
 }
 
-std::string describe_model(const Model& model) {
+std::string describe_model(const Model& model, bool explicit_step) {
   const char* cm = model.constitutive == ConstitutiveModel::kSvk      ? "svk"
                    : model.constitutive == ConstitutiveModel::kLinear ? "linear"
                                                                       : "neohookean";
@@ -338,6 +338,12 @@ std::string describe_model(const Model& model) {
                    : model.formulation == Formulation::kTensorStored ? "tensor_stored"
                                                                      : "tensor_rebuilt";
   char line[512];
+  if (!explicit_step) {
+    std::snprintf(line, sizeof line, "%zu vertices, %zu tets, %s%s, precompute %.3f ms",
+                  model.vertex_count(), model.tet_count(), cm,
+                  model.nodal_pressure ? " with nodal pressure" : "", model.precompute_seconds * 1e3);
+    return line;
+  }
   std::snprintf(line, sizeof line,
                 "%zu vertices, %zu tets, %s%s (%s%s%s), dt %.4g s (critical %.4g s by %s; h_min %.4g m, "
                 "c_d %.4g m/s), mass scaling %g, precompute %.3f ms",

@@ -202,7 +202,8 @@ struct Model {
 /// bad mass scaling or safety factor, dt above the critical step.
 Result<Model> build_model(const Mesh& mesh, const ModelDesc& desc);
 
-/// One-line summary: sizes, model, formulation, dt and dt_critical, mass scaling.
-std::string describe_model(const Model& model);
+/// One-line summary: sizes, model, formulation, dt and dt_critical, mass scaling; with
+/// explicit_step false (a static run, which has no time step) the sizes and the law alone.
+std::string describe_model(const Model& model, bool explicit_step = true);
 
 }  // namespace zona

@@ -73,6 +73,9 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   const CliRun r = run_zona("run " + scene.string() + " --headless --out " + out.string(), dir.path);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("load steps (static)"), std::string::npos) << r.out;
+  // Not the explicit step's time step, which it does not run.
+  EXPECT_EQ(r.err.find("critical"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("static solver on the CPU"), std::string::npos) << r.err;
   auto c = read_csv(out / "force.csv");
   const std::vector<double>& d = c["deformation_m"];
   const std::vector<double>& f = c["force_N"];

@@ -219,6 +219,11 @@ TEST(Model, MassScalingRaisesTheCriticalStepBySqrtOfTheFactor) {
   EXPECT_NEAR(mt.mass_scaling, 400, 1e-9);
   EXPECT_NEAR(mt.dt, d.target_dt, 1e-12 * d.target_dt);
   EXPECT_NE(describe_model(mt).find("mass scaling 400"), std::string::npos) << describe_model(mt);
+  // A static run has no time step: its line leaves the explicit step's numbers out.
+  const std::string statics = describe_model(mt, false);
+  EXPECT_EQ(statics.find("mass scaling"), std::string::npos) << statics;
+  EXPECT_EQ(statics.find("dt "), std::string::npos) << statics;
+  EXPECT_NE(statics.find(" vertices, "), std::string::npos) << statics;
 }
 
 TEST(Model, StoredTensorsOnlyWhenAsked) {
