@@ -90,8 +90,9 @@ def run(scene="mouse_oocyte", backend="cpu", out=None, progress=None, *, sets=No
     progress: a callable taking a dict (time_s, end_time_s, wall_s, travel_m, deformation_m,
     force_N, punctured), called about every progress_interval seconds of wall time; returning
     False stops the run (the result says interrupted). sets: overrides ("key.path=value" list
-    or dict). threads: CPU threads (0: all). stop_after_puncture: simulated seconds to go on
-    after puncture (None: to the scene's end). frames: frames over the run with `out`
+    or dict). threads: CPU threads of the explicit CPU backend and of the static solver (0:
+    every core this process may run on). stop_after_puncture: simulated seconds to go on after
+    puncture (None: to the scene's end). frames: frames over the run with `out`
     (None: the scene's output.frames). full_duration: as `zona run --full-duration`.
 
     The GIL is released while the engine steps. Ctrl-C (KeyboardInterrupt) or an exception in
