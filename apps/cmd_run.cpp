@@ -289,11 +289,13 @@ void run_command(const RunArgs& args) {
   if (!args.quiet) {
     std::fprintf(stderr, "zona run: %s (%s)\n", scene->name.c_str(), path->c_str());
     // The particle model's body Model carries a placeholder FEM material: describe the particles.
+    const bool static_run = scene->solver.method == SolverMethod::kStatic;
     const std::string model_line = sim.particle_model() ? describe_particle_model(*sim.particle_model())
-                                                        : describe_model(sim.model(), scene->solver.method != SolverMethod::kStatic);
+                                                        : describe_model(sim.model(), !static_run);
     std::fprintf(stderr, "zona run: %s\n", model_line.c_str());
-    if (scene->solver.method == SolverMethod::kStatic)
-      std::fprintf(stderr, "zona run: static solver on the CPU, %d thread(s) (docs/static.md); setup %.2f s\n",
+    if (static_run)
+      std::fprintf(stderr,
+                   "zona run: static solver on the CPU, %d thread(s) (docs/static.md); setup %.2f s\n",
                    args.threads > 0 ? args.threads : available_cores(), setup_seconds);
     else
       std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
@@ -460,7 +462,10 @@ void add_run_command(CLI::App& app) {
   add_solver_option(cmd, &args->solver);
   cmd->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "CPU threads of the explicit CPU backend and of the static solver (0: every core this process may run on)")->capture_default_str();
+  cmd->add_option("--threads", args->threads,
+                  "CPU threads of the explicit CPU backend and of the static solver (0: every "
+                  "core this process may run on)")
+      ->capture_default_str();
   cmd->add_option("--stop-after-puncture", args->stop_after_puncture,
                   "Stop this many simulated seconds after puncture (default: run to the end)");
   cmd->add_flag("--no-frames", args->no_frames, "Write no frames (VTU or XDMF)");

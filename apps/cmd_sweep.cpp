@@ -340,7 +340,9 @@ void add_sweep_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--backend", args->backend, "Compute backend of every point: auto, cpu or cuda")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "CPU threads per point (default: the cores over --jobs; with --slurm, each task's --slurm-cpus)");
+  cmd->add_option("--threads", args->threads,
+                  "CPU threads per point (default: the cores over --jobs; with --slurm, each "
+                  "task's --slurm-cpus)");
   cmd->add_option("--solver", args->solver, "Solver of every point: sets solver.method (explicit, static)");
   cmd->add_option("--deformations", args->deformations,
                   "Deformations [um] at which the table gives the force: comma list")

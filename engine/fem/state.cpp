@@ -32,7 +32,7 @@ State make_state(const Model& model, int thread_count) {
     s.vertex_pressure.assign(3 * nv, 0.0);
   }
   if (thread_count <= 0) {
-    // One thread per ~2000 tetrahedra (~40 us of element work), up to the hardware's count:
+    // One thread per ~2000 tetrahedra (~40 us of element work), up to the cores it may run on:
     // below that the hand-off between threads costs more than it saves.
     const int hardware = available_cores();
     thread_count = std::clamp(static_cast<int>(nt / 2048), 1, hardware);
