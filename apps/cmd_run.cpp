@@ -19,7 +19,7 @@
 #include "apps/plot_script.h"
 #include "apps/stop_signals.h"
 #include "engine/analysis/plot.h"
-#include "engine/core/thread_pool.h"
+#include "engine/core/parallel.h"
 #include "engine/sim/recorder.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/simulation.h"
@@ -296,7 +296,7 @@ void run_command(const RunArgs& args) {
     if (static_run)
       std::fprintf(stderr,
                    "zona run: static solver on the CPU, %d thread(s) (docs/static.md); setup %.2f s\n",
-                   args.threads > 0 ? args.threads : available_cores(), setup_seconds);
+                   setup_thread_count(args.threads), setup_seconds);
     else
       std::fprintf(stderr, "zona run: backend %s; %lld steps to %.4g s; setup %.2f s\n",
                    sim.backend_description().c_str(),

@@ -19,7 +19,7 @@
 #include "engine/analysis/convergence_study.h"
 #include "apps/plot_script.h"
 #include "engine/analysis/plot.h"
-#include "engine/core/thread_pool.h"
+#include "engine/core/parallel.h"
 #include "bench/scaling/scaling_bench.h"
 #include "engine/scene/scene.h"
 #include "engine/sim/simulation.h"
@@ -229,7 +229,7 @@ void convergence_command(const ConvergenceArgs& given) {
 
   // The estimate first: a CPU study of a million vertices takes days, not minutes.
   {
-    const int threads = args.threads > 0 ? args.threads : available_cores();
+    const int threads = setup_thread_count(args.threads);
     std::string line;
     double total = 0;
     bool known = true;

@@ -19,7 +19,7 @@
 
 #include "engine/fem/forces_cpu.h"
 #include "engine/sim/integrator.h"
-#include "engine/core/thread_pool.h"
+#include "engine/core/parallel.h"
 #include "engine/mesh/mesh_generate.h"
 #include "engine/fem/model.h"
 #include "engine/fem/state.h"
@@ -95,17 +95,13 @@ const char* step_flag_names(StepStatus s, std::string& out) {
 constexpr double kCpuBlockBytes = 2e9;
 constexpr double kGpuBlockBytes = 64e9;
 
-int resolve_threads(int threads) {
-  return threads > 0 ? threads : available_cores();
-}
-
 // Threads the CPU backend runs: its description starts "cpu: N thread(s)" (backend_cpu.cpp);
 // the requested count when that cannot be read.
 int backend_thread_count(const Backend& backend, int requested) {
   const std::string d = backend.description();
   int n = 0;
   if (std::sscanf(d.c_str(), "cpu: %d thread", &n) == 1 && n > 0) return n;
-  return resolve_threads(requested);
+  return setup_thread_count(requested);
 }
 
 std::string format_double(double x, const char* format = "%.6g") {
@@ -378,7 +374,7 @@ double quantile(std::vector<double> x, double q) {
 }
 
 double measure_cpu_copy_bandwidth(size_t bytes, int threads, int repeats) {
-  threads = resolve_threads(threads);
+  threads = setup_thread_count(threads);
   repeats = std::max(repeats, 1);
   bytes = std::max<size_t>(bytes, size_t{1} << 20);
   std::vector<unsigned char> src(bytes), dst(bytes);
@@ -458,7 +454,7 @@ MachineInfo local_machine_info() {
     }
   }
   if (m.cpu_model.empty()) m.cpu_model = "unknown CPU";
-  m.hardware_threads = resolve_threads(0);
+  m.hardware_threads = setup_thread_count(0);
   char date[32];
   const std::time_t now = std::time(nullptr);
   std::strftime(date, sizeof date, "%Y-%m-%d", std::gmtime(&now));
@@ -544,7 +540,7 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
   std::vector<int> threads, copy_threads;
   for (int t : config.threads) {
     if (std::find(threads.begin(), threads.end(), t) == threads.end()) threads.push_back(t);
-    for (int r : t > 0 ? std::vector<int>{t} : std::vector<int>{1, resolve_threads(0)})
+    for (int r : t > 0 ? std::vector<int>{t} : std::vector<int>{1, setup_thread_count(0)})
       if (std::find(copy_threads.begin(), copy_threads.end(), r) == copy_threads.end())
         copy_threads.push_back(r);
   }
@@ -632,7 +628,7 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       // Half the critical step: SVK stiffens under the loaded state's stretch; the step's cost
       // does not depend on dt.
       desc.dt_safety = 0.5;
-      desc.precompute_threads = resolve_threads(job.threads);
+      desc.precompute_threads = setup_thread_count(job.threads);
       if (!gpu && job.formulation == Formulation::kGradient)
         desc.element_precision = config.element_precision;
       std::optional<Model> model;
@@ -697,7 +693,7 @@ Result<ScalingBenchResult> run_scaling_bench(const ScalingBenchConfig& config,
       row.backend = backend_kind_name(job.backend);
       row.model = constitutive_name(job.model);
       row.formulation = formulation_name(job.formulation);
-      row.threads = gpu ? resolve_threads(job.threads) : backend_thread_count(backend, job.threads);
+      row.threads = gpu ? setup_thread_count(job.threads) : backend_thread_count(backend, job.threads);
       row.threads_requested = job.threads;
       row.target_vertices = target;
       row.vertices = nv;
