@@ -47,10 +47,6 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     return make_error(
         "cuda backend: nodal pressure (\"volumetric\": \"nodal\") needs a scatter assembly "
         "(atomic or fixed)");
-  if (model.nodal_stabilisation > 0)
-    return make_error(
-        "cuda backend: \"volumetric_stabilisation\" is not in the CUDA element kernels yet; run "
-        "it on the CPU (--backend cpu)");
   kind_ = choose_kind(model, form);
 
   Result<DeviceLayout> built = build_device_layout(model, DeviceLayoutOptions{options_.reorder, 0});
@@ -92,6 +88,7 @@ Status CudaBackend::upload(const Model& model, const State& state) {
     tp_.lambda[k] = L.material_lame[k][0];
     tp_.mu[k] = L.material_lame[k][1];
   }
+  tp_.nodal_stabilisation = static_cast<float>(model.nodal_stabilisation);
   tp_.clamp_stretch = static_cast<float>(model.clamp_stretch);
   tp_.clamp_at_collapse = model.clamp_stretch == kSvkCollapseStretch;
   tp_.energy_unit = L.force_unit * L.length_unit;

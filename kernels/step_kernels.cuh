@@ -64,6 +64,9 @@ struct TetParams {
   /// the atomics; vertex_q is then null.
   unsigned long long* vertex_q_fixed = nullptr;
   const float2* vertex_nodal = nullptr;
+  /// Nodal pressure's stabilisation beta (Model::nodal_stabilisation): the element keeps
+  /// lambda_s = mu + beta lambda (vertex_nodal's lambda_v carry 1 - beta); 0: mu exactly.
+  float nodal_stabilisation = 0;
   double energy_unit = 1;  ///< J per device energy unit (stress_unit * length_unit^3)
 };
 
@@ -224,13 +227,14 @@ __device__ __forceinline__ void load_relative_displacements(const double* u64, i
   }
 }
 
-/// The stable neo-Hookean element with nodal pressure (snh_first_piola_nodal, the CPU's
-/// batch_pass_snh<L, true>): the corner means of lambda_v (Jbar_v - 1) and of
+/// The stable neo-Hookean element with nodal pressure (the CPU's batch_pass_snh<L, true>): the
+/// element law with lambda_s = mu + beta lambda (TetParams::nodal_stabilisation; beta 0 is
+/// snh_first_piola_nodal exactly) and the corner means of lambda_v (Jbar_v - 1) and of
 /// lambda_v / 2 (Jbar_v - 1)^2 from TetParams::vertex_q and vertex_nodal. Energy
 /// [stress_unit length_unit^3] returned; kElementInverted where J <= 0.
 __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetShape<float>& s,
-                                                float mu, int4 id, const Vec3f u[4], Vec3f f[4],
-                                                uint32_t* bits) {
+                                                float lambda, float mu, int4 id, const Vec3f u[4],
+                                                Vec3f f[4], uint32_t* bits) {
   const int v[4] = {id.x, id.y, id.z, id.w};
   float pressure = 0, density = 0;
   for (int c = 0; c < 4; ++c) {
@@ -241,8 +245,9 @@ __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetSh
   }
   Mat3f p;
   float jm1;
-  const float psi =
-      snh_first_piola_nodal(tet_displacement_gradient(s, u), mu, 0.25f * pressure, &p, &jm1);
+  const float psi = snh_first_piola_with(tet_displacement_gradient(s, u), mu,
+                                         snh_lambda(tp.nodal_stabilisation * lambda, mu),
+                                         0.25f * pressure, &p, &jm1);
   *bits = jm1 > -1.0f ? 0u : uint32_t{kElementInverted};
   tet_forces_from_stress(s, p, f);
   return s.volume * (psi + 0.25f * density);
@@ -346,7 +351,7 @@ __device__ __forceinline__ float eval_device_tet(const TetParams& tp, int t, int
   float energy;
   if constexpr (K == ElementKind::kSnhGradient) {
     if (has_nodal(tp))
-      energy = eval_nodal_tet(tp, s, mu, id, u, f, &bits);
+      energy = eval_nodal_tet(tp, s, lambda, mu, id, u, f, &bits);
     else
       energy = eval_element<K, float>(s, lambda, mu, tensors, tp.clamp_stretch,
                                       tp.clamp_at_collapse, u, f, &bits);
