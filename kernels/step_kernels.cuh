@@ -228,8 +228,8 @@ __device__ __forceinline__ void load_relative_displacements(const double* u64, i
 }
 
 /// The stable neo-Hookean element with nodal pressure (the CPU's batch_pass_snh<L, true>): the
-/// element law with lambda_s = mu + beta lambda (TetParams::nodal_stabilisation; beta 0 is
-/// snh_first_piola_nodal exactly) and the corner means of lambda_v (Jbar_v - 1) and of
+/// element law with lambda_s = mu + beta lambda (TetParams::nodal_stabilisation; beta 0:
+/// snh_first_piola_nodal's law) and the corner means of lambda_v (Jbar_v - 1) and of
 /// lambda_v / 2 (Jbar_v - 1)^2 from TetParams::vertex_q and vertex_nodal. Energy
 /// [stress_unit length_unit^3] returned; kElementInverted where J <= 0.
 __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetShape<float>& s,
@@ -245,6 +245,7 @@ __device__ __forceinline__ float eval_nodal_tet(const TetParams& tp, const TetSh
   }
   Mat3f p;
   float jm1;
+  // lambda_s = mu + beta lambda (beta 0: mu exactly, the law without the stabilisation).
   const float psi = snh_first_piola_with(tet_displacement_gradient(s, u), mu,
                                          snh_lambda(tp.nodal_stabilisation * lambda, mu),
                                          0.25f * pressure, &p, &jm1);
