@@ -611,11 +611,16 @@ RunResult StaticRun::run() {
       continue;
     }
     if (event_puncture >= 0) {
-      // Bisection in travel: lo below the threshold, hi at or above it.
+      // Bisection in travel: lo below the threshold, hi at or above it. Every midpoint is a
+      // load step from the accepted state. One that does not converge is a load step too long
+      // for it, as in the travel loop: the bracket's converged state below the threshold is
+      // accepted where there is one (a load step like any other), else the step is halved, and
+      // the travel loop goes on from there (it stops the run below solver.min_travel_step).
       double lo = travel_, hi = s;
-      std::vector<Vec3d> u_hi = trial;
-      Measures m_hi = m;
-      NewtonStats st_hi = stats;
+      std::vector<Vec3d> u_hi = trial, u_lo;
+      Measures m_hi = m, m_lo;
+      NewtonStats st_hi = stats, st_lo;
+      bool shortened = false;
       while (hi - lo > def_.puncture_tolerance) {
         const double x = 0.5 * (lo + hi);
         std::vector<Vec3d> ux = u_;
@@ -623,8 +628,15 @@ RunResult StaticRun::run() {
         for (size_t i = 0; i < ux.size(); ++i) ux[i] += w * (u_hi[i] - u_[i]);
         NewtonStats st;
         if (!solve_at(x, ux, &st)) {
-          stop("the puncture's bisection did not converge at " + std::to_string(x * 1e6) +
-               " um of travel: " + failure_);
+          // (Not past the next row's deformation: the row would be skipped.)
+          if (lo > travel_ &&
+              (next_target >= targets.size() || m_lo.deformation < targets[next_target])) {
+            accept(u_lo, lo, st_lo);
+            step = hi - lo;
+          } else {
+            step = 0.5 * (x - travel_);
+          }
+          shortened = true;
           break;
         }
         const Measures mx = measure(ux, x);
@@ -635,9 +647,24 @@ RunResult StaticRun::run() {
           st_hi = st;
         } else {
           lo = x;
+          u_lo = std::move(ux);
+          m_lo = mx;
+          st_lo = st;
         }
       }
       if (result_.stopped_early) break;
+      if (shortened) {
+        if (step < def_.min_travel_step) {
+          char line[640];
+          std::snprintf(line, sizeof line,
+                        "the puncture's bisection did not converge at %.4g um of travel down to "
+                        "a step of %.3g um: %s; nothing after it is a result",
+                        travel_ * 1e6, def_.min_travel_step * 1e6, failure_.c_str());
+          stop(line);
+          break;
+        }
+        continue;
+      }
       // The vertices the tip loads at the puncture (they share the shaft's drag later).
       std::vector<Vec3d> g_needle(u_hi.size(), Vec3d{0, 0, 0});
       needle_->set_field(needle_field(hi));

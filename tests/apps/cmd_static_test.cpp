@@ -296,6 +296,40 @@ TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
   EXPECT_GE(rows, 3u);  // the header and a row per size
 }
 
+// A midpoint of the puncture's bisection is a load step from the accepted state; where it does
+// not converge the bracket's converged state below the threshold is accepted (or the step
+// halved) and the travel goes on, as for any load step, instead of ending the run. The default
+// scene at 1000 vertices meets one (its midpoint at 34.43 um of travel stopped the run with "the
+// puncture's bisection did not converge" before): it punctures, bracketed to the tolerance.
+TEST(CmdRunStatic, ABisectionMidpointThatDoesNotConvergeShortensTheStep) {
+  TempDir dir;
+  const fs::path out = dir.path / "out";
+  const std::string scene = std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json";
+  const CliRun r = run_zona("run " + scene +
+                                " --solver static --headless --no-frames --quiet "
+                                "--set mesh.generate.vertices=1000 --out " + out.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  nlohmann::json summary = nlohmann::json::parse(std::ifstream(out / "summary.json"));
+  ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump();
+  const double fp = summary["puncture"]["force_N"].get<double>();
+  EXPECT_GE(fp, 7.5e-6);
+  EXPECT_LE(fp, 7.5e-6 * 1.01);
+  // Every accepted row below the puncture converged and lies under the threshold.
+  auto c = read_csv(out / "force.csv");
+  const std::vector<double>& f = c["force_N"];
+  const std::vector<double>& punct = c["punctured"];
+  const std::vector<double>& travel = c["needle_travel_m"];
+  size_t first = 0;
+  while (first < punct.size() && punct[first] == 0) ++first;
+  ASSERT_LT(first, punct.size());
+  ASSERT_GT(first, 1u);
+  for (size_t i = 0; i + 1 < first; ++i) EXPECT_LT(f[i], 7.5e-6) << "row " << i;
+  // The row before the release is the puncture state, at or above the threshold.
+  EXPECT_GE(f[first - 1], 7.5e-6);
+  EXPECT_EQ(travel[first - 1], summary["puncture"]["needle_travel_m"].get<double>());
+}
+
 TEST(CmdRunStatic, ABreachAndALostHolderEndTheRunAsErrors) {
   // The static run's two outcomes that are not results: a contact too soft to hold the membrane
   // lets the tip through the surface before any puncture, and a rim without grip (friction
