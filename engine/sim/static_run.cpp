@@ -654,6 +654,9 @@ RunResult StaticRun::run() {
       }
       if (result_.stopped_early) break;
       if (shortened) {
+        if (newton_->options().trace)
+          std::fprintf(newton_->options().trace, "shortened bisection: next step %.6g um\n",
+                       step * 1e6);
         if (step < def_.min_travel_step) {
           char line[640];
           std::snprintf(line, sizeof line,

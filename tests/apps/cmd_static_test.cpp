@@ -21,6 +21,7 @@ namespace {
 
 using zona::test::CliRun;
 using zona::test::run_zona;
+using zona::test::run_zona_after;
 using zona::test::TempDir;
 
 namespace fs = std::filesystem;
@@ -298,36 +299,37 @@ TEST(CmdRunStatic, ConvergenceStudyRunsTheStaticSolverAtEachSize) {
 
 // A midpoint of the puncture's bisection is a load step from the accepted state; where it does
 // not converge the bracket's converged state below the threshold is accepted (or the step
-// halved) and the travel goes on, as for any load step, instead of ending the run. The default
-// scene at 1000 vertices meets one (its midpoint at 34.43 um of travel stopped the run with "the
-// puncture's bisection did not converge" before): it punctures, bracketed to the tolerance.
+// halved) and the travel goes on, as for any load step, instead of ending the run. The tiny
+// scene with 4 Newton iterations a load step meets one (the trace says so); it punctures,
+// every row below the threshold, the puncture state above it. (The default scene at 1000
+// vertices met one at 34.43 um of travel, which ended its run.)
 TEST(CmdRunStatic, ABisectionMidpointThatDoesNotConvergeShortensTheStep) {
   TempDir dir;
+  const fs::path scene = write_tiny_scene(dir);
   const fs::path out = dir.path / "out";
-  const std::string scene = std::string(ZONA_SOURCE_DIR) + "/scenes/mouse_oocyte.json";
-  const CliRun r = run_zona("run " + scene +
-                                " --solver static --headless --no-frames --quiet "
-                                "--set mesh.generate.vertices=1000 --out " + out.string(),
-                            dir.path);
-  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const CliRun r = run_zona_after("ZONA_NEWTON_TRACE=1",
+                                  "run " + scene.string() +
+                                      " --headless --no-frames --quiet "
+                                      "--set solver.max_iterations=4 --out " + out.string(),
+                                  dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err.substr(r.err.size() > 2000 ? r.err.size() - 2000 : 0);
+  EXPECT_NE(r.err.find("shortened bisection"), std::string::npos);
   nlohmann::json summary = nlohmann::json::parse(std::ifstream(out / "summary.json"));
   ASSERT_TRUE(summary["puncture"]["punctured"].get<bool>()) << summary.dump();
   const double fp = summary["puncture"]["force_N"].get<double>();
-  EXPECT_GE(fp, 7.5e-6);
-  EXPECT_LE(fp, 7.5e-6 * 1.01);
-  // Every accepted row below the puncture converged and lies under the threshold.
+  EXPECT_GE(fp, 0.6e-6);
+  EXPECT_LE(fp, 0.6e-6 * 1.01);
   auto c = read_csv(out / "force.csv");
   const std::vector<double>& f = c["force_N"];
   const std::vector<double>& punct = c["punctured"];
-  const std::vector<double>& travel = c["needle_travel_m"];
   size_t first = 0;
   while (first < punct.size() && punct[first] == 0) ++first;
   ASSERT_LT(first, punct.size());
   ASSERT_GT(first, 1u);
-  for (size_t i = 0; i + 1 < first; ++i) EXPECT_LT(f[i], 7.5e-6) << "row " << i;
+  for (size_t i = 0; i + 1 < first; ++i) EXPECT_LT(f[i], 0.6e-6) << "row " << i;
   // The row before the release is the puncture state, at or above the threshold.
-  EXPECT_GE(f[first - 1], 7.5e-6);
-  EXPECT_EQ(travel[first - 1], summary["puncture"]["needle_travel_m"].get<double>());
+  EXPECT_GE(f[first - 1], 0.6e-6);
+  EXPECT_EQ(c["needle_travel_m"][first - 1], summary["puncture"]["needle_travel_m"].get<double>());
 }
 
 TEST(CmdRunStatic, ABreachAndALostHolderEndTheRunAsErrors) {
