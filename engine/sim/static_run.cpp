@@ -74,6 +74,10 @@ class StaticRun {
   void compare_with_oracle(std::span<const Vec3d> u);
   // Accepts u at travel s: commit, velocity, lag for the next step, the row.
   void accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats, bool row = true);
+  // After a load step that did not converge was shortened to `step` [m]: true where the step is
+  // still at least solver.min_travel_step, else false with the run stopped and the reason
+  // (`what` did not converge from the accepted travel).
+  bool shortened_step_holds(double step, const char* what);
   ForceSample sample(const Measures& m, const NewtonStats& stats) const;
   void emit(const ForceSample& s);
   void stop(const std::string& reason) {
@@ -408,6 +412,17 @@ void StaticRun::frames_up_to(double travel, std::span<const Vec3d> u, const Meas
   }
 }
 
+bool StaticRun::shortened_step_holds(double step, const char* what) {
+  if (step >= def_.min_travel_step) return true;
+  char line[640];
+  std::snprintf(line, sizeof line,
+                "%s from %.4g um of travel did not converge down to a step of %.3g um: %s; "
+                "nothing after it is a result",
+                what, travel_ * 1e6, def_.min_travel_step * 1e6, failure_.c_str());
+  stop(line);
+  return false;
+}
+
 void StaticRun::accept(std::vector<Vec3d>& u, double s, const NewtonStats& stats, bool row) {
   const double ds = s - travel_;
   const double h = (ds > 0 ? ds : def_.travel_step) / speed_;
@@ -543,14 +558,7 @@ RunResult StaticRun::run() {
     }
     if (!solve_at(s, trial, &stats)) {
       step *= 0.5;
-      if (step < def_.min_travel_step) {
-        char line[640];
-        std::snprintf(line, sizeof line,
-                      "the load step from %.4g um of travel did not converge down to a step of "
-                      "%.3g um: %s; nothing after it is a result",
-                      travel_ * 1e6, def_.min_travel_step * 1e6, failure_.c_str());
-        stop(line);
-      }
+      shortened_step_holds(step, "the load step");
       continue;
     }
     Measures m = measure(trial, s);
@@ -657,15 +665,7 @@ RunResult StaticRun::run() {
         if (newton_->options().trace)
           std::fprintf(newton_->options().trace, "shortened bisection: next step %.6g um\n",
                        step * 1e6);
-        if (step < def_.min_travel_step) {
-          char line[640];
-          std::snprintf(line, sizeof line,
-                        "the puncture's bisection did not converge at %.4g um of travel down to "
-                        "a step of %.3g um: %s; nothing after it is a result",
-                        travel_ * 1e6, def_.min_travel_step * 1e6, failure_.c_str());
-          stop(line);
-          break;
-        }
+        if (!shortened_step_holds(step, "the puncture's bisection: the load step")) break;
         continue;
       }
       // The vertices the tip loads at the puncture (they share the shaft's drag later).
