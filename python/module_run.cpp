@@ -76,9 +76,12 @@ nb::dict sample_columns(const std::vector<ForceSample>& samples) {
   columns[names.at(15).c_str()] = array_of(std::move(newton), {n});
   columns[names.at(16).c_str()] = array_of(std::move(krylov), {n});
   real(17, [](const ForceSample& s) { return s.residual; });
-  if (names.size() != 18)
+  std::vector<int32_t> holding(n);
+  for (size_t i = 0; i < n; ++i) holding[i] = samples[i].holding_contacts;
+  columns[names.at(18).c_str()] = array_of(std::move(holding), {n});
+  if (names.size() != 19)
     throw ZonaError("force.csv has " + std::to_string(names.size()) +
-                    " columns; this module knows 18 (python/module_run.cpp)");
+                    " columns; this module knows 19 (python/module_run.cpp)");
   return columns;
 }
 

@@ -86,14 +86,15 @@ const std::vector<std::string>& force_csv_columns() {
       "time_s",     "needle_travel_m", "deformation_m",    "force_N",
       "force_x_N",  "force_y_N",       "force_z_N",        "holding_force_N",
       "contacts",   "elastic_energy_J", "kinetic_energy_J", "punctured", "raw_force_N",
-      "imbalance",  "kinetic_share", "newton_iterations", "krylov_iterations", "residual_N"};
+      "imbalance",  "kinetic_share", "newton_iterations", "krylov_iterations", "residual_N",
+      "holding_contacts"};
   return columns;
 }
 
 namespace {
 
-// The longest row: 14 doubles of at most 24 characters ("-1.2345678901234567e-308"), four
-// integers of at most 20, 17 commas and the newline come to 434; the rest is margin.
+// The longest row: 14 doubles of at most 24 characters ("-1.2345678901234567e-308"), five
+// integers of at most 20, 18 commas and the newline come to 455; the rest is margin.
 constexpr size_t kMaxRowBytes = 512;
 constexpr size_t kRowBufferBytes = size_t{1} << 16;
 
@@ -139,11 +140,11 @@ Status ForceCsvWriter::append(const ForceSample& s) {
   const int n = std::snprintf(
       buffer_.data() + used_, kMaxRowBytes,
       "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%.17g,%.17g,%d,%.17g,%.9g,%.9g,%d,%lld,"
-      "%.9g\n",
+      "%.9g,%d\n",
       s.time, s.travel, s.deformation, s.force, s.force_vector.x, s.force_vector.y,
       s.force_vector.z, s.holding_force, s.contacts, s.elastic_energy, s.kinetic_energy,
       s.punctured ? 1 : 0, s.raw_force, s.imbalance, s.kinetic_share, s.newton_iterations,
-      static_cast<long long>(s.krylov_iterations), s.residual);
+      static_cast<long long>(s.krylov_iterations), s.residual, s.holding_contacts);
   ZONA_ASSERT(n > 0 && static_cast<size_t>(n) < kMaxRowBytes);
   used_ += static_cast<size_t>(n);
   // The first row goes out at once (a reader sees the run has started), then by wall time.

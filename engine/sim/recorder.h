@@ -23,7 +23,7 @@ namespace zona {
 /// Version of the output schema: force.csv's columns (its first line, "# zona force.csv schema
 /// N") and summary.json's keys ("schema_version"), as docs/outputs.md lists them. Raised when a
 /// column or key changes meaning or goes; new columns and keys come at the end and raise it too.
-inline constexpr int kOutputSchemaVersion = 6;
+inline constexpr int kOutputSchemaVersion = 7;
 
 /// Training metrics of one insertion (Hajiyavand et al. 2019's measures).
 struct TrainingMetrics {

@@ -36,6 +36,7 @@ ForceSample sample_of(const JobRecord& r, Vec3d direction) {
   s.force_vector = r.force_vector;
   s.holding_force = dot(r.holding_force, direction);
   s.contacts = r.contacts;
+  s.holding_contacts = r.holding_contacts;
   s.elastic_energy = r.elastic_energy;
   s.kinetic_energy = r.kinetic_energy;
   s.punctured = r.puncture.punctured != 0;

@@ -328,6 +328,7 @@ struct ForceSample {
   Vec3d force_vector{0, 0, 0};  ///< force the needle applies to the cell [N]
   double holding_force = 0; ///< holding pipette force along the needle axis [N]
   int32_t contacts = 0;     ///< needle contact vertices
+  int32_t holding_contacts = 0;  ///< the holding pipette's rim contact points (its vertices)
   double elastic_energy = 0;  ///< [J]
   double kinetic_energy = 0;  ///< [J]
   bool punctured = false;

@@ -46,6 +46,7 @@ struct Measures {
   Vec3d force_vector{0, 0, 0};
   double holding = 0;  // axial [N]
   int64_t contacts = 0;
+  int64_t holding_contacts = 0;  // the rim's contact points
   double depth = 0;
   double elastic = 0;
 };
@@ -353,7 +354,9 @@ Measures StaticRun::measure(std::span<const Vec3d> u, double travel) {
     m.force = dot(m.force_vector, dir);
   }
   if (rim_) {
-    Vec3d h = rim_->load(u).force;
+    const PenaltyContactTerm::Load l = rim_->load(u);
+    Vec3d h = l.force;
+    m.holding_contacts = l.contacts;
     for (size_t i = 0; i < suction_vertex_.size(); ++i) h += suction_ramp_ * suction_load_[i];
     m.holding = dot(h, dir);
   }
@@ -370,6 +373,7 @@ ForceSample StaticRun::sample(const Measures& m, const NewtonStats& stats) const
   s.force_vector = m.force_vector;
   s.holding_force = m.holding;
   s.contacts = static_cast<int32_t>(m.contacts);
+  s.holding_contacts = static_cast<int32_t>(m.holding_contacts);
   s.elastic_energy = m.elastic;
   s.punctured = punctured_;
   s.newton_iterations = stats.iterations;

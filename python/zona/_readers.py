@@ -12,8 +12,8 @@ import numpy as np
 from . import _zona
 from ._zona import ZonaError
 
-# Columns that are not float64: contact counts and the puncture flag.
-_INT_COLUMNS = {"contacts": np.int32}
+# Columns that are not float64: the contact counts and the puncture flag.
+_INT_COLUMNS = {"contacts": np.int32, "holding_contacts": np.int32}
 _BOOL_COLUMNS = {"punctured"}
 
 

@@ -84,7 +84,10 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   const std::vector<double>& res = c["residual_N"];
   const std::vector<double>& newton = c["newton_iterations"];
   const std::vector<double>& punct = c["punctured"];
+  const std::vector<double>& rim = c["holding_contacts"];
   ASSERT_GT(d.size(), 10u);
+  // The cell sits on the rim at every row (the seating's rows included).
+  for (size_t i = 0; i < rim.size(); ++i) EXPECT_GT(rim[i], 0) << "row " << i;
   // A row at 10 um of deformation, to 1e-4 of it.
   int at10 = 0;
   for (double x : d) at10 += std::fabs(x - 10e-6) <= 1e-4 * 10e-6;
@@ -122,6 +125,24 @@ TEST(CmdRunStatic, ConvergedRowsAtSetDeformationsAndABracketedPuncture) {
   EXPECT_NEAR(f[first], 0.1 * fp, 1e-3 * fp);
   EXPECT_NEAR(c["needle_travel_m"].back(), 13e-6, 1e-12);
   EXPECT_TRUE(fs::exists(out / "frames.pvd"));
+}
+
+// force.csv's holding_contacts on the explicit path: the rim's contact vertices, counted by the
+// job's tool stage (the same column as the static run's above).
+TEST(CmdRunStatic, TheExplicitRunCountsTheRimContactsToo) {
+  TempDir dir;
+  const fs::path scene = write_tiny_scene(dir);
+  const fs::path out = dir.path / "out";
+  const CliRun r = run_zona("run " + scene.string() +
+                                " --solver explicit --headless --no-frames --quiet "
+                                "--set needle.max_travel=1.5um --set needle.speed=2mm/s --out " + out.string(),
+                            dir.path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto c = read_csv(out / "force.csv");
+  const std::vector<double>& rim = c["holding_contacts"];
+  ASSERT_GT(rim.size(), 2u);
+  EXPECT_EQ(rim.front(), 0);  // before the suction has drawn the cell onto the rim
+  EXPECT_GT(rim.back(), 0);
 }
 
 // After the release the needle carries the released load and keeps it (no shaft drag here),
