@@ -14,7 +14,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <string>
 #include <vector>
 
@@ -361,14 +360,10 @@ class ParticleCudaBackend final : public Backend {
     const size_t n = pm_.particle_count();
     if (forces.size() != n)
       return make_error("particle cuda backend: %zu loads given for %zu particles", forces.size(), n);
-    // Through the pinned staging on the step's stream, so that the copy is ordered before the
-    // next step's kernels and does not wait for a host-side bounce (a pageable copy does). The
-    // stream is idle by now (step and download end with it synchronised); the wait guards a
-    // staging buffer that a copy still in flight would be reading.
+    // The step stream first (the copy below is on the legacy stream), then a blocking copy.
     ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));
-    std::memcpy(stage_in_.data(), forces.data(), n * sizeof(Vec3d));
-    ZONA_CUDA_TRY(cudaMemcpyAsync(external_.data(), stage_in_.data(), n * sizeof(Vec3d),
-                                  cudaMemcpyHostToDevice, stream_.get()));
+    ZONA_CUDA_TRY(cudaMemcpy(external_.data(), forces.data(), n * sizeof(Vec3d),
+                             cudaMemcpyHostToDevice));
     return {};
   }
 
@@ -380,13 +375,9 @@ class ParticleCudaBackend final : public Backend {
     for (size_t k = 0; k < targets.size(); ++k)
       if (!(std::isfinite(targets[k].x) && std::isfinite(targets[k].y) && std::isfinite(targets[k].z)))
         return make_error("particle cuda backend: prescribed target %zu is not finite", k);
-    if (!targets.empty()) {
-      ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));  // (the staging, as above)
-      std::memcpy(stage_targets_.data(), targets.data(), targets.size() * sizeof(Vec3d));
-      ZONA_CUDA_TRY(cudaMemcpyAsync(p_target_.data(), stage_targets_.data(),
-                                    targets.size() * sizeof(Vec3d), cudaMemcpyHostToDevice,
-                                    stream_.get()));
-    }
+    if (!targets.empty())
+      ZONA_CUDA_TRY(cudaMemcpyAsync(p_target_.data(), targets.data(), targets.size() * sizeof(Vec3d),
+                                    cudaMemcpyHostToDevice, stream_.get()));
     return {};
   }
 
@@ -461,26 +452,14 @@ class ParticleCudaBackend final : public Backend {
   Status download(State& state) override {
     if (!model_) return make_error("particle cuda backend: nothing uploaded");
     const size_t n = pm_.particle_count();
-    // The step's hand-over: every array into the pinned staging on the step's stream, one
-    // synchronisation, then host copies (pageable copies each wait for their own bounce).
-    const cudaStream_t s = stream_.get();
-    const size_t bytes = n * sizeof(Vec3d);
-    const bool prescribed =
-        prescribed_count_ > 0 && state.prescribed_displacement.size() == size_t(prescribed_count_);
-    const size_t pbytes = prescribed ? size_t(prescribed_count_) * sizeof(Vec3d) : 0;
-    Vec3d* stage = stage_out_.data();
-    ZONA_CUDA_TRY(cudaMemcpyAsync(stage, u_[rotation_].data(), bytes, cudaMemcpyDeviceToHost, s));
-    ZONA_CUDA_TRY(cudaMemcpyAsync(stage + n, u_[(rotation_ + 1) % 3].data(), bytes,
-                                  cudaMemcpyDeviceToHost, s));
-    ZONA_CUDA_TRY(cudaMemcpyAsync(stage + 2 * n, force_.data(), bytes, cudaMemcpyDeviceToHost, s));
-    if (prescribed)
-      ZONA_CUDA_TRY(cudaMemcpyAsync(stage + 3 * n, p_current_.data(), pbytes,
-                                    cudaMemcpyDeviceToHost, s));
-    ZONA_CUDA_TRY(cudaStreamSynchronize(s));
-    std::memcpy(state.u_prev.data(), stage, bytes);
-    std::memcpy(state.u.data(), stage + n, bytes);
-    std::memcpy(state.force.data(), stage + 2 * n, bytes);
-    if (prescribed) std::memcpy(state.prescribed_displacement.data(), stage + 3 * n, pbytes);
+    ZONA_CUDA_TRY(cudaStreamSynchronize(stream_.get()));
+    ZONA_CUDA_TRY(cudaMemcpy(state.u_prev.data(), u_[rotation_].data(), n * sizeof(Vec3d), cudaMemcpyDeviceToHost));
+    ZONA_CUDA_TRY(cudaMemcpy(state.u.data(), u_[(rotation_ + 1) % 3].data(), n * sizeof(Vec3d),
+                             cudaMemcpyDeviceToHost));
+    ZONA_CUDA_TRY(cudaMemcpy(state.force.data(), force_.data(), n * sizeof(Vec3d), cudaMemcpyDeviceToHost));
+    if (prescribed_count_ > 0 && state.prescribed_displacement.size() == size_t(prescribed_count_))
+      ZONA_CUDA_TRY(cudaMemcpy(state.prescribed_displacement.data(), p_current_.data(),
+                               size_t(prescribed_count_) * sizeof(Vec3d), cudaMemcpyDeviceToHost));
     const ParticleScalars& sc = *host_scalars_.data();
     state.time = time_;
     state.step_count = step_count_;
@@ -581,11 +560,6 @@ class ParticleCudaBackend final : public Backend {
     check(scratch_f_.allocate(n, "scratch forces"));
     check(scalars_.allocate(1, "particle scalars"));
     check(host_scalars_.allocate(1, "particle scalars (host)"));
-    // The per-step hand-over's pinned staging: loads and targets down; u_{n-1}, u_n, forces and
-    // the prescribed particles' displacements (at most n) back.
-    check(stage_in_.allocate(n, "particle loads (staging)"));
-    check(stage_targets_.allocate(n, "prescribed targets (staging)"));
-    check(stage_out_.allocate(4 * n, "particle state (staging)"));
     return s;
   }
 
@@ -636,7 +610,6 @@ class ParticleCudaBackend final : public Backend {
   DeviceBuffer<double> p_kinetic_, p_work_;
   DeviceBuffer<ParticleScalars> scalars_;
   PinnedBuffer<ParticleScalars> host_scalars_;
-  PinnedBuffer<Vec3d> stage_in_, stage_targets_, stage_out_;  // the hand-over's staging
   int volume_blocks_ = 1;
   int rotation_ = 0;
   int prescribed_count_ = 0;
