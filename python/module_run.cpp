@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include <nanobind/stl/string.h>
@@ -43,42 +44,31 @@ nb::dict sample_columns(const std::vector<ForceSample>& samples) {
   const size_t n = samples.size();
   const std::vector<std::string>& names = force_csv_columns();
   nb::dict columns;
-  auto real = [&](size_t column, auto get) {
-    std::vector<double> v(n);
+  // Each column in its getter's type: float64, int32 / int64 counts, the uint8 puncture flag.
+  auto column = [&](size_t index, auto get) {
+    std::vector<std::decay_t<decltype(get(samples.front()))>> v(n);
     for (size_t i = 0; i < n; ++i) v[i] = get(samples[i]);
-    columns[names.at(column).c_str()] = array_of(std::move(v), {n});
+    columns[names.at(index).c_str()] = array_of(std::move(v), {n});
   };
-  real(0, [](const ForceSample& s) { return s.time; });
-  real(1, [](const ForceSample& s) { return s.travel; });
-  real(2, [](const ForceSample& s) { return s.deformation; });
-  real(3, [](const ForceSample& s) { return s.force; });
-  real(4, [](const ForceSample& s) { return s.force_vector.x; });
-  real(5, [](const ForceSample& s) { return s.force_vector.y; });
-  real(6, [](const ForceSample& s) { return s.force_vector.z; });
-  real(7, [](const ForceSample& s) { return s.holding_force; });
-  std::vector<int32_t> contacts(n);
-  for (size_t i = 0; i < n; ++i) contacts[i] = samples[i].contacts;
-  columns[names.at(8).c_str()] = array_of(std::move(contacts), {n});
-  real(9, [](const ForceSample& s) { return s.elastic_energy; });
-  real(10, [](const ForceSample& s) { return s.kinetic_energy; });
-  std::vector<uint8_t> punctured(n);
-  for (size_t i = 0; i < n; ++i) punctured[i] = samples[i].punctured ? 1 : 0;
-  columns[names.at(11).c_str()] = array_of(std::move(punctured), {n});
-  real(12, [](const ForceSample& s) { return s.raw_force; });
-  real(13, [](const ForceSample& s) { return s.imbalance; });
-  real(14, [](const ForceSample& s) { return s.kinetic_share; });
-  std::vector<int32_t> newton(n);
-  std::vector<int64_t> krylov(n);
-  for (size_t i = 0; i < n; ++i) {
-    newton[i] = samples[i].newton_iterations;
-    krylov[i] = samples[i].krylov_iterations;
-  }
-  columns[names.at(15).c_str()] = array_of(std::move(newton), {n});
-  columns[names.at(16).c_str()] = array_of(std::move(krylov), {n});
-  real(17, [](const ForceSample& s) { return s.residual; });
-  std::vector<int32_t> holding(n);
-  for (size_t i = 0; i < n; ++i) holding[i] = samples[i].holding_contacts;
-  columns[names.at(18).c_str()] = array_of(std::move(holding), {n});
+  column(0, [](const ForceSample& s) { return s.time; });
+  column(1, [](const ForceSample& s) { return s.travel; });
+  column(2, [](const ForceSample& s) { return s.deformation; });
+  column(3, [](const ForceSample& s) { return s.force; });
+  column(4, [](const ForceSample& s) { return s.force_vector.x; });
+  column(5, [](const ForceSample& s) { return s.force_vector.y; });
+  column(6, [](const ForceSample& s) { return s.force_vector.z; });
+  column(7, [](const ForceSample& s) { return s.holding_force; });
+  column(8, [](const ForceSample& s) { return s.contacts; });
+  column(9, [](const ForceSample& s) { return s.elastic_energy; });
+  column(10, [](const ForceSample& s) { return s.kinetic_energy; });
+  column(11, [](const ForceSample& s) { return static_cast<uint8_t>(s.punctured ? 1 : 0); });
+  column(12, [](const ForceSample& s) { return s.raw_force; });
+  column(13, [](const ForceSample& s) { return s.imbalance; });
+  column(14, [](const ForceSample& s) { return s.kinetic_share; });
+  column(15, [](const ForceSample& s) { return s.newton_iterations; });
+  column(16, [](const ForceSample& s) { return s.krylov_iterations; });
+  column(17, [](const ForceSample& s) { return s.residual; });
+  column(18, [](const ForceSample& s) { return s.holding_contacts; });
   if (names.size() != 19)
     throw ZonaError("force.csv has " + std::to_string(names.size()) +
                     " columns; this module knows 19 (python/module_run.cpp)");
